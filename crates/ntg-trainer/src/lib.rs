@@ -1,0 +1,1 @@
+//! ntg-trainer (wip)
