@@ -1,0 +1,62 @@
+//! The `ntg` command line: argument parsing (clap) and one module per
+//! subcommand family.
+//!
+//! Every subcommand returns `anyhow::Result`; [`main`] prints an error as one
+//! line (`error: ...`, causes joined with `: `) and exits with status 1.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+pub mod blocks;
+pub mod collect;
+pub mod graph;
+pub mod jigsaws;
+
+/// Neural Task Graphs: one-shot visual imitation from a single demonstration.
+#[derive(Debug, Parser)]
+#[command(name = "ntg", version, about, long_about = None)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands of `ntg`.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Build the conjugate task graph (union of paths) of demonstrated action
+    /// sequences and print it.
+    Graph(graph::GraphArgs),
+    /// Block stacking and object sorting: task sets and demonstrations.
+    #[command(subcommand)]
+    Blocks(blocks::BlocksCommand),
+    /// Object collection: demonstrations.
+    #[command(subcommand)]
+    Collect(collect::CollectCommand),
+    /// The JIGSAWS surgical dataset: synthetic data and statistics.
+    #[command(subcommand)]
+    Jigsaws(jigsaws::JigsawsCommand),
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Graph(args) => graph::run(&args, &mut std::io::stdout().lock()),
+        Command::Blocks(cmd) => blocks::run(cmd),
+        Command::Collect(cmd) => collect::run(cmd),
+        Command::Jigsaws(cmd) => jigsaws::run(cmd),
+    }
+}
+
+/// Entry point of the `ntg` binary: parse, run, and report errors on one line.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
