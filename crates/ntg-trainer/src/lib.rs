@@ -2,8 +2,10 @@
 //! `ntg` command-line tool.
 //!
 //! Built so far: the `ntg` CLI ([`cli`]) with `ntg graph`, which builds the
-//! union conjugate task graph of demonstrated action sequences. Dataset
-//! building, training, evaluation and figures come with the trainer issue.
+//! union conjugate task graph of demonstrated action sequences; success-rate
+//! statistics ([`stats`]); figures as SVG + PNG ([`figure`]); task graphs
+//! rendered to SVG in-process ([`svg`]). Dataset building, training and
+//! evaluation come with the trainer issue.
 //!
 //! **Architecture invariant:** this is the only crate that knows every other
 //! crate (environments and networks); no other crate depends on it except
@@ -11,3 +13,8 @@
 //! code copied per figure.
 
 pub mod cli;
+pub mod dataset;
+pub mod figure;
+pub mod run_dir;
+pub mod stats;
+pub mod svg;

@@ -1,0 +1,402 @@
+//! Demonstration datasets: generated in parallel from any environment and
+//! expert, held in one flat observation buffer, cached on disk.
+//!
+//! # On-disk format (`ntg-dataset/1`)
+//!
+//! A dataset folder holds two files:
+//!
+//! - `index.json`: `{"format": "ntg-dataset/1", "obs_dim": D, "dtype": "f32" | "u8",
+//!   "vocabulary": [action names], "demos": [{"task": t, "seed": s,
+//!   "actions": [ids], "first_row": r}]}`. Demo *i* owns observation rows
+//!   `first_row .. first_row + actions.len() + 1`, in order.
+//! - `observations.bin`: every observation row back to back, `D` values per
+//!   row, little-endian `f32`, or `u8` holding `round(255 * value)` for
+//!   observations whose values are multiples of 1/255 in `[0, 1]` (frames).
+
+use std::fs;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::ops::Range;
+use std::path::Path;
+
+use anyhow::{Context, bail, ensure};
+use ctg_graph::{ActionId, Demonstration, Environment, Expert, Vocabulary, record_demonstration};
+use indicatif::{ProgressBar, ProgressStyle};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+const FORMAT: &str = "ntg-dataset/1";
+
+/// How observation values are stored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ObsDtype {
+    /// 32-bit floats (state vectors, kinematics).
+    F32,
+    /// Bytes, `value = byte / 255` (rendered frames): 4x smaller.
+    U8,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+enum ObsBuffer {
+    F32(Vec<f32>),
+    U8(Vec<u8>),
+}
+
+/// One demonstration's entry in a [`DemoDataset`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DemoEntry {
+    /// Index of the task in the domain's task list.
+    pub task: usize,
+    /// Seed the demonstration was recorded with.
+    pub seed: u64,
+    /// The flat action sequence.
+    pub actions: Vec<ActionId>,
+    /// First observation row.
+    pub first_row: usize,
+}
+
+impl DemoEntry {
+    /// Observation rows of this demonstration (one more than actions).
+    pub fn rows(&self) -> Range<usize> {
+        self.first_row..self.first_row + self.actions.len() + 1
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+struct Index {
+    format: String,
+    obs_dim: usize,
+    dtype: ObsDtype,
+    vocabulary: Vocabulary,
+    demos: Vec<DemoEntry>,
+}
+
+/// Featurised demonstrations of many (task, seed) pairs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DemoDataset {
+    vocab: Vocabulary,
+    obs_dim: usize,
+    obs: ObsBuffer,
+    demos: Vec<DemoEntry>,
+}
+
+impl DemoDataset {
+    /// Builds a dataset from featurised demonstrations (each observation a
+    /// row of `obs_dim` values).
+    pub fn from_demos(
+        vocab: Vocabulary,
+        obs_dim: usize,
+        dtype: ObsDtype,
+        demos: impl IntoIterator<Item = (usize, u64, Demonstration<Vec<f32>>)>,
+    ) -> anyhow::Result<Self> {
+        let mut obs = match dtype {
+            ObsDtype::F32 => ObsBuffer::F32(Vec::new()),
+            ObsDtype::U8 => ObsBuffer::U8(Vec::new()),
+        };
+        let mut entries = Vec::new();
+        let mut row = 0;
+        for (task, seed, demo) in demos {
+            for o in demo.observations() {
+                ensure!(
+                    o.len() == obs_dim,
+                    "task {task} seed {seed}: observation has {} values, expected {obs_dim}",
+                    o.len()
+                );
+                match &mut obs {
+                    ObsBuffer::F32(buf) => buf.extend_from_slice(o),
+                    ObsBuffer::U8(buf) => {
+                        for &v in o {
+                            ensure!(
+                                (0.0..=1.0).contains(&v),
+                                "task {task} seed {seed}: value {v} cannot be stored as u8"
+                            );
+                            buf.push((v * 255.0).round() as u8);
+                        }
+                    }
+                }
+            }
+            entries.push(DemoEntry {
+                task,
+                seed,
+                actions: demo.actions().to_vec(),
+                first_row: row,
+            });
+            row += demo.len() + 1;
+        }
+        Ok(DemoDataset {
+            vocab,
+            obs_dim,
+            obs,
+            demos: entries,
+        })
+    }
+
+    /// The action vocabulary.
+    pub fn vocabulary(&self) -> &Vocabulary {
+        &self.vocab
+    }
+
+    /// Values per observation row.
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
+    }
+
+    /// The demonstrations.
+    pub fn demos(&self) -> &[DemoEntry] {
+        &self.demos
+    }
+
+    /// Total observation rows.
+    pub fn num_rows(&self) -> usize {
+        match &self.obs {
+            ObsBuffer::F32(b) => b.len() / self.obs_dim.max(1),
+            ObsBuffer::U8(b) => b.len() / self.obs_dim.max(1),
+        }
+    }
+
+    /// Appends observation row `row` (as `f32`) to `out`.
+    pub fn extend_row(&self, row: usize, out: &mut Vec<f32>) {
+        let range = row * self.obs_dim..(row + 1) * self.obs_dim;
+        match &self.obs {
+            ObsBuffer::F32(b) => out.extend_from_slice(&b[range]),
+            ObsBuffer::U8(b) => out.extend(b[range].iter().map(|&v| f32::from(v) / 255.0)),
+        }
+    }
+
+    /// Observation row `row` as a new vector.
+    pub fn row(&self, row: usize) -> Vec<f32> {
+        let mut v = Vec::with_capacity(self.obs_dim);
+        self.extend_row(row, &mut v);
+        v
+    }
+
+    /// Demonstration `i` as rows of `f32`.
+    pub fn demonstration(&self, i: usize) -> anyhow::Result<Demonstration<Vec<f32>>> {
+        let entry = &self.demos[i];
+        let obs = entry.rows().map(|r| self.row(r)).collect();
+        Ok(Demonstration::new(obs, entry.actions.clone(), &self.vocab)?)
+    }
+
+    /// Writes `index.json` and `observations.bin` into `dir` (created if needed).
+    pub fn save(&self, dir: &Path) -> anyhow::Result<()> {
+        fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let index = Index {
+            format: FORMAT.into(),
+            obs_dim: self.obs_dim,
+            dtype: match self.obs {
+                ObsBuffer::F32(_) => ObsDtype::F32,
+                ObsBuffer::U8(_) => ObsDtype::U8,
+            },
+            vocabulary: self.vocab.clone(),
+            demos: self.demos.clone(),
+        };
+        let index_path = dir.join("index.json");
+        fs::write(&index_path, serde_json::to_vec(&index)?)
+            .with_context(|| format!("writing {}", index_path.display()))?;
+        let bin_path = dir.join("observations.bin");
+        let file = fs::File::create(&bin_path)
+            .with_context(|| format!("writing {}", bin_path.display()))?;
+        let mut w = BufWriter::new(file);
+        match &self.obs {
+            ObsBuffer::F32(b) => {
+                for v in b {
+                    w.write_all(&v.to_le_bytes())?;
+                }
+            }
+            ObsBuffer::U8(b) => w.write_all(b)?,
+        }
+        w.flush()
+            .with_context(|| format!("writing {}", bin_path.display()))?;
+        Ok(())
+    }
+
+    /// Reads a dataset written by [`DemoDataset::save`], checking that the
+    /// index and the observation file agree.
+    pub fn load(dir: &Path) -> anyhow::Result<Self> {
+        let index_path = dir.join("index.json");
+        let text = fs::read_to_string(&index_path)
+            .with_context(|| format!("reading {}", index_path.display()))?;
+        let index: Index = serde_json::from_str(&text)
+            .with_context(|| format!("{}: not a dataset index", index_path.display()))?;
+        if index.format != FORMAT {
+            bail!(
+                "{}: format `{}`, expected `{FORMAT}`",
+                index_path.display(),
+                index.format
+            );
+        }
+        let mut expected_rows = 0;
+        for (i, d) in index.demos.iter().enumerate() {
+            if d.first_row != expected_rows {
+                bail!(
+                    "{}: demo {i} starts at row {}, expected {expected_rows}",
+                    index_path.display(),
+                    d.first_row
+                );
+            }
+            if d.actions.is_empty() {
+                bail!("{}: demo {i} has no actions", index_path.display());
+            }
+            for &a in &d.actions {
+                index
+                    .vocabulary
+                    .check_action(a)
+                    .with_context(|| format!("{}: demo {i}", index_path.display()))?;
+            }
+            expected_rows += d.actions.len() + 1;
+        }
+        let bin_path = dir.join("observations.bin");
+        let mut bytes = Vec::new();
+        BufReader::new(
+            fs::File::open(&bin_path).with_context(|| format!("reading {}", bin_path.display()))?,
+        )
+        .read_to_end(&mut bytes)
+        .with_context(|| format!("reading {}", bin_path.display()))?;
+        let width = match index.dtype {
+            ObsDtype::F32 => 4,
+            ObsDtype::U8 => 1,
+        };
+        let expected = expected_rows * index.obs_dim * width;
+        if bytes.len() != expected {
+            bail!(
+                "{}: {} bytes, expected {expected} ({expected_rows} rows of {} {:?} values); the file is truncated or does not belong to this index",
+                bin_path.display(),
+                bytes.len(),
+                index.obs_dim,
+                index.dtype
+            );
+        }
+        let obs = match index.dtype {
+            ObsDtype::F32 => ObsBuffer::F32(
+                bytes
+                    .chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                    .collect(),
+            ),
+            ObsDtype::U8 => ObsBuffer::U8(bytes),
+        };
+        Ok(DemoDataset {
+            vocab: index.vocabulary,
+            obs_dim: index.obs_dim,
+            obs,
+            demos: index.demos,
+        })
+    }
+}
+
+/// A progress bar for `len` items of work (hidden when stderr is not a terminal).
+pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template("{prefix:>12} [{bar:30}] {pos}/{len} ({eta} left)")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    bar.set_prefix(what.to_owned());
+    bar
+}
+
+/// Records one expert demonstration per `(task, seed)` pair, in parallel
+/// (rayon), featurising each observation. The result is in the order of
+/// `pairs` and does not depend on the number of threads.
+pub fn generate<E, X>(
+    pairs: &[(usize, u64)],
+    make_env: impl Fn(usize) -> anyhow::Result<E> + Sync,
+    make_expert: impl Fn() -> X + Sync,
+    featurize: impl Fn(&E::Observation) -> Vec<f32> + Sync,
+    vocab: Vocabulary,
+    obs_dim: usize,
+    dtype: ObsDtype,
+    progress: &ProgressBar,
+) -> anyhow::Result<DemoDataset>
+where
+    E: Environment,
+    X: Expert<E>,
+{
+    let demos: Vec<(usize, u64, Demonstration<Vec<f32>>)> = pairs
+        .par_iter()
+        .map(|&(task, seed)| {
+            let mut env = make_env(task)?;
+            let mut expert = make_expert();
+            let demo = record_demonstration(&mut env, &mut expert, seed)
+                .with_context(|| format!("expert demonstration of task {task}, seed {seed}"))?;
+            progress.inc(1);
+            Ok((task, seed, demo.map_observations(|o| featurize(&o))))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    progress.finish_and_clear();
+    DemoDataset::from_demos(vocab, obs_dim, dtype, demos)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ctg_graph::symbolic::{SequenceExpert, SequenceTask};
+
+    fn dataset(dtype: ObsDtype) -> DemoDataset {
+        let vocab = Vocabulary::new(["a", "b", "c"]).unwrap();
+        let tasks = ["a b", "c a b c", "b"];
+        let pairs: Vec<(usize, u64)> = (0..3).flat_map(|t| [(t, 1), (t, 2)]).collect();
+        let v = vocab.clone();
+        generate(
+            &pairs,
+            |t| Ok(SequenceTask::new(v.clone(), v.parse_sequence(tasks[t])?)),
+            || SequenceExpert,
+            |o| vec![o.step as f32 / 10.0, o.last.index() as f32 / 10.0],
+            vocab,
+            2,
+            dtype,
+            &ProgressBar::hidden(),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn generate_then_save_and_load_round_trips() {
+        for dtype in [ObsDtype::F32, ObsDtype::U8] {
+            let ds = dataset(dtype);
+            assert_eq!(ds.demos().len(), 6);
+            assert_eq!(ds.num_rows(), 2 * (3 + 5 + 2));
+            let demo = ds.demonstration(2).unwrap();
+            assert_eq!(ds.vocabulary().format_sequence(demo.actions()), "c a b c");
+            assert_eq!(demo.observations()[4], vec![0.4, 0.4]);
+            let dir = tempfile::tempdir().unwrap();
+            ds.save(dir.path()).unwrap();
+            let back = DemoDataset::load(dir.path()).unwrap();
+            if dtype == ObsDtype::F32 {
+                assert_eq!(back, ds);
+            } else {
+                assert_eq!(back.row(7), ds.row(7));
+            }
+        }
+    }
+
+    #[test]
+    fn corrupt_files_are_reported() {
+        let ds = dataset(ObsDtype::F32);
+        let dir = tempfile::tempdir().unwrap();
+        ds.save(dir.path()).unwrap();
+        let bin = dir.path().join("observations.bin");
+        let bytes = fs::read(&bin).unwrap();
+        fs::write(&bin, &bytes[..bytes.len() - 3]).unwrap();
+        let err = format!("{:#}", DemoDataset::load(dir.path()).unwrap_err());
+        assert!(
+            err.contains("observations.bin") && err.contains("truncated"),
+            "{err}"
+        );
+        fs::write(dir.path().join("index.json"), "{not json").unwrap();
+        let err = format!("{:#}", DemoDataset::load(dir.path()).unwrap_err());
+        assert!(err.contains("index.json"), "{err}");
+    }
+
+    #[test]
+    fn parallel_equals_sequential() {
+        let parallel = dataset(ObsDtype::F32);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let sequential = pool.install(|| dataset(ObsDtype::F32));
+        assert_eq!(parallel, sequential);
+    }
+}

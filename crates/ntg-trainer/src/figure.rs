@@ -1,0 +1,238 @@
+//! Figures as SVG and PNG (plotters), with text drawn from an embedded font
+//! so no system font library is needed.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use anyhow::{Context, anyhow};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+use serde::{Deserialize, Serialize};
+
+/// DejaVu Sans (Bitstream Vera license, see `assets/DejaVuSans-LICENSE.txt`).
+const FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+
+fn register_font() -> anyhow::Result<()> {
+    static REGISTERED: OnceLock<Result<(), String>> = OnceLock::new();
+    REGISTERED
+        .get_or_init(|| {
+            plotters::style::register_font("sans-serif", FontStyle::Normal, FONT)
+                .map_err(|_| "the embedded font could not be loaded".to_owned())
+        })
+        .clone()
+        .map_err(|e| anyhow!(e))
+}
+
+/// One point of a series: a value with its interval.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Point {
+    /// Position on the x axis.
+    pub x: f64,
+    /// Value.
+    pub y: f64,
+    /// Lower end of the error bar.
+    pub lo: f64,
+    /// Upper end of the error bar.
+    pub hi: f64,
+}
+
+/// One line of a panel (a method).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Series {
+    /// Legend entry.
+    pub name: String,
+    /// Points, in x order.
+    pub points: Vec<Point>,
+}
+
+/// One chart: lines with error bars over a (possibly logarithmic) x axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Panel {
+    /// Title above the chart.
+    pub title: String,
+    /// x-axis label.
+    pub x_label: String,
+    /// y-axis label.
+    pub y_label: String,
+    /// Logarithmic x axis.
+    pub x_log: bool,
+    /// y range.
+    pub y_range: (f64, f64),
+    /// The lines.
+    pub series: Vec<Series>,
+}
+
+const PALETTE: [RGBColor; 6] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+];
+
+fn x_bounds(panel: &Panel) -> (f64, f64) {
+    let xs = panel
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter().map(|p| p.x));
+    let (lo, hi) = xs.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+        (lo.min(x), hi.max(x))
+    });
+    if !lo.is_finite() {
+        return (1.0, 10.0);
+    }
+    if panel.x_log {
+        (lo / 1.3, hi * 1.3)
+    } else {
+        let pad = ((hi - lo) * 0.08).max(0.5);
+        (lo - pad, hi + pad)
+    }
+}
+
+fn draw_panel<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    panel: &Panel,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let (x0, x1) = x_bounds(panel);
+    let (y0, y1) = panel.y_range;
+    let mut builder = ChartBuilder::on(area);
+    builder
+        .caption(&panel.title, ("sans-serif", 18))
+        .margin(12)
+        .x_label_area_size(36)
+        .y_label_area_size(48);
+    macro_rules! body {
+        ($chart:expr) => {{
+            let mut chart = $chart;
+            chart
+                .configure_mesh()
+                .x_desc(panel.x_label.as_str())
+                .y_desc(panel.y_label.as_str())
+                .label_style(("sans-serif", 13))
+                .draw()
+                .map_err(|e| anyhow!("drawing the axes: {e}"))?;
+            for (i, series) in panel.series.iter().enumerate() {
+                let colour = PALETTE[i % PALETTE.len()];
+                let style = ShapeStyle::from(&colour).stroke_width(2);
+                chart
+                    .draw_series(LineSeries::new(
+                        series.points.iter().map(|p| (p.x, p.y)),
+                        style,
+                    ))
+                    .map_err(|e| anyhow!("drawing {}: {e}", series.name))?
+                    .label(series.name.as_str())
+                    .legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2))
+                    });
+                chart
+                    .draw_series(series.points.iter().map(|p| {
+                        ErrorBar::new_vertical(p.x, p.lo, p.y, p.hi, colour.stroke_width(1), 6)
+                    }))
+                    .map_err(|e| anyhow!("drawing {}: {e}", series.name))?;
+                chart
+                    .draw_series(
+                        series
+                            .points
+                            .iter()
+                            .map(|p| Circle::new((p.x, p.y), 3, colour.filled())),
+                    )
+                    .map_err(|e| anyhow!("drawing {}: {e}", series.name))?;
+            }
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperLeft)
+                .background_style(WHITE.mix(0.85))
+                .border_style(BLACK.mix(0.4))
+                .label_font(("sans-serif", 13))
+                .draw()
+                .map_err(|e| anyhow!("drawing the legend: {e}"))?;
+        }};
+    }
+    if panel.x_log {
+        body!(
+            builder
+                .build_cartesian_2d((x0..x1).log_scale(), y0..y1)
+                .map_err(|e| anyhow!("building the chart: {e}"))?
+        );
+    } else {
+        body!(
+            builder
+                .build_cartesian_2d(x0..x1, y0..y1)
+                .map_err(|e| anyhow!("building the chart: {e}"))?
+        );
+    }
+    Ok(())
+}
+
+fn draw_all<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    panels: &[Panel],
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+    let areas = root.split_evenly((1, panels.len().max(1)));
+    for (area, panel) in areas.iter().zip(panels) {
+        draw_panel(area, panel)?;
+    }
+    root.present().map_err(|e| anyhow!("{e}"))?;
+    Ok(())
+}
+
+/// Writes `panels` side by side as `<stem>.svg` and `<stem>.png`.
+pub fn write_figure(panels: &[Panel], stem: &Path) -> anyhow::Result<()> {
+    register_font()?;
+    let size = (460 * panels.len().max(1) as u32, 360);
+    let svg = stem.with_extension("svg");
+    let png = stem.with_extension("png");
+    if let Some(dir) = stem.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    draw_all(SVGBackend::new(&svg, size).into_drawing_area(), panels)
+        .with_context(|| format!("writing {}", svg.display()))?;
+    draw_all(BitMapBackend::new(&png, size).into_drawing_area(), panels)
+        .with_context(|| format!("writing {}", png.display()))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_svg_and_png() {
+        let dir = tempfile::tempdir().unwrap();
+        let panel = Panel {
+            title: "(a) state".into(),
+            x_label: "training tasks".into(),
+            y_label: "success rate".into(),
+            x_log: true,
+            y_range: (0.0, 1.0),
+            series: vec![Series {
+                name: "NTG".into(),
+                points: [50.0, 100.0, 500.0, 1000.0]
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &x)| Point {
+                        x,
+                        y: 0.2 * i as f64,
+                        lo: 0.1 * i as f64,
+                        hi: 0.25 * i as f64,
+                    })
+                    .collect(),
+            }],
+        };
+        let stem = dir.path().join("fig");
+        write_figure(&[panel.clone(), panel], &stem).unwrap();
+        let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
+        assert!(svg.contains("NTG") && svg.contains("training tasks"));
+        let png = image::open(stem.with_extension("png")).unwrap();
+        assert_eq!((png.width(), png.height()), (920, 360));
+    }
+}

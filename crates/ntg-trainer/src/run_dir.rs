@@ -1,0 +1,170 @@
+//! Run folders: where a training run keeps its config, dataset cache,
+//! metrics and checkpoints.
+//!
+//! ```text
+//! runs/NAME/
+//!   config.json      the run's configuration (written once, checked on resume)
+//!   dataset/         the demonstration cache (see `dataset`)
+//!   metrics.jsonl    one JSON object per line, appended as training goes
+//!   checkpoint/      latest weights, optimiser state and progress
+//!   eval/            evaluation results
+//! ```
+//!
+//! Nothing the user wrote is overwritten: creating a run in a non-empty
+//! folder is an error unless the caller resumes it.
+
+use std::fs::{self, OpenOptions};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+/// A run folder.
+#[derive(Debug, Clone)]
+pub struct RunDir {
+    root: PathBuf,
+}
+
+impl RunDir {
+    /// Creates a new run folder at `root`; errors if it exists and is not empty.
+    pub fn create(root: &Path) -> anyhow::Result<Self> {
+        if root.exists() {
+            let mut entries =
+                fs::read_dir(root).with_context(|| format!("reading {}", root.display()))?;
+            if entries.next().is_some() {
+                bail!(
+                    "{} already exists and is not empty; pass --resume to continue that run, or choose another --out",
+                    root.display()
+                );
+            }
+        }
+        fs::create_dir_all(root).with_context(|| format!("creating {}", root.display()))?;
+        Ok(RunDir {
+            root: root.to_path_buf(),
+        })
+    }
+
+    /// Opens an existing run folder (it must hold a `config.json`).
+    pub fn open(root: &Path) -> anyhow::Result<Self> {
+        if !root.is_dir() {
+            bail!("{} is not a run folder (it does not exist)", root.display());
+        }
+        let dir = RunDir {
+            root: root.to_path_buf(),
+        };
+        if !dir.config_path().is_file() {
+            bail!(
+                "{} is not a run folder: {} is missing",
+                root.display(),
+                dir.config_path().display()
+            );
+        }
+        Ok(dir)
+    }
+
+    /// The folder itself.
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    /// `config.json`.
+    pub fn config_path(&self) -> PathBuf {
+        self.root.join("config.json")
+    }
+
+    /// The dataset cache folder.
+    pub fn dataset_dir(&self) -> PathBuf {
+        self.root.join("dataset")
+    }
+
+    /// The checkpoint folder.
+    pub fn checkpoint_dir(&self) -> PathBuf {
+        self.root.join("checkpoint")
+    }
+
+    /// The evaluation folder.
+    pub fn eval_dir(&self) -> PathBuf {
+        self.root.join("eval")
+    }
+
+    /// `metrics.jsonl`.
+    pub fn metrics_path(&self) -> PathBuf {
+        self.root.join("metrics.jsonl")
+    }
+
+    /// Writes `value` as pretty JSON to `path` atomically (temp file + rename).
+    pub fn write_json(path: &Path, value: &impl Serialize) -> anyhow::Result<()> {
+        let tmp = path.with_extension("json.tmp");
+        fs::write(&tmp, serde_json::to_vec_pretty(value)?)
+            .with_context(|| format!("writing {}", tmp.display()))?;
+        fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
+        Ok(())
+    }
+
+    /// Reads JSON from `path`, naming the file in any error.
+    pub fn read_json<T: DeserializeOwned>(path: &Path) -> anyhow::Result<T> {
+        let text =
+            fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        serde_json::from_str(&text).with_context(|| format!("{}: invalid contents", path.display()))
+    }
+
+    /// Appends one line to `metrics.jsonl`.
+    pub fn append_metrics(&self, record: &impl Serialize) -> anyhow::Result<()> {
+        let path = self.metrics_path();
+        let mut file = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        let mut line = serde_json::to_vec(record)?;
+        line.push(b'\n');
+        file.write_all(&line)
+            .with_context(|| format!("writing {}", path.display()))?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refuses_to_overwrite_and_checks_open() {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path().join("run");
+        let run = RunDir::create(&root).unwrap();
+        RunDir::write_json(&run.config_path(), &serde_json::json!({"a": 1})).unwrap();
+        let err = RunDir::create(&root).unwrap_err().to_string();
+        assert!(err.contains("already exists"), "{err}");
+        assert!(RunDir::open(&root).is_ok());
+        let err = RunDir::open(&tmp.path().join("nope"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("does not exist"), "{err}");
+        fs::create_dir(tmp.path().join("empty")).unwrap();
+        let err = RunDir::open(&tmp.path().join("empty"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("config.json is missing"), "{err}");
+    }
+
+    #[test]
+    fn metrics_append_lines_and_bad_json_names_the_file() {
+        let tmp = tempfile::tempdir().unwrap();
+        let run = RunDir::create(tmp.path()).unwrap();
+        run.append_metrics(&serde_json::json!({"epoch": 0}))
+            .unwrap();
+        run.append_metrics(&serde_json::json!({"epoch": 1}))
+            .unwrap();
+        let text = fs::read_to_string(run.metrics_path()).unwrap();
+        assert_eq!(text.lines().count(), 2);
+        fs::write(run.config_path(), "{").unwrap();
+        let err = format!(
+            "{:#}",
+            RunDir::read_json::<serde_json::Value>(&run.config_path()).unwrap_err()
+        );
+        assert!(err.contains("config.json"), "{err}");
+    }
+}
