@@ -1,8 +1,61 @@
-//! The Neural Task Graph networks, in burn 0.22.
+//! The Neural Task Graph networks (Huang et al., "Neural Task Graphs",
+//! CVPR 2019, section 4), in burn 0.22.
 //!
-//! **Not built yet.** This crate will hold the observation encoders, the
-//! `DemoInterpreter`, the `GraphCompletionNet`, the `NodeLocalizer`, the
-//! `EdgeClassifier` and the `NtgPolicy` that plugs them into
-//! `ctg_graph`'s executor (see `docs/ARCHITECTURE.md`). Nothing here works yet.
+//! What is here:
 //!
-//! Must never depend on an environment crate: it sees observations as tensors.
+//! - observation encoders `Enc(o)` ([`EncoderConfig`]: an MLP for state
+//!   vectors, a CNN for 64×64 RGB frames, an encoder for kinematics windows);
+//! - [`DemoInterpreter`]: GRU seq2seq with Luong attention, demo frames →
+//!   action sequence (teacher forcing to train, greedy to decode);
+//! - [`GraphCompletionNet`]: the GCN of eqs. 1–2, initial CTG → completed
+//!   CTG (edge probabilities) and node embeddings `NE_gcn`;
+//! - [`NodeLocalizer`]: ℓ(n|o) ∝ exp(Enc(o)ᵀ NE_loc(n));
+//! - [`EdgeClassifier`]: ε(a|n,o) ∝ exp((W[Enc(o), NE_gcn(n)])ᵀ NE_loc(n_a)),
+//!   masked to the CTG successors of n;
+//! - [`NtgModel`] (the four together, with [`NtgConfig`], ablation switches
+//!   and checkpoints) and [`NtgPolicy`], which turns one demonstration into
+//!   `ctg_graph`'s [`NodeScorer`](ctg_graph::NodeScorer) and
+//!   [`EdgeScorer`](ctg_graph::EdgeScorer) for the graph executor.
+//!
+//! Every network is a burn `#[derive(Module)]` built from a
+//! `#[derive(Config)]` struct with an explicit seed, runs on whatever
+//! [`Device`](burn::tensor::Device) it is given ([`BackendKind`] picks one:
+//! `flex` by default, burn-ndarray, wgpu and CUDA behind features), and
+//! exposes a batched forward pass plus a loss the trainer calls in its own
+//! optimizer loop. Bad input is a [`ModelError`], never a panic.
+//!
+//! **Architecture invariant:** this crate must never depend on an
+//! environment crate (`env-*`) or on the trainer: it sees observations as
+//! flat `f32` rows and tensors, and task graphs as `ctg_graph` types.
+
+mod backend;
+mod batch;
+mod edge;
+mod encoder;
+mod error;
+mod gcn;
+mod interpreter;
+mod localizer;
+mod model;
+pub mod nn;
+mod policy;
+
+pub use backend::{BackendKind, cpu_device};
+pub use batch::{DemoBatch, adjacency_tensor, ids_tensor, rows_tensor, successor_mask};
+pub use edge::{EdgeClassifier, EdgeClassifierConfig};
+pub use encoder::{
+    Encoder, EncoderConfig, FrameEncoder, FrameEncoderConfig, KinematicsEncoder,
+    KinematicsEncoderConfig, StateEncoder, StateEncoderConfig,
+};
+pub use error::{ModelError, Result};
+pub use gcn::{EdgeCounts, GcnOutput, GraphCompletionConfig, GraphCompletionNet, PairMlp};
+pub use interpreter::{DemoInterpreter, DemoInterpreterConfig, InterpreterOutput, LossOutput};
+pub use localizer::{NodeLocalizer, NodeLocalizerConfig};
+pub use model::{
+    AblationConfig, CONFIG_FILE, CompletedGraph, NtgConfig, NtgModel, WEIGHTS_FILE, load_optimizer,
+    save_optimizer,
+};
+pub use policy::{MappedPolicy, NtgPolicy};
+
+#[cfg(test)]
+mod tests;

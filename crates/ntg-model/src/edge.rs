@@ -1,0 +1,162 @@
+//! The edge classifier ε(a|n,o).
+
+use burn::config::Config;
+use burn::module::Module;
+use burn::nn::Linear;
+use burn::tensor::{Bool, Device, Int, Tensor};
+
+use crate::encoder::{Encoder, EncoderConfig};
+use crate::interpreter::LossOutput;
+use crate::nn::{Init, mask_logits, masked_accuracy, masked_cross_entropy};
+use crate::{ModelError, Result};
+
+/// Configuration of an [`EdgeClassifier`].
+#[derive(Config, Debug)]
+pub struct EdgeClassifierConfig {
+    /// Number of CTG nodes `N`.
+    pub num_nodes: usize,
+    /// Observation encoder.
+    pub encoder: EncoderConfig,
+    /// Size of the GCN node embeddings `NE_gcn`.
+    pub gcn_dim: usize,
+    /// Size of the localizer node embeddings `NE_loc`.
+    pub loc_dim: usize,
+}
+
+impl EdgeClassifierConfig {
+    /// Checks the sizes.
+    pub fn validate(&self) -> Result<()> {
+        self.encoder.validate()?;
+        if self.num_nodes < 3 || self.gcn_dim == 0 || self.loc_dim == 0 {
+            return Err(ModelError::Config(format!(
+                "edge classifier: need num_nodes ≥ 3 and positive sizes, got num_nodes {}, gcn_dim {}, loc_dim {}",
+                self.num_nodes, self.gcn_dim, self.loc_dim
+            )));
+        }
+        Ok(())
+    }
+
+    /// Builds the network with weights drawn from `seed` on `device`.
+    pub fn init(&self, seed: u64, device: &Device) -> Result<EdgeClassifier> {
+        self.validate()?;
+        let encoder = self.encoder.init(seed, device)?;
+        let mut init = Init::new(seed ^ 0x5eed_0003, device);
+        Ok(EdgeClassifier {
+            w: init.linear(encoder.out_dim() + self.gcn_dim, self.loc_dim, true),
+            encoder,
+            num_nodes: self.num_nodes,
+            gcn_dim: self.gcn_dim,
+        })
+    }
+}
+
+/// Edge classifier: `ε(a|n,o) ∝ exp((W [Enc(o); NE_gcn(n)])ᵀ NE_loc(n_a))`
+/// (paper eq. 3), with the logits of actions that are not CTG successors of
+/// `n` set to a large negative number, so they get zero probability;
+/// trained with cross-entropy against the demo's next action.
+///
+/// `NE_loc` comes from the [`NodeLocalizer`](crate::NodeLocalizer) and is
+/// passed in: detach it to train the edge classifier alone, or leave it
+/// attached to train both together.
+#[derive(Module, Debug)]
+pub struct EdgeClassifier {
+    /// `Enc(o)`.
+    pub encoder: Encoder,
+    /// `W`: `[Enc(o); NE_gcn(n)]` → query in `NE_loc` space.
+    pub w: Linear,
+    /// Number of CTG nodes `N`.
+    pub num_nodes: usize,
+    /// Size of `NE_gcn`.
+    pub gcn_dim: usize,
+}
+
+impl EdgeClassifier {
+    /// Masked edge logits `[B, N]`.
+    ///
+    /// - `obs` `[B, D]`: observations;
+    /// - `nodes` `[B]`: the current node `n` of each row (ids below `N`);
+    /// - `ne_gcn` `[B, N, H_gcn]`: each row's task graph node embeddings;
+    /// - `ne_loc` `[N, H_loc]`: localizer node embeddings;
+    /// - `successors` `[B, N]`: true at the CTG successors of `n`.
+    pub fn forward(
+        &self,
+        obs: Tensor<2>,
+        nodes: Tensor<1, Int>,
+        ne_gcn: Tensor<3>,
+        ne_loc: Tensor<2>,
+        successors: Tensor<2, Bool>,
+    ) -> Result<Tensor<2>> {
+        let [b, n, h] = ne_gcn.dims();
+        if nodes.dims() != [b] || n != self.num_nodes || h != self.gcn_dim {
+            return Err(ModelError::shape(
+                "node ids / NE_gcn",
+                format!("[B] and [B, {}, {}]", self.num_nodes, self.gcn_dim),
+                (nodes.dims(), ne_gcn.dims()),
+            ));
+        }
+        let index = nodes.reshape([b, 1, 1]).expand([b, 1, h]);
+        let rows = ne_gcn.gather(1, index).reshape([b, h]);
+        let encoded = self.encoder.forward(obs)?;
+        self.forward_rows(encoded, rows, ne_loc, successors)
+    }
+
+    /// Masked edge logits from encoded observations `[B, H_enc]`, the
+    /// current nodes' GCN embeddings `[B, H_gcn]`, `NE_loc` `[N, H_loc]` and
+    /// successor masks `[B, N]`.
+    pub fn forward_rows(
+        &self,
+        encoded: Tensor<2>,
+        node_gcn: Tensor<2>,
+        ne_loc: Tensor<2>,
+        successors: Tensor<2, Bool>,
+    ) -> Result<Tensor<2>> {
+        let [b, _] = encoded.dims();
+        let loc_dim = self.w.weight.dims()[1];
+        if node_gcn.dims() != [b, self.gcn_dim]
+            || ne_loc.dims() != [self.num_nodes, loc_dim]
+            || successors.dims() != [b, self.num_nodes]
+        {
+            return Err(ModelError::shape(
+                "edge classifier inputs",
+                format!(
+                    "NE_gcn rows [{b}, {}], NE_loc [{}, {loc_dim}], successors [{b}, {}]",
+                    self.gcn_dim, self.num_nodes, self.num_nodes
+                ),
+                (node_gcn.dims(), ne_loc.dims(), successors.dims()),
+            ));
+        }
+        let logits = self.unmasked_logits(encoded, node_gcn, ne_loc);
+        Ok(mask_logits(logits, successors))
+    }
+
+    /// `(W [Enc(o); NE_gcn(n)])ᵀ NE_loc(a)` for every `a`, unmasked, `[B, N]`.
+    pub(crate) fn unmasked_logits(
+        &self,
+        encoded: Tensor<2>,
+        node_gcn: Tensor<2>,
+        ne_loc: Tensor<2>,
+    ) -> Tensor<2> {
+        let query = self.w.forward(Tensor::cat(vec![encoded, node_gcn], 1));
+        query.matmul(ne_loc.transpose())
+    }
+
+    /// Mean cross-entropy of masked logits `[B, N]` (from
+    /// [`EdgeClassifier::forward`]) against the next actions `[B]`, and
+    /// accuracy.
+    pub fn loss(&self, logits: Tensor<2>, next_actions: Tensor<1, Int>) -> Result<LossOutput> {
+        let [b, _] = logits.dims();
+        if next_actions.dims() != [b] {
+            return Err(ModelError::shape(
+                "next actions",
+                format!("[{b}]"),
+                next_actions.dims(),
+            ));
+        }
+        let weights = Tensor::ones([b], &logits.device());
+        let accuracy = masked_accuracy(logits.clone(), next_actions.clone(), weights.clone())?;
+        Ok(LossOutput {
+            loss: masked_cross_entropy(logits, next_actions, weights),
+            accuracy,
+        })
+    }
+}

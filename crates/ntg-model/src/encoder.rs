@@ -1,0 +1,316 @@
+//! Observation encoders `Enc(o)`: one flat observation row `[D]` in, one
+//! embedding `[H]` out.
+//!
+//! Observations arrive as flat `f32` rows, a batch being a `[B, D]` tensor:
+//!
+//! - **state** (`D` = e.g. 26 for block stacking): an MLP;
+//! - **frame** (`D = 3·S·S`, CHW order, values in `[0, 1]`): three strided
+//!   convolutions and a linear layer;
+//! - **kinematics window** (`D = W·C`, `W` rows of `C` = 76 columns,
+//!   row-major): a per-row linear layer shared across time, then an MLP over
+//!   the window.
+//!
+//! [`EncoderConfig`] picks one; everything downstream sees `[B, H]`.
+
+use burn::config::Config;
+use burn::module::Module;
+use burn::nn::Linear;
+use burn::nn::conv::Conv2d;
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor};
+
+use crate::nn::Init;
+use crate::{ModelError, Result};
+
+/// An MLP over a state vector: `Enc(o) = W₂ relu(W₁ o + b₁) + b₂`.
+#[derive(Config, Debug)]
+pub struct StateEncoderConfig {
+    /// Length `D` of the state vector (26 for block stacking).
+    pub input_dim: usize,
+    /// Hidden width.
+    #[config(default = 128)]
+    pub hidden: usize,
+    /// Embedding size `H`.
+    #[config(default = 128)]
+    pub out_dim: usize,
+}
+
+/// A CNN over `S×S` RGB frames: three 4×4 convolutions of stride 2 and
+/// padding 1 (`S → S/2 → S/4 → S/8`) with ReLU, then a linear layer to `H`.
+#[derive(Config, Debug)]
+pub struct FrameEncoderConfig {
+    /// Frame side `S` in pixels (a multiple of 8).
+    #[config(default = 64)]
+    pub image_size: usize,
+    /// Colour channels.
+    #[config(default = 3)]
+    pub channels: usize,
+    /// Output channels of the three convolutions.
+    #[config(default = "[32, 64, 64]")]
+    pub conv_channels: [usize; 3],
+    /// Embedding size `H`.
+    #[config(default = 128)]
+    pub out_dim: usize,
+}
+
+/// An encoder for kinematics windows of `window` rows by `columns` columns:
+/// `Enc(o) = W₂ relu(W₁ [relu(V r₁ + c); …; relu(V r_W + c)] + b₁) + b₂`,
+/// where `r_t` is row `t` and `V` is shared across rows.
+#[derive(Config, Debug)]
+pub struct KinematicsEncoderConfig {
+    /// Rows per window `W`.
+    pub window: usize,
+    /// Columns per row (76 for JIGSAWS).
+    #[config(default = 76)]
+    pub columns: usize,
+    /// Width of the per-row projection.
+    #[config(default = 32)]
+    pub row_hidden: usize,
+    /// Hidden width of the window MLP.
+    #[config(default = 128)]
+    pub hidden: usize,
+    /// Embedding size `H`.
+    #[config(default = 128)]
+    pub out_dim: usize,
+}
+
+/// Which observation encoder to use.
+#[derive(Config, Debug)]
+pub enum EncoderConfig {
+    /// Full state vectors.
+    State(StateEncoderConfig),
+    /// RGB frames.
+    Frame(FrameEncoderConfig),
+    /// Kinematics windows.
+    Kinematics(KinematicsEncoderConfig),
+}
+
+impl EncoderConfig {
+    /// The state encoder for vectors of length `input_dim`, default sizes.
+    pub fn state(input_dim: usize) -> Self {
+        EncoderConfig::State(StateEncoderConfig::new(input_dim))
+    }
+
+    /// The frame encoder for 64×64 RGB frames, default sizes.
+    pub fn frame() -> Self {
+        EncoderConfig::Frame(FrameEncoderConfig::new())
+    }
+
+    /// The kinematics encoder for windows of `window` rows of 76 columns.
+    pub fn kinematics(window: usize) -> Self {
+        EncoderConfig::Kinematics(KinematicsEncoderConfig::new(window))
+    }
+
+    /// Length `D` of one flat observation row.
+    pub fn input_dim(&self) -> usize {
+        match self {
+            EncoderConfig::State(c) => c.input_dim,
+            EncoderConfig::Frame(c) => c.channels * c.image_size * c.image_size,
+            EncoderConfig::Kinematics(c) => c.window * c.columns,
+        }
+    }
+
+    /// Embedding size `H`.
+    pub fn out_dim(&self) -> usize {
+        match self {
+            EncoderConfig::State(c) => c.out_dim,
+            EncoderConfig::Frame(c) => c.out_dim,
+            EncoderConfig::Kinematics(c) => c.out_dim,
+        }
+    }
+
+    /// Checks that the sizes can build an encoder.
+    pub fn validate(&self) -> Result<()> {
+        let positive = |name: &str, v: usize| {
+            if v == 0 {
+                Err(ModelError::Config(format!(
+                    "encoder: {name} must be positive"
+                )))
+            } else {
+                Ok(())
+            }
+        };
+        match self {
+            EncoderConfig::State(c) => {
+                positive("input_dim", c.input_dim)?;
+                positive("hidden", c.hidden)?;
+                positive("out_dim", c.out_dim)
+            }
+            EncoderConfig::Frame(c) => {
+                positive("channels", c.channels)?;
+                positive("out_dim", c.out_dim)?;
+                for &ch in &c.conv_channels {
+                    positive("conv_channels", ch)?;
+                }
+                if c.image_size == 0 || c.image_size % 8 != 0 {
+                    return Err(ModelError::Config(format!(
+                        "encoder: image_size must be a positive multiple of 8, got {}",
+                        c.image_size
+                    )));
+                }
+                Ok(())
+            }
+            EncoderConfig::Kinematics(c) => {
+                positive("window", c.window)?;
+                positive("columns", c.columns)?;
+                positive("row_hidden", c.row_hidden)?;
+                positive("hidden", c.hidden)?;
+                positive("out_dim", c.out_dim)
+            }
+        }
+    }
+
+    /// Builds the encoder with weights drawn from `seed` on `device`.
+    pub fn init(&self, seed: u64, device: &Device) -> Result<Encoder> {
+        self.validate()?;
+        let mut init = Init::new(seed, device);
+        Ok(match self {
+            EncoderConfig::State(c) => Encoder::State(StateEncoder {
+                fc1: init.linear(c.input_dim, c.hidden, true),
+                fc2: init.linear(c.hidden, c.out_dim, true),
+            }),
+            EncoderConfig::Frame(c) => {
+                let [c1, c2, c3] = c.conv_channels;
+                let side = c.image_size / 8;
+                Encoder::Frame(FrameEncoder {
+                    conv1: init.conv2d(c.channels, c1, 4, 2, 1),
+                    conv2: init.conv2d(c1, c2, 4, 2, 1),
+                    conv3: init.conv2d(c2, c3, 4, 2, 1),
+                    fc: init.linear(c3 * side * side, c.out_dim, true),
+                    channels: c.channels,
+                    image_size: c.image_size,
+                })
+            }
+            EncoderConfig::Kinematics(c) => Encoder::Kinematics(KinematicsEncoder {
+                row: init.linear(c.columns, c.row_hidden, true),
+                fc1: init.linear(c.window * c.row_hidden, c.hidden, true),
+                fc2: init.linear(c.hidden, c.out_dim, true),
+                window: c.window,
+                columns: c.columns,
+            }),
+        })
+    }
+}
+
+/// The state MLP (see [`StateEncoderConfig`]).
+#[derive(Module, Debug)]
+pub struct StateEncoder {
+    /// First layer.
+    pub fc1: Linear,
+    /// Output layer.
+    pub fc2: Linear,
+}
+
+/// The frame CNN (see [`FrameEncoderConfig`]).
+#[derive(Module, Debug)]
+pub struct FrameEncoder {
+    /// `S → S/2`.
+    pub conv1: Conv2d,
+    /// `S/2 → S/4`.
+    pub conv2: Conv2d,
+    /// `S/4 → S/8`.
+    pub conv3: Conv2d,
+    /// Flattened feature map to `H`.
+    pub fc: Linear,
+    /// Colour channels.
+    pub channels: usize,
+    /// Frame side.
+    pub image_size: usize,
+}
+
+/// The kinematics-window encoder (see [`KinematicsEncoderConfig`]).
+#[derive(Module, Debug)]
+pub struct KinematicsEncoder {
+    /// Per-row projection, shared across the window.
+    pub row: Linear,
+    /// Window MLP, first layer.
+    pub fc1: Linear,
+    /// Window MLP, output layer.
+    pub fc2: Linear,
+    /// Rows per window.
+    pub window: usize,
+    /// Columns per row.
+    pub columns: usize,
+}
+
+/// An observation encoder `Enc(o)`: `[B, D]` → `[B, H]`.
+#[derive(Module, Debug)]
+#[allow(clippy::large_enum_variant)] // a handful per model; boxing buys nothing
+pub enum Encoder {
+    /// State MLP.
+    State(StateEncoder),
+    /// Frame CNN.
+    Frame(FrameEncoder),
+    /// Kinematics-window encoder.
+    Kinematics(KinematicsEncoder),
+}
+
+impl Encoder {
+    /// Length `D` of the observation rows this encoder reads.
+    pub fn input_dim(&self) -> usize {
+        match self {
+            Encoder::State(e) => e.fc1.weight.dims()[0],
+            Encoder::Frame(e) => e.channels * e.image_size * e.image_size,
+            Encoder::Kinematics(e) => e.window * e.columns,
+        }
+    }
+
+    /// Embedding size `H`.
+    pub fn out_dim(&self) -> usize {
+        match self {
+            Encoder::State(e) => e.fc2.weight.dims()[1],
+            Encoder::Frame(e) => e.fc.weight.dims()[1],
+            Encoder::Kinematics(e) => e.fc2.weight.dims()[1],
+        }
+    }
+
+    /// `Enc(o)` for a batch of flat observation rows `[B, D]` → `[B, H]`.
+    pub fn forward(&self, obs: Tensor<2>) -> Result<Tensor<2>> {
+        let [batch, dim] = obs.dims();
+        if dim != self.input_dim() || batch == 0 {
+            return Err(ModelError::shape(
+                "observations",
+                format!("[B ≥ 1, {}]", self.input_dim()),
+                [batch, dim],
+            ));
+        }
+        Ok(self.forward_unchecked(obs))
+    }
+
+    /// [`Encoder::forward`] without the shape check.
+    pub(crate) fn forward_unchecked(&self, obs: Tensor<2>) -> Tensor<2> {
+        let [batch, _] = obs.dims();
+        match self {
+            Encoder::State(e) => e.fc2.forward(relu(e.fc1.forward(obs))),
+            Encoder::Frame(e) => {
+                let s = e.image_size;
+                let x: Tensor<4> = obs.reshape([batch, e.channels, s, s]);
+                let x = relu(e.conv1.forward(x));
+                let x = relu(e.conv2.forward(x));
+                let x = relu(e.conv3.forward(x));
+                let x: Tensor<2> = x.reshape([batch as i32, -1]);
+                e.fc.forward(x)
+            }
+            Encoder::Kinematics(e) => {
+                let rows: Tensor<3> = obs.reshape([batch, e.window, e.columns]);
+                let rows = relu(e.row.forward(rows));
+                let flat: Tensor<2> = rows.reshape([batch as i32, -1]);
+                e.fc2.forward(relu(e.fc1.forward(flat)))
+            }
+        }
+    }
+
+    /// Encodes a batch of sequences `[B, T, D]` → `[B, T, H]`.
+    pub fn forward_sequence(&self, obs: Tensor<3>) -> Result<Tensor<3>> {
+        let [batch, steps, dim] = obs.dims();
+        if dim != self.input_dim() || batch == 0 || steps == 0 {
+            return Err(ModelError::shape(
+                "observation sequences",
+                format!("[B ≥ 1, T ≥ 1, {}]", self.input_dim()),
+                [batch, steps, dim],
+            ));
+        }
+        let flat = self.forward_unchecked(obs.reshape([batch * steps, dim]));
+        Ok(flat.reshape([batch, steps, self.out_dim()]))
+    }
+}

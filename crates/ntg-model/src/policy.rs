@@ -1,0 +1,396 @@
+//! The NTG policy: demo → CTG → completed CTG → neural scorers for
+//! `ctg_graph`'s executor.
+
+use std::cell::RefCell;
+
+use burn::module::Module;
+use burn::tensor::Tensor;
+use ctg_graph::{
+    ActionDistribution, ActionId, Ctg, CtgError, EdgeScorer, GraphExecutor, NodeScorer,
+    NodeSelection, Vocabulary,
+};
+
+use crate::batch::rows_tensor;
+use crate::model::NtgModel;
+use crate::nn::to_vec;
+use crate::{ModelError, Result};
+
+/// Raw scores of one observation, computed once and reused by the node and
+/// edge scorers.
+#[derive(Debug, Clone)]
+struct Scores {
+    observation: Vec<f32>,
+    /// Localizer logits `[N]` (`None` when the localizer is ablated).
+    node_logits: Option<Vec<f32>>,
+    /// Edge logits `[N × N]`, row = current node (`None` when ablated).
+    edge_logits: Option<Vec<f32>>,
+}
+
+/// A reactive policy built from one demonstration:
+/// `π(a|o) ∝ Σ_n ε(a|n,o) ℓ(n|o)` over the edges of the CTG the demo
+/// interpreter and GCN produced (or `ε(a|n*,o)` at the arg-max node, per
+/// the config's [`NodeSelection`]).
+///
+/// It implements [`NodeScorer`] and [`EdgeScorer`] for flat observation
+/// rows `[f32]`, both on itself and on `&NtgPolicy`, so one policy can be
+/// passed as both scorers: `executor.run(&mut env, &mut &policy, &mut &policy, seed)`.
+/// The encodings of the last observation are cached, so the node and edge
+/// calls for one observation run the networks once.
+///
+/// The scorers return probabilities: ℓ(·|o) a softmax over nodes, each row
+/// of ε(·|n,o) a softmax over the successors of `n` in the graph the
+/// executor passes (zero elsewhere, and an all-zero row for a node without
+/// successors).
+#[derive(Debug)]
+pub struct NtgPolicy {
+    model: NtgModel,
+    demo_actions: Vec<ActionId>,
+    initial: Ctg,
+    probabilities: Ctg,
+    graph: Ctg,
+    ne_gcn: Tensor<2>,
+    cache: RefCell<Option<Scores>>,
+}
+
+impl NtgPolicy {
+    /// Builds the policy for the task shown by one demonstration (its
+    /// observation rows, in order): demo interpreter → path CTG → GCN →
+    /// thresholded CTG. `vocab` must be the model's domain vocabulary.
+    pub fn from_demo<R: AsRef<[f32]>>(
+        model: &NtgModel,
+        demo_observations: &[R],
+        vocab: &Vocabulary,
+    ) -> Result<Self> {
+        check_vocab(model, vocab)?;
+        let model = model.valid();
+        let (actions, initial) = model.initial_graph(demo_observations)?;
+        Self::build(model, actions, initial)
+    }
+
+    /// Builds the policy from a given initial graph (skipping the demo
+    /// interpreter), e.g. a ground-truth path or the union of several demos.
+    pub fn from_graph(model: &NtgModel, initial: Ctg) -> Result<Self> {
+        Self::build(model.valid(), Vec::new(), initial)
+    }
+
+    /// Builds the policy from a known action sequence (its path graph).
+    pub fn from_actions(model: &NtgModel, actions: &[ActionId]) -> Result<Self> {
+        let initial = Ctg::from_path(model.num_nodes(), actions)?;
+        Self::build(model.valid(), actions.to_vec(), initial)
+    }
+
+    fn build(model: NtgModel, demo_actions: Vec<ActionId>, initial: Ctg) -> Result<Self> {
+        let completed = model.complete_graph(&initial)?;
+        Ok(NtgPolicy {
+            model,
+            demo_actions,
+            initial,
+            probabilities: completed.probabilities,
+            graph: completed.graph,
+            ne_gcn: completed.embeddings,
+            cache: RefCell::new(None),
+        })
+    }
+
+    /// The demo interpreter's transcription (empty if it was not used).
+    pub fn demo_actions(&self) -> &[ActionId] {
+        &self.demo_actions
+    }
+
+    /// The initial CTG (the demo's path, or fully connected when ablated).
+    pub fn initial_graph(&self) -> &Ctg {
+        &self.initial
+    }
+
+    /// The GCN's edge probabilities.
+    pub fn edge_probabilities(&self) -> &Ctg {
+        &self.probabilities
+    }
+
+    /// The thresholded CTG this policy executes.
+    pub fn graph(&self) -> &Ctg {
+        &self.graph
+    }
+
+    /// An executor over [`NtgPolicy::graph`] with the configured node selection.
+    pub fn executor(&self) -> GraphExecutor {
+        GraphExecutor::new(self.graph.clone()).with_node_selection(self.model.config.node_selection)
+    }
+
+    /// The model (in inference mode) behind this policy.
+    pub fn model(&self) -> &NtgModel {
+        &self.model
+    }
+
+    /// π(·|o) for one observation row.
+    pub fn action_distribution(&self, observation: &[f32]) -> Result<ActionDistribution> {
+        let exec = self.executor();
+        Ok(exec.action_distribution(&mut &*self, &mut &*self, observation)?)
+    }
+
+    /// `ln π(a|o)` for every node `a` (`-inf` where π is 0), computed in
+    /// log space so small probabilities do not underflow; consistent with
+    /// [`NtgPolicy::action_distribution`].
+    pub fn log_probabilities(&self, observation: &[f32]) -> Result<Vec<f32>> {
+        let scores = self.scores(observation)?;
+        let n = self.graph.num_nodes();
+        let log_node = log_node_probabilities(&scores, n);
+        // Log-ε rows over successors; None for nodes without successors.
+        let log_edge: Vec<Option<Vec<f64>>> = (0..n)
+            .map(|from| log_edge_row(&self.graph, &scores, from))
+            .collect();
+        let mut out = vec![f64::NEG_INFINITY; n];
+        match self.model.config.node_selection {
+            NodeSelection::Marginal => {
+                let valid: Vec<f64> = (0..n)
+                    .filter(|&i| log_edge[i].is_some())
+                    .map(|i| log_node[i])
+                    .collect();
+                let norm = log_sum_exp(&valid);
+                for (a, slot) in out.iter_mut().enumerate() {
+                    let terms: Vec<f64> = (0..n)
+                        .filter_map(|from| {
+                            log_edge[from].as_ref().map(|row| log_node[from] + row[a])
+                        })
+                        .collect();
+                    *slot = log_sum_exp(&terms) - norm;
+                }
+            }
+            NodeSelection::ArgMax => {
+                // Same choice as the executor: the most likely node with a
+                // successor (lowest id on ties).
+                let best = (0..n)
+                    .filter(|&i| log_edge[i].is_some() && log_node[i] > f64::NEG_INFINITY)
+                    .max_by(|&a, &b| log_node[a].total_cmp(&log_node[b]).then(b.cmp(&a)));
+                if let Some(row) = best.and_then(|i| log_edge[i].as_ref()) {
+                    out.copy_from_slice(row);
+                }
+            }
+        }
+        if out.iter().all(|&l| l == f64::NEG_INFINITY || l.is_nan()) {
+            return Err(CtgError::NoValidAction.into());
+        }
+        Ok(out.into_iter().map(|l| l as f32).collect())
+    }
+
+    /// `ln π(action|o)`, for negative log-likelihood scoring.
+    pub fn log_probability(&self, observation: &[f32], action: ActionId) -> Result<f32> {
+        let all = self.log_probabilities(observation)?;
+        all.get(action.index()).copied().ok_or_else(|| {
+            ModelError::Input(format!(
+                "action {} is outside the {} nodes",
+                action.index(),
+                all.len()
+            ))
+        })
+    }
+
+    /// ℓ(n|o) as probabilities over all `N` nodes.
+    pub fn node_probabilities(&self, observation: &[f32]) -> Result<Vec<f32>> {
+        let scores = self.scores(observation)?;
+        let n = self.graph.num_nodes();
+        Ok(log_node_probabilities(&scores, n)
+            .into_iter()
+            .map(|l| l.exp() as f32)
+            .collect())
+    }
+
+    /// ε(·|n,o) as an `N × N` row-major matrix of probabilities over the
+    /// successors of each node in `graph`.
+    pub fn edge_probabilities_for(&self, graph: &Ctg, observation: &[f32]) -> Result<Vec<f32>> {
+        let scores = self.scores(observation)?;
+        let n = graph.num_nodes();
+        if n != self.graph.num_nodes() {
+            return Err(ModelError::shape(
+                "graph",
+                format!("{} nodes", self.graph.num_nodes()),
+                n,
+            ));
+        }
+        let mut out = vec![0.0f32; n * n];
+        for from in 0..n {
+            if let Some(row) = log_edge_row(graph, &scores, from) {
+                for (o, l) in out[from * n..(from + 1) * n].iter_mut().zip(row) {
+                    *o = l.exp() as f32;
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Runs (or reuses) the networks on one observation.
+    fn scores(&self, observation: &[f32]) -> Result<Scores> {
+        if let Some(cached) = self.cache.borrow().as_ref()
+            && cached.observation == observation
+        {
+            return Ok(cached.clone());
+        }
+        let model = &self.model;
+        let ablation = &model.config.ablation;
+        let device = model.device();
+        let obs = rows_tensor(&[observation], model.obs_dim(), &device)?;
+        let n = model.num_nodes();
+        let node_logits = if ablation.node_localizer {
+            Some(to_vec(model.localizer.forward(obs.clone())?)?)
+        } else {
+            None
+        };
+        let edge_logits = if ablation.edge_classifier {
+            let encoded = model.edges.encoder.forward(obs)?; // [1, H]
+            let h = encoded.dims()[1];
+            let encoded = encoded.expand([n, h]);
+            let logits = model.edges.unmasked_logits(
+                encoded,
+                self.ne_gcn.clone(),
+                model.localizer.node_embeddings(),
+            );
+            Some(to_vec(logits)?)
+        } else {
+            None
+        };
+        let scores = Scores {
+            observation: observation.to_vec(),
+            node_logits,
+            edge_logits,
+        };
+        *self.cache.borrow_mut() = Some(scores.clone());
+        Ok(scores)
+    }
+}
+
+fn check_vocab(model: &NtgModel, vocab: &Vocabulary) -> Result<()> {
+    if vocab.len() != model.num_nodes() {
+        return Err(ModelError::Config(format!(
+            "the vocabulary has {} nodes but the model was built for {}",
+            vocab.len(),
+            model.num_nodes()
+        )));
+    }
+    Ok(())
+}
+
+fn log_sum_exp(values: &[f64]) -> f64 {
+    let max = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if max == f64::NEG_INFINITY {
+        return f64::NEG_INFINITY;
+    }
+    max + values.iter().map(|v| (v - max).exp()).sum::<f64>().ln()
+}
+
+/// ln ℓ(n|o) for every node: a log-softmax of the localizer logits, or
+/// uniform when ablated.
+fn log_node_probabilities(scores: &Scores, n: usize) -> Vec<f64> {
+    match &scores.node_logits {
+        Some(logits) => {
+            let l: Vec<f64> = logits.iter().map(|&x| f64::from(x)).collect();
+            let z = log_sum_exp(&l);
+            l.into_iter().map(|x| x - z).collect()
+        }
+        None => vec![-(n as f64).ln(); n],
+    }
+}
+
+/// ln ε(·|from,o) over the successors of `from` in `graph` (−∞ elsewhere),
+/// or `None` if `from` has no successors.
+fn log_edge_row(graph: &Ctg, scores: &Scores, from: usize) -> Option<Vec<f64>> {
+    let n = graph.num_nodes();
+    let succ: Vec<bool> = (0..n)
+        .map(|to| graph.has_edge(ActionId::new(from), ActionId::new(to)))
+        .collect();
+    let count = succ.iter().filter(|&&s| s).count();
+    if count == 0 {
+        return None;
+    }
+    let raw: Vec<f64> = match &scores.edge_logits {
+        Some(logits) => logits[from * n..(from + 1) * n]
+            .iter()
+            .map(|&x| f64::from(x))
+            .collect(),
+        None => vec![0.0; n],
+    };
+    let kept: Vec<f64> = (0..n).filter(|&a| succ[a]).map(|a| raw[a]).collect();
+    let z = log_sum_exp(&kept);
+    Some(
+        (0..n)
+            .map(|a| {
+                if succ[a] {
+                    raw[a] - z
+                } else {
+                    f64::NEG_INFINITY
+                }
+            })
+            .collect(),
+    )
+}
+
+fn to_ctg_error(e: ModelError) -> CtgError {
+    match e {
+        ModelError::Graph(g) => g,
+        other => CtgError::InvalidScores(format!("ntg-model: {other}")),
+    }
+}
+
+impl NodeScorer<[f32]> for &NtgPolicy {
+    fn score_nodes(&mut self, graph: &Ctg, observation: &[f32]) -> ctg_graph::Result<Vec<f32>> {
+        if graph.num_nodes() != self.graph.num_nodes() {
+            return Err(CtgError::SizeMismatch {
+                left: graph.num_nodes(),
+                right: self.graph.num_nodes(),
+            });
+        }
+        self.node_probabilities(observation).map_err(to_ctg_error)
+    }
+}
+
+impl EdgeScorer<[f32]> for &NtgPolicy {
+    fn score_edges(&mut self, graph: &Ctg, observation: &[f32]) -> ctg_graph::Result<Vec<f32>> {
+        self.edge_probabilities_for(graph, observation)
+            .map_err(to_ctg_error)
+    }
+}
+
+impl NodeScorer<[f32]> for NtgPolicy {
+    fn score_nodes(&mut self, graph: &Ctg, observation: &[f32]) -> ctg_graph::Result<Vec<f32>> {
+        (&*self).score_nodes(graph, observation)
+    }
+}
+
+impl EdgeScorer<[f32]> for NtgPolicy {
+    fn score_edges(&mut self, graph: &Ctg, observation: &[f32]) -> ctg_graph::Result<Vec<f32>> {
+        (&*self).score_edges(graph, observation)
+    }
+}
+
+/// Adapts an [`NtgPolicy`] to an environment whose observations are not
+/// flat rows: `flatten` turns each observation into its row.
+///
+/// Like the policy, `&MappedPolicy` is both scorers:
+/// `executor.run(&mut env, &mut &mapped, &mut &mapped, seed)`.
+pub struct MappedPolicy<'a, F> {
+    policy: &'a NtgPolicy,
+    flatten: F,
+}
+
+impl NtgPolicy {
+    /// This policy for observations of type `O`, flattened by `flatten`.
+    pub fn mapped<O: ?Sized, F: Fn(&O) -> Vec<f32>>(&self, flatten: F) -> MappedPolicy<'_, F> {
+        MappedPolicy {
+            policy: self,
+            flatten,
+        }
+    }
+}
+
+impl<O: ?Sized, F: Fn(&O) -> Vec<f32>> NodeScorer<O> for &MappedPolicy<'_, F> {
+    fn score_nodes(&mut self, graph: &Ctg, observation: &O) -> ctg_graph::Result<Vec<f32>> {
+        let row = (self.flatten)(observation);
+        (&*self.policy).score_nodes(graph, row.as_slice())
+    }
+}
+
+impl<O: ?Sized, F: Fn(&O) -> Vec<f32>> EdgeScorer<O> for &MappedPolicy<'_, F> {
+    fn score_edges(&mut self, graph: &Ctg, observation: &O) -> ctg_graph::Result<Vec<f32>> {
+        let row = (self.flatten)(observation);
+        (&*self.policy).score_edges(graph, row.as_slice())
+    }
+}

@@ -1,0 +1,602 @@
+//! Unit tests of shapes, masks, attention, the GCN fixed point, the policy
+//! and checkpoints.
+
+use burn::module::Param;
+use burn::tensor::activation::softmax;
+use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
+use ctg_graph::symbolic::{SequenceObservation, SequenceTask};
+use ctg_graph::{ActionId, Ctg, NodeSelection, Vocabulary};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::nn::{to_vec, to_vec_int};
+use crate::*;
+
+/// The CPU device under test: burn-ndarray when that feature is on (so CI
+/// runs these tests on both CPU backends), flex otherwise.
+pub(crate) fn device() -> Device {
+    if cfg!(feature = "ndarray") {
+        BackendKind::NdArray.device().unwrap()
+    } else {
+        BackendKind::Flex.device().unwrap()
+    }
+}
+
+const N: usize = 7; // <start>, <end>, 5 actions
+const D: usize = 9;
+
+fn small_config(seed: u64) -> NtgConfig {
+    let enc = EncoderConfig::State(StateEncoderConfig::new(D).with_hidden(16).with_out_dim(12));
+    let mut c = NtgConfig::for_domain(N, enc);
+    c.interpreter.hidden = 16;
+    c.interpreter.token_embed = 8;
+    c.gcn.hidden = 10;
+    c.gcn.mlp_hidden = 8;
+    c.edge.gcn_dim = 10;
+    c.seed = seed;
+    c
+}
+
+fn random_rows(rng: &mut ChaCha8Rng, rows: usize, dim: usize) -> Vec<Vec<f32>> {
+    (0..rows)
+        .map(|_| (0..dim).map(|_| rng.random_range(-1.0f32..1.0)).collect())
+        .collect()
+}
+
+fn ids(v: &[usize]) -> Vec<ActionId> {
+    v.iter().map(|&i| ActionId::new(i)).collect()
+}
+
+fn close(a: &[f32], b: &[f32], tol: f32) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= tol)
+}
+
+#[test]
+fn encoders_map_rows_to_embeddings() {
+    let dev = device();
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let cases = [
+        (EncoderConfig::state(26), 26, 128),
+        (
+            EncoderConfig::Frame(
+                FrameEncoderConfig::new()
+                    .with_image_size(16)
+                    .with_out_dim(32),
+            ),
+            3 * 16 * 16,
+            32,
+        ),
+        (EncoderConfig::kinematics(3), 3 * 76, 128),
+    ];
+    for (cfg, d, h) in cases {
+        assert_eq!(cfg.input_dim(), d);
+        let enc = cfg.init(1, &dev).unwrap();
+        let x = rows_tensor(&random_rows(&mut rng, 4, d), d, &dev).unwrap();
+        assert_eq!(enc.forward(x).unwrap().dims(), [4, h]);
+        let seq = Tensor::<3>::zeros([2, 5, d], &dev);
+        assert_eq!(enc.forward_sequence(seq).unwrap().dims(), [2, 5, h]);
+        // The wrong width is an error, not a panic.
+        let bad = Tensor::<2>::zeros([4, d + 1], &dev);
+        assert!(matches!(enc.forward(bad), Err(ModelError::Shape { .. })));
+    }
+    assert!(matches!(
+        EncoderConfig::Frame(FrameEncoderConfig::new().with_image_size(20)).init(0, &dev),
+        Err(ModelError::Config(_))
+    ));
+}
+
+#[test]
+fn same_seed_same_weights() {
+    let dev = device();
+    let a = NtgModel::new(small_config(5), &dev).unwrap();
+    let b = NtgModel::new(small_config(5), &dev).unwrap();
+    let c = NtgModel::new(small_config(6), &dev).unwrap();
+    let w = |m: &NtgModel| to_vec(m.localizer.nodes.val()).unwrap();
+    assert_eq!(w(&a), w(&b));
+    assert_ne!(w(&a), w(&c));
+    let g = |m: &NtgModel| to_vec(m.gcn.rnn.hidden.weight.val()).unwrap();
+    assert_eq!(g(&a), g(&b));
+}
+
+fn demo_batch(dev: &Device, rng: &mut ChaCha8Rng) -> (DemoBatch, Vec<Vec<f32>>, Vec<ActionId>) {
+    let long_obs = random_rows(rng, 6, D);
+    let short_obs = random_rows(rng, 3, D);
+    let long_actions = ids(&[2, 3, 4, 5, 6]);
+    let short_actions = ids(&[4, 2]);
+    let batch = DemoBatch::new(
+        &[
+            (&long_obs[..], &long_actions[..]),
+            (&short_obs[..], &short_actions[..]),
+        ],
+        D,
+        N,
+        dev,
+    )
+    .unwrap();
+    (batch, short_obs, short_actions)
+}
+
+#[test]
+fn interpreter_shapes_and_attention() {
+    let dev = device();
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let model = NtgModel::new(small_config(1), &dev).unwrap();
+    let interp = &model.interpreter;
+    let (batch, short_obs, short_actions) = demo_batch(&dev, &mut rng);
+    assert_eq!(batch.frames.dims(), [2, 6, D]);
+    assert_eq!(batch.targets.dims(), [2, 6]); // 5 actions + <end>
+    let out = interp
+        .forward(
+            batch.frames.clone(),
+            batch.frame_mask.clone(),
+            batch.targets.clone(),
+        )
+        .unwrap();
+    assert_eq!(out.logits.dims(), [2, 6, N]);
+    assert_eq!(out.attention.dims(), [2, 6, 6]);
+
+    // Every attention row sums to 1, and the short demo gives its three
+    // padding frames no weight.
+    let att = to_vec(out.attention).unwrap();
+    for row in att.chunks(6) {
+        assert!((row.iter().sum::<f32>() - 1.0).abs() < 1e-5, "{row:?}");
+    }
+    for row in att[36..].chunks(6) {
+        assert!(
+            row[3..].iter().all(|&w| w == 0.0),
+            "padding attended: {row:?}"
+        );
+        assert!(row[..3].iter().all(|&w| w > 0.0));
+    }
+
+    // Padding is ignored: junk in the padded frames changes nothing, and the
+    // short demo scores the same in the batch as alone.
+    let junk = Tensor::<3>::ones([2, 6, D], &dev) * 100.0;
+    let pad = (batch.frame_mask.clone().neg() + 1.0).unsqueeze_dim::<3>(2);
+    let frames_junk = batch.frames.clone() + junk * pad;
+    let out_junk = interp
+        .forward(frames_junk, batch.frame_mask.clone(), batch.targets.clone())
+        .unwrap();
+    let alone = DemoBatch::new(&[(&short_obs[..], &short_actions[..])], D, N, &dev).unwrap();
+    let out_alone = interp
+        .forward(alone.frames, alone.frame_mask, alone.targets)
+        .unwrap();
+    let in_batch = to_vec(out_junk.logits.narrow(0, 1, 1).narrow(1, 0, 3)).unwrap();
+    assert!(close(&in_batch, &to_vec(out_alone.logits).unwrap(), 1e-4));
+
+    let loss = interp.loss(&batch).unwrap();
+    assert_eq!(loss.loss.dims(), [1]);
+    assert!((0.0..=1.0).contains(&loss.accuracy));
+
+    // Greedy decoding never emits <start> and stops by max_decode_len.
+    let decoded = interp.decode(&short_obs).unwrap();
+    assert!(decoded.len() <= interp.max_decode_len);
+    assert!(!decoded.contains(&Vocabulary::START) && !decoded.contains(&Vocabulary::END));
+    let batch_decoded = interp
+        .decode_batch(&[&short_obs[..], &short_obs[..]])
+        .unwrap();
+    assert_eq!(batch_decoded[0], decoded);
+    assert_eq!(batch_decoded[1], decoded);
+}
+
+#[test]
+fn demo_batch_rejects_bad_input() {
+    let dev = device();
+    let obs = vec![vec![0.0; D]; 3];
+    let bad_rows = [vec![0.0; D], vec![0.0; D - 1]];
+    let a = ids(&[2, 3]);
+    assert!(matches!(
+        DemoBatch::new(&[(&bad_rows[..], &a[..])], D, N, &dev),
+        Err(ModelError::Shape { .. })
+    ));
+    assert!(DemoBatch::new(&[(&obs[..], &ids(&[2, 9])[..])], D, N, &dev).is_err());
+    assert!(DemoBatch::new(&[(&obs[..], &ids(&[0])[..])], D, N, &dev).is_err());
+    let empty: &[(&[Vec<f32>], &[ActionId])] = &[];
+    assert!(DemoBatch::new(empty, D, N, &dev).is_err());
+}
+
+fn set_constant(mlp: PairMlp, value: f32, dev: &Device) -> PairMlp {
+    let m = mlp.out.weight.dims()[0];
+    PairMlp {
+        out: burn::nn::Linear {
+            weight: Param::from_data(TensorData::new(vec![0.0f32; m], [m, 1]), dev),
+            bias: Some(Param::from_data(TensorData::new(vec![value], [1]), dev)),
+        },
+        ..mlp
+    }
+}
+
+#[test]
+fn gcn_shapes_and_fixed_point() {
+    let dev = device();
+    let model = NtgModel::new(small_config(2), &dev).unwrap();
+    let g1 = Ctg::from_path(N, &ids(&[2, 3, 4])).unwrap();
+    let g2 = Ctg::from_path(N, &ids(&[5, 2, 6, 2])).unwrap();
+    let adj = adjacency_tensor(&[&g1, &g2], N, &dev).unwrap();
+    let out = model.gcn.forward(adj.clone()).unwrap();
+    assert_eq!(out.adjacency.dims(), [2, N, N]);
+    assert_eq!(out.embeddings.dims(), [2, N, 10]);
+    let probs = to_vec(out.adjacency.clone()).unwrap();
+    assert!(probs.iter().all(|p| (0.0..=1.0).contains(p)));
+    // Nothing into <start>, nothing out of <end>.
+    for b in 0..2 {
+        for i in 0..N {
+            assert_eq!(probs[b * N * N + i * N], 0.0);
+            assert_eq!(probs[b * N * N + N + i], 0.0);
+        }
+    }
+    let loss = model.gcn.loss(&out, adj.clone()).unwrap();
+    assert!(crate::nn::scalar(loss).unwrap() > 0.0);
+    assert!(
+        model
+            .gcn
+            .forward(Tensor::zeros([1, N + 1, N + 1], &dev))
+            .is_err()
+    );
+
+    // f_set ≡ 0 and f_reset ≡ 1: every iteration keeps C as it is.
+    let mut gcn = model.gcn.clone();
+    gcn.f_set = set_constant(gcn.f_set, -100.0, &dev); // σ(−100) ≈ 0
+    gcn.f_reset = set_constant(gcn.f_reset, 100.0, &dev); // σ(100) = 1
+    gcn.iterations = 5;
+    let fixed = gcn.forward(adj.clone()).unwrap();
+    assert!(close(
+        &to_vec(fixed.adjacency).unwrap(),
+        &to_vec(adj).unwrap(),
+        1e-6
+    ));
+
+    let counts = EdgeCounts::count(&[0.9, 0.2, 0.7, 0.0], &[1.0, 1.0, 0.0, 0.0], 0.5).unwrap();
+    assert_eq!(
+        (
+            counts.true_positives,
+            counts.false_positives,
+            counts.false_negatives
+        ),
+        (1, 1, 1)
+    );
+    assert!((counts.f1() - 0.5).abs() < 1e-6);
+}
+
+#[test]
+fn masked_edge_logits_never_choose_a_non_successor() {
+    let dev = device();
+    let model = NtgModel::new(small_config(3), &dev).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let b = 64;
+    let obs = rows_tensor(&random_rows(&mut rng, b, D), D, &dev).unwrap();
+    let nodes: Vec<i64> = (0..b).map(|_| rng.random_range(0..N as i64)).collect();
+    let mut mask = vec![false; b * N];
+    for row in mask.chunks_mut(N) {
+        // One to three successors per row, at random.
+        for _ in 0..rng.random_range(1..4) {
+            row[rng.random_range(0..N)] = true;
+        }
+    }
+    let masks = Tensor::<2, Bool>::from_data(TensorData::new(mask.clone(), [b, N]), &dev);
+    let node_ids = Tensor::<1, Int>::from_data(TensorData::new(nodes, [b]), &dev);
+    let ne_gcn = model.gcn.initial_embeddings(b);
+    let logits = model
+        .edges
+        .forward(
+            obs,
+            node_ids,
+            ne_gcn,
+            model.localizer.node_embeddings(),
+            masks,
+        )
+        .unwrap();
+    assert_eq!(logits.dims(), [b, N]);
+    let choice = to_vec_int(logits.clone().argmax(1).reshape([b])).unwrap();
+    let probs = to_vec(softmax(logits, 1)).unwrap();
+    for r in 0..b {
+        assert!(
+            mask[r * N + choice[r] as usize],
+            "row {r} chose a non-successor"
+        );
+        for a in 0..N {
+            if !mask[r * N + a] {
+                assert_eq!(probs[r * N + a], 0.0);
+            }
+        }
+    }
+}
+
+#[test]
+fn localizer_shapes_and_loss() {
+    let dev = device();
+    let model = NtgModel::new(small_config(4), &dev).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let obs = rows_tensor(&random_rows(&mut rng, 5, D), D, &dev).unwrap();
+    let logits = model.localizer.forward(obs).unwrap();
+    assert_eq!(logits.dims(), [5, N]);
+    let labels = ids_tensor(&ids(&[0, 2, 3, 4, 6]), N, &dev).unwrap();
+    let out = model.localizer.loss(logits.clone(), labels).unwrap();
+    // Untrained: the loss is about ln N.
+    let l = crate::nn::scalar(out.loss).unwrap();
+    assert!(l > 0.5 && l < 5.0, "{l}");
+    assert!(ids_tensor(&ids(&[N]), N, &dev).is_err());
+    let short = ids_tensor(&ids(&[0, 1]), N, &dev).unwrap();
+    assert!(model.localizer.loss(logits, short).is_err());
+}
+
+#[test]
+fn successor_mask_checks_targets() {
+    let dev = device();
+    let g = Ctg::from_path(N, &ids(&[2, 3])).unwrap();
+    let m = successor_mask(&[&g, &g], &ids(&[0, 2]), Some(&ids(&[2, 3])), N, &dev).unwrap();
+    let v = to_vec(m.float()).unwrap();
+    assert_eq!(v.iter().sum::<f32>(), 2.0);
+    assert_eq!(v[2], 1.0);
+    assert_eq!(v[N + 3], 1.0);
+    assert!(successor_mask(&[&g], &ids(&[0]), Some(&ids(&[3])), N, &dev).is_err());
+}
+
+fn one_hot_row(i: usize) -> Vec<f32> {
+    let mut v = vec![0.0; D];
+    v[i] = 1.0;
+    v
+}
+
+#[test]
+fn policy_runs_end_to_end_and_log_probs_agree() {
+    let dev = device();
+    let vocab = Vocabulary::new(["a", "b", "c", "d", "e"]).unwrap();
+    let model = NtgModel::new(small_config(7), &dev).unwrap();
+    let demo: Vec<Vec<f32>> = (0..4).map(one_hot_row).collect();
+    let policy = NtgPolicy::from_demo(&model, &demo, &vocab).unwrap();
+    assert!(policy.initial_graph().is_subgraph_of(policy.graph()));
+    assert!(policy.graph().contains_path(policy.demo_actions()));
+
+    let obs = one_hot_row(2);
+    let dist = policy.action_distribution(&obs).unwrap();
+    let total: f32 = dist.probabilities().iter().sum();
+    assert!((total - 1.0).abs() < 1e-5);
+    let logp = policy.log_probabilities(&obs).unwrap();
+    assert_eq!(logp.len(), N);
+    for (a, &l) in logp.iter().enumerate() {
+        let p = dist.probability(ActionId::new(a));
+        if p > 1e-6 {
+            assert!((l.exp() - p).abs() < 1e-4, "action {a}: {} vs {p}", l.exp());
+        } else {
+            assert!(l < -10.0);
+        }
+    }
+    // Node and edge scores are probabilities.
+    let nodes = policy.node_probabilities(&obs).unwrap();
+    assert!((nodes.iter().sum::<f32>() - 1.0).abs() < 1e-5);
+    let edges = policy.edge_probabilities_for(policy.graph(), &obs).unwrap();
+    for (from, row) in edges.chunks(N).enumerate() {
+        let s: f32 = row.iter().sum();
+        let has = !policy.graph().successors(ActionId::new(from)).is_empty();
+        assert!(if has {
+            (s - 1.0).abs() < 1e-5
+        } else {
+            s == 0.0
+        });
+    }
+    // A wrong-length observation is an error, not a panic.
+    assert!(policy.action_distribution(&[0.0; 3]).is_err());
+
+    // One full episode in the symbolic environment through the executor.
+    let target = vocab.parse_sequence("a b").unwrap();
+    let mut env = SequenceTask::new(vocab.clone(), target);
+    let mapped = policy.mapped(|o: &SequenceObservation| one_hot_row(o.last.index()));
+    let rollout = policy
+        .executor()
+        .run(&mut env, &mut &mapped, &mut &mapped, 0)
+        .unwrap();
+    assert!(!rollout.steps.is_empty());
+    for s in &rollout.steps {
+        assert!(s.probability > 0.0);
+    }
+    assert!(NtgPolicy::from_demo(&model, &demo, &Vocabulary::new(["a"]).unwrap()).is_err());
+}
+
+#[test]
+fn argmax_node_selection_log_probs_agree() {
+    let dev = device();
+    let mut cfg = small_config(8);
+    cfg.node_selection = NodeSelection::ArgMax;
+    let model = NtgModel::new(cfg, &dev).unwrap();
+    let policy = NtgPolicy::from_actions(&model, &ids(&[2, 3, 2, 4])).unwrap();
+    for i in 0..D {
+        let obs = one_hot_row(i);
+        let dist = policy.action_distribution(&obs).unwrap();
+        let logp = policy.log_probabilities(&obs).unwrap();
+        for (a, &l) in logp.iter().enumerate() {
+            let p = dist.probability(ActionId::new(a));
+            assert!((l.exp() - p).abs() < 1e-4);
+        }
+    }
+}
+
+#[test]
+fn ablations_replace_components() {
+    let dev = device();
+    let vocab = Vocabulary::new(["a", "b", "c", "d", "e"]).unwrap();
+    let demo: Vec<Vec<f32>> = (0..4).map(one_hot_row).collect();
+    let obs = one_hot_row(1);
+
+    let mut cfg = small_config(9);
+    cfg.ablation.demo_interpreter = false;
+    cfg.ablation.gcn = false;
+    let policy = NtgPolicy::from_demo(&NtgModel::new(cfg, &dev).unwrap(), &demo, &vocab).unwrap();
+    assert_eq!(policy.graph(), &Ctg::fully_connected(N));
+    assert!(policy.demo_actions().is_empty());
+
+    let mut cfg = small_config(9);
+    cfg.ablation.gcn = false;
+    let model = NtgModel::new(cfg, &dev).unwrap();
+    let path = ids(&[2, 4, 3]);
+    let policy = NtgPolicy::from_actions(&model, &path).unwrap();
+    assert_eq!(policy.graph(), &Ctg::from_path(N, &path).unwrap());
+
+    let mut cfg = small_config(9);
+    cfg.ablation.node_localizer = false;
+    let policy = NtgPolicy::from_demo(&NtgModel::new(cfg, &dev).unwrap(), &demo, &vocab).unwrap();
+    let nodes = policy.node_probabilities(&obs).unwrap();
+    assert!(nodes.iter().all(|&p| (p - 1.0 / N as f32).abs() < 1e-6));
+
+    let mut cfg = small_config(9);
+    cfg.ablation.edge_classifier = false;
+    let policy = NtgPolicy::from_demo(&NtgModel::new(cfg, &dev).unwrap(), &demo, &vocab).unwrap();
+    let edges = policy.edge_probabilities_for(policy.graph(), &obs).unwrap();
+    for (from, row) in edges.chunks(N).enumerate() {
+        let succ = policy.graph().successors(ActionId::new(from));
+        for (a, &p) in row.iter().enumerate() {
+            let expected = if succ.contains(&ActionId::new(a)) {
+                1.0 / succ.len() as f32
+            } else {
+                0.0
+            };
+            assert!((p - expected).abs() < 1e-6);
+        }
+    }
+}
+
+#[test]
+fn save_then_load_gives_identical_outputs() {
+    let dev = device();
+    let dir = tempfile::tempdir().unwrap();
+    let model = NtgModel::new(small_config(11), &dev).unwrap();
+    model.save(dir.path()).unwrap();
+    let loaded = NtgModel::load(dir.path(), &dev).unwrap();
+    assert_eq!(
+        serde_json::to_string(loaded.config()).unwrap(),
+        serde_json::to_string(model.config()).unwrap()
+    );
+    let demo: Vec<Vec<f32>> = (0..5).map(one_hot_row).collect();
+    let vocab = Vocabulary::new(["a", "b", "c", "d", "e"]).unwrap();
+    let p1 = NtgPolicy::from_demo(&model, &demo, &vocab).unwrap();
+    let p2 = NtgPolicy::from_demo(&loaded, &demo, &vocab).unwrap();
+    assert_eq!(p1.demo_actions(), p2.demo_actions());
+    assert_eq!(p1.edge_probabilities(), p2.edge_probabilities());
+    for i in 0..D {
+        let obs = one_hot_row(i);
+        assert_eq!(
+            p1.log_probabilities(&obs).unwrap(),
+            p2.log_probabilities(&obs).unwrap()
+        );
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let (batch, _, _) = demo_batch(&dev, &mut rng);
+    let l1 = to_vec(model.interpreter.loss(&batch).unwrap().loss).unwrap();
+    let l2 = to_vec(loaded.interpreter.loss(&batch).unwrap().loss).unwrap();
+    assert_eq!(l1, l2);
+
+    // A corrupt weights file, a corrupt config and a missing directory are
+    // errors naming the file.
+    std::fs::write(dir.path().join(WEIGHTS_FILE), b"not a burnpack").unwrap();
+    match NtgModel::load(dir.path(), &dev) {
+        Err(ModelError::File { path, .. }) => assert!(path.ends_with(WEIGHTS_FILE)),
+        other => panic!("expected a file error, got {other:?}"),
+    }
+    std::fs::write(dir.path().join(CONFIG_FILE), b"{ \"num_nodes\": ").unwrap();
+    match NtgModel::load(dir.path(), &dev) {
+        Err(ModelError::File { path, .. }) => assert!(path.ends_with(CONFIG_FILE)),
+        other => panic!("expected a file error, got {other:?}"),
+    }
+    assert!(NtgModel::load(dir.path().join("missing"), &dev).is_err());
+
+    // Weights of a different shape are rejected.
+    let other = tempfile::tempdir().unwrap();
+    model.save(other.path()).unwrap();
+    let mut cfg = small_config(11);
+    cfg.localizer.encoder =
+        EncoderConfig::State(StateEncoderConfig::new(D).with_hidden(17).with_out_dim(12));
+    cfg.edge.encoder = cfg.localizer.encoder.clone();
+    std::fs::write(
+        other.path().join(CONFIG_FILE),
+        serde_json::to_string(&cfg).unwrap(),
+    )
+    .unwrap();
+    assert!(matches!(
+        NtgModel::load(other.path(), &dev),
+        Err(ModelError::File { .. })
+    ));
+}
+
+#[test]
+fn optimizer_state_round_trips() {
+    use burn::optim::{AdamConfig, GradientsParams};
+    let dev = device().autodiff();
+    let dir = tempfile::tempdir().unwrap();
+    let mut model = NtgModel::new(small_config(12), &dev).unwrap();
+    let mut optim = AdamConfig::new().init();
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let obs = rows_tensor(&random_rows(&mut rng, 8, D), D, &dev).unwrap();
+    let labels = ids_tensor(&ids(&[0, 2, 3, 4, 5, 6, 2, 3]), N, &dev).unwrap();
+    let step = |model: NtgModel, optim: &mut burn::optim::ModuleOptimizer| {
+        let logits = model.localizer.forward(obs.clone()).unwrap();
+        let loss = model.localizer.loss(logits, labels.clone()).unwrap().loss;
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        optim.step(1e-2, model, grads)
+    };
+    model = step(model, &mut optim);
+    model.save(dir.path()).unwrap();
+    let opt_path = dir.path().join("optim.bpk");
+    save_optimizer(&optim, &opt_path).unwrap();
+    // Continue in place, and from the checkpoint: the same next step.
+    let a = step(model, &mut optim);
+    let mut restored_optim = load_optimizer(AdamConfig::new().init(), &opt_path).unwrap();
+    let restored = NtgModel::load(dir.path(), &dev).unwrap();
+    let b = step(restored, &mut restored_optim);
+    let wa = to_vec(a.localizer.nodes.val()).unwrap();
+    let wb = to_vec(b.localizer.nodes.val()).unwrap();
+    assert!(close(&wa, &wb, 1e-6));
+    assert!(load_optimizer(AdamConfig::new().init(), dir.path().join("nope.bpk")).is_err());
+}
+
+#[test]
+fn config_validation_catches_inconsistency() {
+    let mut c = small_config(0);
+    c.edge.gcn_dim = 3;
+    assert!(matches!(c.validate(), Err(ModelError::Config(_))));
+    let mut c = small_config(0);
+    c.gcn.num_nodes = N + 1;
+    assert!(c.validate().is_err());
+    let mut c = small_config(0);
+    c.edge_threshold = 2.0;
+    assert!(c.validate().is_err());
+    assert!(small_config(0).validate().is_ok());
+    assert_eq!("flex".parse::<BackendKind>().unwrap(), BackendKind::Flex);
+    assert!("tpu".parse::<BackendKind>().is_err());
+    assert!(BackendKind::available().contains(&BackendKind::Flex));
+}
+
+/// With both CPU backends compiled in, they agree on the same weights.
+#[cfg(feature = "ndarray")]
+#[test]
+fn flex_and_ndarray_agree() {
+    let flex = BackendKind::Flex.device().unwrap();
+    let nd = BackendKind::NdArray.device().unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(13);
+    let demo = random_rows(&mut rng, 5, D);
+    let path = ids(&[2, 3, 2, 4]);
+    let mut results = Vec::new();
+    for dev in [flex, nd] {
+        let model = NtgModel::new(small_config(13), &dev).unwrap();
+        let policy = NtgPolicy::from_actions(&model, &path).unwrap();
+        let batch = DemoBatch::new(&[(&demo[..], &path[..])], D, N, &dev).unwrap();
+        let loss = to_vec(model.interpreter.loss(&batch).unwrap().loss).unwrap();
+        let mut v = to_vec(
+            model
+                .gcn
+                .forward(adjacency_tensor(&[policy.initial_graph()], N, &dev).unwrap())
+                .unwrap()
+                .adjacency,
+        )
+        .unwrap();
+        v.extend(loss);
+        v.extend(
+            policy
+                .log_probabilities(&demo[0])
+                .unwrap()
+                .into_iter()
+                .map(|l| l.max(-1e6)),
+        );
+        results.push(v);
+    }
+    assert!(close(&results[0], &results[1], 1e-4));
+}
