@@ -328,8 +328,11 @@ pub fn draw_object(
     }
 }
 
+/// A well-mixed hash of a pixel: the SplitMix64 stream of `salt` at the
+/// pixel's index (one mixing round per pixel).
 fn pixel_hash(salt: u64, x: u32, y: u32) -> u64 {
-    splitmix64(salt ^ splitmix64((u64::from(y) << 32) | u64::from(x)))
+    let index = u64::from(y) * 4096 + u64::from(x);
+    splitmix64(salt.wrapping_add(index.wrapping_mul(0x9E37_79B9_7F4A_7C15)))
 }
 
 /// Fills the frame with a search location's surface.
