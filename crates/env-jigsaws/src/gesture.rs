@@ -130,7 +130,7 @@ pub fn gesture_vocabulary() -> Vocabulary {
     Vocabulary::new(GESTURE_NAMES).expect("fifteen distinct non-reserved names")
 }
 
-/// The three JIGSAWS tasks.
+/// The three JIGSAWS tasks (serialised by folder name, e.g. `Knot_Tying`).
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
 )]
@@ -138,8 +138,10 @@ pub enum Task {
     /// Suturing: needle throws through a tissue pad.
     Suturing,
     /// Needle Passing: needle throws through four small rings.
+    #[serde(rename = "Needle_Passing")]
     NeedlePassing,
     /// Knot Tying: a knot tied with the suture.
+    #[serde(rename = "Knot_Tying")]
     KnotTying,
 }
 
