@@ -1,18 +1,327 @@
 //! `ntg jigsaws ...`: the env-jigsaws commands.
 //!
-//! Not built yet: every subcommand here reports that it is unavailable and
-//! exits non-zero.
+//! - `ntg jigsaws synth --out DIR --seed S` writes the synthetic stand-in
+//!   dataset in the real JIGSAWS layout;
+//! - `ntg jigsaws stats --root DIR [--json]` reads a JIGSAWS copy (real or
+//!   synthetic; task folders are searched for, nested ones included) and
+//!   prints trials, gestures, frames and transition counts per task.
+//!
+//! Warnings of the reader (skipped trials, stray files) go to stderr.
 
-use clap::Subcommand;
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use clap::{Args, Subcommand};
+use env_jigsaws::{Dataset, SynthConfig, TaskStats, write_synthetic};
 
 /// Subcommands of `ntg jigsaws`.
 #[derive(Debug, Subcommand)]
 pub enum JigsawsCommand {
-    /// Not available yet.
-    Unavailable,
+    /// Write a synthetic stand-in for JIGSAWS (seeded; same layout, trial
+    /// inventory and file formats as the real dataset, but generated data).
+    Synth(SynthArgs),
+    /// Trials, gestures, frames and gesture transitions per task of a JIGSAWS
+    /// copy (real or synthetic).
+    Stats(StatsArgs),
+}
+
+/// Arguments of `ntg jigsaws synth`.
+#[derive(Debug, Args)]
+pub struct SynthArgs {
+    /// Folder to write into (created if needed; must not already hold a task
+    /// folder).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Seed of the generator; the same seed writes the same files.
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    pub seed: u64,
+    /// Multiply every duration by this (smaller files; 1 is realistic).
+    #[arg(long, value_name = "X", default_value_t = 1.0)]
+    pub duration_scale: f64,
+}
+
+/// Arguments of `ntg jigsaws stats`.
+#[derive(Debug, Args)]
+pub struct StatsArgs {
+    /// The dataset root (task folders are searched for below it).
+    #[arg(long, value_name = "DIR")]
+    pub root: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
 }
 
 /// Runs an `ntg jigsaws` subcommand.
-pub fn run(_command: JigsawsCommand) -> anyhow::Result<()> {
-    anyhow::bail!("`ntg jigsaws` is not available yet (env-jigsaws is not built)")
+pub fn run(command: JigsawsCommand) -> anyhow::Result<()> {
+    run_with(
+        command,
+        &mut std::io::stdout().lock(),
+        &mut std::io::stderr().lock(),
+    )
+}
+
+/// Runs an `ntg jigsaws` subcommand, writing results to `out` and warnings
+/// to `err`.
+pub fn run_with(
+    command: JigsawsCommand,
+    out: &mut impl Write,
+    err: &mut impl Write,
+) -> anyhow::Result<()> {
+    match command {
+        JigsawsCommand::Synth(args) => synth(&args, out),
+        JigsawsCommand::Stats(args) => stats(&args, out, err),
+    }
+}
+
+fn synth(args: &SynthArgs, out: &mut impl Write) -> anyhow::Result<()> {
+    if !(args.duration_scale.is_finite() && args.duration_scale > 0.0) {
+        bail!(
+            "--duration-scale must be a positive number, got {}",
+            args.duration_scale
+        );
+    }
+    let config = SynthConfig {
+        duration_scale: args.duration_scale,
+        ..SynthConfig::new(args.seed)
+    };
+    let synth = write_synthetic(&config, &args.out)
+        .with_context(|| format!("writing the synthetic dataset to {}", args.out.display()))?;
+    writeln!(
+        out,
+        "wrote a synthetic JIGSAWS stand-in (generated, not real surgical data) to {} (seed {})",
+        args.out.display(),
+        args.seed
+    )?;
+    for task in synth.dataset.tasks() {
+        let trials = synth.dataset.trials(task);
+        let frames: usize = trials.iter().map(|t| t.kinematics.num_rows()).sum();
+        let extra = synth
+            .kinematics_only
+            .iter()
+            .filter(|(id, _)| id.task == task)
+            .map(|(id, _)| id.to_string())
+            .collect::<Vec<_>>();
+        write!(out, "  {task}: {} trials, {frames} frames", trials.len())?;
+        if !extra.is_empty() {
+            write!(
+                out,
+                " (+ kinematics only, as in the real set: {})",
+                extra.join(", ")
+            )?;
+        }
+        writeln!(out)?;
+    }
+    Ok(())
+}
+
+fn stats(args: &StatsArgs, out: &mut impl Write, err: &mut impl Write) -> anyhow::Result<()> {
+    let loaded = Dataset::load(&args.root)
+        .with_context(|| format!("reading JIGSAWS from {}", args.root.display()))?;
+    for warning in &loaded.report.warnings {
+        writeln!(err, "warning: {warning}")?;
+    }
+    let stats = loaded.dataset.stats();
+    if args.json {
+        let value = serde_json::json!({
+            "root": args.root,
+            "task_folders": loaded.report.task_folders,
+            "warnings": loaded.report.warnings.iter().map(ToString::to_string).collect::<Vec<_>>(),
+            "tasks": stats.tasks,
+        });
+        serde_json::to_writer_pretty(&mut *out, &value)?;
+        writeln!(out)?;
+        return Ok(());
+    }
+    writeln!(out, "JIGSAWS at {}", args.root.display())?;
+    for t in &stats.tasks {
+        let folder = loaded
+            .report
+            .task_folders
+            .get(&t.task)
+            .map(|p| p.display().to_string())
+            .unwrap_or_default();
+        print_task(out, t, &folder)?;
+    }
+    Ok(())
+}
+
+fn print_task(out: &mut impl Write, t: &TaskStats, folder: &str) -> anyhow::Result<()> {
+    let skills = t
+        .trials_by_skill
+        .iter()
+        .map(|(s, n)| format!("{} {n}", s.letter()))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let labelled = if t.frames == 0 {
+        0.0
+    } else {
+        100.0 * t.labelled_frames as f64 / t.frames as f64
+    };
+    writeln!(out)?;
+    writeln!(out, "{} ({folder})", t.task)?;
+    writeln!(out, "  trials:   {} ({skills})", t.trials)?;
+    writeln!(
+        out,
+        "  frames:   {} at 30 Hz ({:.1} min), {labelled:.1}% labelled",
+        t.frames,
+        t.duration_s / 60.0
+    )?;
+    writeln!(
+        out,
+        "  gestures: {} ({} segments)",
+        t.gesture_set()
+            .iter()
+            .map(|g| g.name())
+            .collect::<Vec<_>>()
+            .join(" "),
+        t.segments
+    )?;
+    for g in &t.gestures {
+        writeln!(
+            out,
+            "    {:<4} {:>5} segments {:>7} frames  {}",
+            g.gesture.name(),
+            g.segments,
+            g.frames,
+            g.gesture.description()
+        )?;
+    }
+    // Transition matrix over <start>, the task's gestures, <end>.
+    let mut rows = vec!["<start>".to_owned()];
+    rows.extend(t.gesture_set().iter().map(|g| g.name().to_owned()));
+    let mut cols: Vec<String> = rows[1..].to_vec();
+    cols.push("<end>".to_owned());
+    writeln!(out, "  transitions (row: from, column: to):")?;
+    write!(out, "    {:>7}", "")?;
+    for c in &cols {
+        write!(out, " {c:>5}")?;
+    }
+    writeln!(out)?;
+    for r in &rows {
+        write!(out, "    {r:>7}")?;
+        for c in &cols {
+            let n = t
+                .transitions
+                .iter()
+                .find(|x| &x.from == r && &x.to == c)
+                .map_or(0, |x| x.count);
+            if n == 0 {
+                write!(out, " {:>5}", ".")?;
+            } else {
+                write!(out, " {n:>5}")?;
+            }
+        }
+        writeln!(out)?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run_to_strings(command: JigsawsCommand) -> anyhow::Result<(String, String)> {
+        let (mut out, mut err) = (Vec::new(), Vec::new());
+        run_with(command, &mut out, &mut err)?;
+        Ok((String::from_utf8(out)?, String::from_utf8(err)?))
+    }
+
+    #[test]
+    fn synth_then_stats_reports_the_inventory_and_gesture_sets() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path().join("jigsaws");
+        let (out, _) = run_to_strings(JigsawsCommand::Synth(SynthArgs {
+            out: root.clone(),
+            seed: 4,
+            duration_scale: 0.1,
+        }))
+        .unwrap();
+        assert!(out.contains("Suturing: 39 trials"), "{out}");
+        assert!(out.contains("Suturing_H002"), "{out}");
+
+        let (json, err) = run_to_strings(JigsawsCommand::Stats(StatsArgs {
+            root: root.clone(),
+            json: true,
+        }))
+        .unwrap();
+        assert!(
+            err.contains("trial Suturing_H002 skipped: no transcription, no meta row"),
+            "{err}"
+        );
+        let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+        let tasks = value["tasks"].as_array().unwrap();
+        let summary: Vec<(String, u64, Vec<String>)> = tasks
+            .iter()
+            .map(|t| {
+                (
+                    t["task"].as_str().unwrap().to_owned(),
+                    t["trials"].as_u64().unwrap(),
+                    t["gestures"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .map(|g| g["gesture"].as_str().unwrap().to_owned())
+                        .collect(),
+                )
+            })
+            .collect();
+        let names = |s: &str| s.split(' ').map(str::to_owned).collect::<Vec<_>>();
+        assert_eq!(
+            summary,
+            [
+                (
+                    "Suturing".to_owned(),
+                    39,
+                    names("G1 G2 G3 G4 G5 G6 G8 G9 G10 G11")
+                ),
+                (
+                    "Needle_Passing".to_owned(),
+                    28,
+                    names("G1 G2 G3 G4 G5 G6 G8 G11")
+                ),
+                ("Knot_Tying".to_owned(), 36, names("G1 G11 G12 G13 G14 G15")),
+            ]
+        );
+
+        let (text, _) =
+            run_to_strings(JigsawsCommand::Stats(StatsArgs { root, json: false })).unwrap();
+        assert!(text.contains("Needle_Passing ("), "{text}");
+        assert!(text.contains("  trials:   28 ("), "{text}");
+        assert!(text.contains("gestures: G1 G11 G12 G13 G14 G15"), "{text}");
+    }
+
+    #[test]
+    fn synth_refuses_a_folder_with_task_folders_and_bad_scales() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(dir.path().join("Knot_Tying")).unwrap();
+        let err = run_to_strings(JigsawsCommand::Synth(SynthArgs {
+            out: dir.path().to_owned(),
+            seed: 0,
+            duration_scale: 1.0,
+        }))
+        .unwrap_err();
+        assert!(format!("{err:#}").contains("already exists"), "{err:#}");
+        let err = run_to_strings(JigsawsCommand::Synth(SynthArgs {
+            out: dir.path().join("x"),
+            seed: 0,
+            duration_scale: 0.0,
+        }))
+        .unwrap_err();
+        assert!(err.to_string().contains("--duration-scale"), "{err}");
+    }
+
+    #[test]
+    fn stats_on_a_folder_without_jigsaws_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = run_to_strings(JigsawsCommand::Stats(StatsArgs {
+            root: dir.path().to_owned(),
+            json: false,
+        }))
+        .unwrap_err();
+        assert!(
+            format!("{err:#}").contains("no JIGSAWS task folder"),
+            "{err:#}"
+        );
+    }
 }
