@@ -1,18 +1,198 @@
-//! `ntg collect ...`: the env-collect commands.
+//! `ntg collect ...`: the env-collect commands (object collection).
 //!
-//! Not built yet: every subcommand here reports that it is unavailable and
-//! exits non-zero.
+//! - `ntg collect demo --objects N --seed S --out DIR`: draws a task with N
+//!   targets and records the expert's demonstration in the scene of seed S,
+//!   writing `DIR/demo.json`, `DIR/frame_NNN.png` and `DIR/contact_sheet.png`.
+//! - `ntg collect tasks --objects N --count K --split test`: lists distinct
+//!   tasks of one side of the fixed train/test split.
 
-use clap::Subcommand;
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Args, Subcommand, ValueEnum};
+use env_collect::{CollectConfig, Split, TaskSplitter, export};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
 
 /// Subcommands of `ntg collect`.
 #[derive(Debug, Subcommand)]
 pub enum CollectCommand {
-    /// Not available yet.
-    Unavailable,
+    /// Record one expert demonstration and write it as JSON, PNG frames and
+    /// a contact sheet.
+    Demo(DemoArgs),
+    /// List distinct tasks with N objects from one side of the train/test
+    /// split.
+    Tasks(TasksArgs),
 }
 
-/// Runs an `ntg collect` subcommand.
-pub fn run(_command: CollectCommand) -> anyhow::Result<()> {
-    anyhow::bail!("`ntg collect` is not available yet (env-collect is not built)")
+/// Which side of the fixed train/test split to draw tasks from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum SplitArg {
+    /// Training tasks only.
+    Train,
+    /// Held-out tasks only.
+    Test,
+    /// Any task.
+    Any,
+}
+
+impl SplitArg {
+    fn split(self) -> Option<Split> {
+        match self {
+            SplitArg::Train => Some(Split::Train),
+            SplitArg::Test => Some(Split::Test),
+            SplitArg::Any => None,
+        }
+    }
+}
+
+/// Arguments of `ntg collect demo`.
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Number of target objects N, 1 to 5.
+    #[arg(long, value_name = "N")]
+    pub objects: usize,
+    /// Episode seed (where objects are, search order, appearances).
+    #[arg(long, value_name = "S")]
+    pub seed: u64,
+    /// Output folder (created if needed).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Seed of the task draw (default: the episode seed).
+    #[arg(long, value_name = "T")]
+    pub task_seed: Option<u64>,
+    /// Side of the train/test split to draw the task from.
+    #[arg(long, value_enum, default_value_t = SplitArg::Any)]
+    pub split: SplitArg,
+    /// Most distractor objects in the scene.
+    #[arg(long, default_value_t = 3)]
+    pub max_distractors: usize,
+}
+
+/// Arguments of `ntg collect tasks`.
+#[derive(Debug, Args)]
+pub struct TasksArgs {
+    /// Number of target objects N, 1 to 5.
+    #[arg(long, value_name = "N")]
+    pub objects: usize,
+    /// How many distinct tasks to list.
+    #[arg(long, default_value_t = 10)]
+    pub count: usize,
+    /// Side of the train/test split.
+    #[arg(long, value_enum, default_value_t = SplitArg::Any)]
+    pub split: SplitArg,
+    /// Seed of the draw.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+/// Runs an `ntg collect` subcommand, printing to standard output.
+pub fn run(command: CollectCommand) -> anyhow::Result<()> {
+    let mut out = std::io::stdout().lock();
+    match command {
+        CollectCommand::Demo(args) => demo(&args, &mut out),
+        CollectCommand::Tasks(args) => tasks(&args, &mut out),
+    }
+}
+
+/// `ntg collect demo`: writes the demonstration and prints a summary.
+pub fn demo(args: &DemoArgs, out: &mut impl Write) -> anyhow::Result<()> {
+    let splitter = TaskSplitter::default();
+    let mut rng = ChaCha8Rng::seed_from_u64(args.task_seed.unwrap_or(args.seed));
+    let task = splitter
+        .sample(args.objects, args.split.split(), &mut rng)
+        .context("drawing the task")?;
+    let config = CollectConfig {
+        max_distractors: args.max_distractors,
+        ..CollectConfig::default()
+    };
+    let written = export::write_demo(&args.out, &task, args.seed, &config)
+        .with_context(|| format!("writing the demonstration to {}", args.out.display()))?;
+    let vocab = env_collect::vocabulary();
+    writeln!(out, "task: {task}")?;
+    writeln!(out, "seed: {}", args.seed)?;
+    writeln!(
+        out,
+        "actions ({}): {}",
+        written.demo.len(),
+        vocab.format_sequence(written.demo.actions())
+    )?;
+    writeln!(out, "wrote {}", written.json.display())?;
+    writeln!(
+        out,
+        "wrote {} frames to {}",
+        written.frames.len(),
+        args.out.display()
+    )?;
+    if let Some(sheet) = &written.contact_sheet {
+        writeln!(out, "wrote {}", sheet.display())?;
+    }
+    Ok(())
+}
+
+/// `ntg collect tasks`: one task per line, `code<TAB>task`.
+pub fn tasks(args: &TasksArgs, out: &mut impl Write) -> anyhow::Result<()> {
+    let tasks = TaskSplitter::default()
+        .sample_distinct(args.objects, args.count, args.split.split(), args.seed)
+        .context("drawing tasks")?;
+    for task in tasks {
+        writeln!(out, "{}\t{task}", task.code())?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn demo_writes_the_files_and_summarises() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = DemoArgs {
+            objects: 2,
+            seed: 4,
+            out: dir.path().join("demo"),
+            task_seed: None,
+            split: SplitArg::Test,
+            max_distractors: 3,
+        };
+        let mut text = Vec::new();
+        demo(&args, &mut text).unwrap();
+        let text = String::from_utf8(text).unwrap();
+        assert!(text.starts_with("task: "), "{text}");
+        assert!(dir.path().join("demo/demo.json").is_file());
+        assert!(dir.path().join("demo/frame_000.png").is_file());
+        assert!(dir.path().join("demo/contact_sheet.png").is_file());
+    }
+
+    #[test]
+    fn bad_arguments_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = DemoArgs {
+            objects: 6,
+            seed: 0,
+            out: dir.path().to_owned(),
+            task_seed: None,
+            split: SplitArg::Any,
+            max_distractors: 3,
+        };
+        assert!(demo(&args, &mut Vec::new()).is_err());
+        let args = TasksArgs {
+            objects: 1,
+            count: 41,
+            split: SplitArg::Any,
+            seed: 0,
+        };
+        assert!(tasks(&args, &mut Vec::new()).is_err());
+        let args = TasksArgs {
+            objects: 1,
+            count: 40,
+            split: SplitArg::Any,
+            seed: 0,
+        };
+        let mut text = Vec::new();
+        tasks(&args, &mut text).unwrap();
+        assert_eq!(String::from_utf8(text).unwrap().lines().count(), 40);
+    }
 }
