@@ -84,6 +84,30 @@ pub struct CollectObservation {
     pub state: Vec<f32>,
 }
 
+/// Length of a frame as a feature vector: 3 · 64 · 64.
+pub const FRAME_DIM: usize = 3 * (FRAME_SIZE as usize) * (FRAME_SIZE as usize);
+
+/// A frame as a feature vector in CHW order (all red values row by row, then
+/// green, then blue), each `byte / 255`, so exactly representable as bytes.
+pub fn frame_to_chw(frame: &RgbImage) -> Vec<f32> {
+    let plane = (frame.width() * frame.height()) as usize;
+    let mut out = vec![0.0; 3 * plane];
+    for (i, px) in frame.pixels().enumerate() {
+        for (c, &v) in px.0.iter().enumerate() {
+            out[c * plane + i] = f32::from(v) / 255.0;
+        }
+    }
+    out
+}
+
+impl CollectObservation {
+    /// The frame as [`frame_to_chw`] features ([`FRAME_DIM`] values), or
+    /// `None` when rendering is off.
+    pub fn frame_chw(&self) -> Option<Vec<f32>> {
+        self.frame.as_ref().map(frame_to_chw)
+    }
+}
+
 /// Why an action failed (the action still counts as a step).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Failure {

@@ -56,8 +56,8 @@ mod task;
 
 pub use domain::{Action, Category, Receptacle, Surface, vocabulary};
 pub use env::{
-    CollectConfig, CollectEnv, CollectInfo, CollectObservation, Failure, Place, STATE_LEN, Scene,
-    SceneLocation, SceneObject, state_layout,
+    CollectConfig, CollectEnv, CollectInfo, CollectObservation, FRAME_DIM, Failure, Place,
+    STATE_LEN, Scene, SceneLocation, SceneObject, frame_to_chw, state_layout,
 };
 pub use expert::CollectExpert;
 pub use generate::{

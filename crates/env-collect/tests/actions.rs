@@ -4,8 +4,8 @@
 use ctg_graph::{ActionId, CtgError, Environment, Vocabulary};
 use env_collect::render::HAND_INSET_START;
 use env_collect::{
-    Action, Category, CollectConfig, CollectEnv, CollectInfo, CollectObservation, Failure, Place,
-    Receptacle, STATE_LEN, Target, Task, state_layout,
+    Action, Category, CollectConfig, CollectEnv, CollectInfo, CollectObservation, FRAME_DIM,
+    Failure, Place, Receptacle, STATE_LEN, Target, Task, state_layout,
 };
 use image::RgbImage;
 
@@ -381,6 +381,31 @@ fn rendering_off_gives_the_same_states_and_no_frames() {
         assert_eq!(x.observation.state.len(), STATE_LEN);
         assert_eq!(x.observation.frame.unwrap().dimensions(), (64, 64));
     }
+}
+
+#[test]
+fn the_environment_is_send_sync_clone_and_frames_featurise() {
+    fn assert_send_sync_clone<T: Send + Sync + Clone>() {}
+    assert_send_sync_clone::<CollectEnv>();
+    assert_send_sync_clone::<CollectObservation>();
+
+    let mut env = env(two_targets());
+    let (obs, _) = env.reset(0).unwrap();
+    let frame = obs.frame.as_ref().unwrap();
+    let chw = obs.frame_chw().unwrap();
+    assert_eq!(chw.len(), FRAME_DIM);
+    assert!(chw.iter().all(|&v| (0.0..=1.0).contains(&v)));
+    // CHW: channel c of pixel (x, y) sits at c * 64 * 64 + y * 64 + x.
+    let (x, y) = (5u32, 9u32);
+    for c in 0..3 {
+        let v = chw[c * 64 * 64 + (y * 64 + x) as usize];
+        assert_eq!((v * 255.0).round() as u8, frame.get_pixel(x, y).0[c]);
+    }
+    // A clone evolves independently.
+    let mut copy = env.clone();
+    step(&mut copy, Action::Search);
+    assert_eq!(env.place(), Some(Place::Start));
+    assert_eq!(copy.place(), Some(Place::Location(0)));
 }
 
 fn state_index(name: &str) -> usize {
