@@ -12,9 +12,11 @@
 //! `xtask`. Experiments are data (configs) run through one code path, not
 //! code copied per figure.
 
+pub mod blocks;
 pub mod cli;
 pub mod dataset;
 pub mod figure;
 pub mod run_dir;
 pub mod stats;
 pub mod svg;
+pub mod train;

@@ -12,6 +12,7 @@ pub mod blocks;
 pub mod collect;
 pub mod graph;
 pub mod jigsaws;
+pub mod train;
 
 /// Neural Task Graphs: one-shot visual imitation from a single demonstration.
 #[derive(Debug, Parser)]
@@ -28,6 +29,10 @@ pub enum Command {
     /// Build the conjugate task graph (union of paths) of demonstrated action
     /// sequences and print it.
     Graph(graph::GraphArgs),
+    /// Train NTG on seen tasks into a run folder.
+    Train(train::TrainArgs),
+    /// Evaluate a trained run on unseen tasks.
+    Eval(train::EvalArgs),
     /// Block stacking and object sorting: task sets and demonstrations.
     #[command(subcommand)]
     Blocks(blocks::BlocksCommand),
@@ -43,6 +48,8 @@ pub enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Graph(args) => graph::run(&args, &mut std::io::stdout().lock()),
+        Command::Train(args) => train::run_train(&args),
+        Command::Eval(args) => train::run_eval(&args),
         Command::Blocks(cmd) => blocks::run(cmd),
         Command::Collect(cmd) => collect::run(cmd),
         Command::Jigsaws(cmd) => jigsaws::run(cmd),

@@ -1,0 +1,306 @@
+//! The block-stacking experiment (the paper's fig. "ntp_exp"): datasets from
+//! the standard task split, training, and evaluation on unseen tasks.
+//!
+//! Seeds: training demo `j` of pool task `i` is recorded with seed
+//! `TRAIN_SEED_BASE + 1000 i + j`; for test task `i`, the conditioning demo
+//! uses `DEMO_SEED_BASE + i` and the rollout `ROLLOUT_SEED_BASE + i`, so the
+//! policy acts in a scene it has not seen in the demo.
+
+use anyhow::{Context, bail};
+use burn::module::Module;
+use burn::tensor::Device;
+use clap::ValueEnum;
+use ctg_graph::{ActionId, record_demonstration};
+use env_blocks::{BlocksEnv, BlocksExpert, BlocksObservation, EnvConfig, StackTask};
+use ntg_model::{AblationConfig, EncoderConfig, NtgConfig, NtgModel, NtgPolicy};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::{DemoDataset, ObsDtype, generate, progress_bar};
+use crate::run_dir::RunDir;
+use crate::stats::SuccessRate;
+use crate::train::{EpochMetrics, OptimConfig, train};
+
+/// Seed base of training demonstrations.
+pub const TRAIN_SEED_BASE: u64 = 10_000_000;
+/// Seed base of the conditioning demonstration of each test task.
+pub const DEMO_SEED_BASE: u64 = 20_000_000;
+/// Seed base of the rollout scene of each test task.
+pub const ROLLOUT_SEED_BASE: u64 = 30_000_000;
+
+/// What the networks see.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ObsKind {
+    /// The 26-number state (cube positions relative to the gripper, gripper one-hot).
+    State,
+    /// The rendered 64×64 RGB frame.
+    Vid,
+}
+
+impl ObsKind {
+    /// Values per observation row.
+    pub fn dim(self) -> usize {
+        match self {
+            ObsKind::State => env_blocks::STATE_DIM,
+            ObsKind::Vid => 3 * 64 * 64,
+        }
+    }
+
+    /// The matching encoder.
+    pub fn encoder(self) -> EncoderConfig {
+        match self {
+            ObsKind::State => EncoderConfig::state(env_blocks::STATE_DIM),
+            ObsKind::Vid => EncoderConfig::frame(),
+        }
+    }
+}
+
+/// The observation as a flat row: the state, or the frame in CHW order
+/// scaled to `[0, 1]`.
+pub fn featurize(obs: &BlocksObservation, kind: ObsKind) -> Vec<f32> {
+    match kind {
+        ObsKind::State => obs.state().to_vec(),
+        ObsKind::Vid => match obs.frame() {
+            Some(frame) => {
+                let (w, h) = frame.dimensions();
+                let mut out = vec![0.0; 3 * (w * h) as usize];
+                for (x, y, p) in frame.enumerate_pixels() {
+                    let i = (y * w + x) as usize;
+                    for c in 0..3 {
+                        out[c * (w * h) as usize + i] = f32::from(p[c]) / 255.0;
+                    }
+                }
+                out
+            }
+            // Rendering is switched on for `Vid` by `env_config`; a missing
+            // frame gives a wrong-length row, which the model rejects.
+            None => Vec::new(),
+        },
+    }
+}
+
+/// The environment configuration for `kind`, with stochastic failures on or off.
+pub fn env_config(kind: ObsKind, failures: bool) -> EnvConfig {
+    let config = match kind {
+        ObsKind::State => EnvConfig::state_only(),
+        ObsKind::Vid => EnvConfig::default(),
+    };
+    if failures {
+        config
+    } else {
+        config.without_failures()
+    }
+}
+
+/// Everything that defines a block-stacking training run (`config.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BlocksRunConfig {
+    /// Observation kind.
+    pub obs: ObsKind,
+    /// Number of training tasks (a prefix of the standard training pool).
+    pub train_tasks: usize,
+    /// Expert demonstrations per training task.
+    pub demos_per_task: usize,
+    /// Stochastic failures in training demonstrations and evaluation.
+    pub failures: bool,
+    /// Seed of the model's initial weights.
+    pub model_seed: u64,
+    /// Optimisation.
+    pub optim: OptimConfig,
+}
+
+/// Records the training demonstrations of a run, in parallel.
+pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::Result<DemoDataset> {
+    let pairs: Vec<(usize, u64)> = (0..config.train_tasks)
+        .flat_map(|t| {
+            (0..config.demos_per_task)
+                .map(move |j| (t, TRAIN_SEED_BASE + 1000 * t as u64 + j as u64))
+        })
+        .collect();
+    let env_cfg = env_config(config.obs, config.failures);
+    let kind = config.obs;
+    let bar = progress_bar(pairs.len() as u64, "demos");
+    generate(
+        &pairs,
+        |t| Ok(BlocksEnv::stacking(tasks[t].clone(), env_cfg)?),
+        BlocksExpert::new,
+        |o| featurize(o, kind),
+        env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat),
+        kind.dim(),
+        match kind {
+            ObsKind::State => ObsDtype::F32,
+            ObsKind::Vid => ObsDtype::U8,
+        },
+        &bar,
+    )
+}
+
+/// Trains (or resumes) a block-stacking run in `run`, returning the model.
+pub fn train_run(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    device: &Device,
+    mut on_epoch: impl FnMut(&EpochMetrics),
+) -> anyhow::Result<NtgModel> {
+    let split = env_blocks::standard_split()?;
+    let tasks = split.train(config.train_tasks)?;
+    let dataset_dir = run.dataset_dir();
+    let dataset = if dataset_dir.join("index.json").is_file() {
+        DemoDataset::load(&dataset_dir)?
+    } else {
+        let dataset = build_dataset(config, tasks)?;
+        dataset.save(&dataset_dir)?;
+        dataset
+    };
+    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+    let mut model_config = NtgConfig::for_domain(vocab.len(), config.obs.encoder());
+    model_config.seed = config.model_seed;
+    let model = NtgModel::new(model_config, device)?;
+    train(model, &dataset, &config.optim, run, device, &mut on_epoch)
+}
+
+/// One evaluated test task.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TaskRecord {
+    /// Index in the standard test set.
+    pub index: usize,
+    /// Task id.
+    pub task: String,
+    /// Whether every goal constraint held at the end.
+    pub success: bool,
+    /// Actions taken (`<end>` included if chosen).
+    pub steps: usize,
+    /// The executed actions, by name.
+    pub trace: Vec<String>,
+    /// The demo interpreter's transcription of the conditioning demo.
+    pub transcription: Vec<String>,
+    /// The expert's actual action sequence in the conditioning demo.
+    pub demo_actions: Vec<String>,
+}
+
+/// The result of evaluating a model on test tasks.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalResult {
+    /// Which policy variant was evaluated.
+    pub variant: String,
+    /// Success rate with its 95% interval.
+    pub success: SuccessRate,
+    /// Per-task records.
+    pub tasks: Vec<TaskRecord>,
+}
+
+/// Policy variants for evaluation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Variant {
+    /// The full NTG model.
+    Full,
+    /// Uniform ε over successors (no edge classifier).
+    NoEdgeClassifier,
+    /// Uniform ℓ (no node localizer).
+    NoNodeLocalizer,
+    /// Fully connected initial graph (no demo interpreter).
+    NoDemoInterpreter,
+    /// The demo's path graph as is (no GCN).
+    NoGcn,
+}
+
+impl Variant {
+    fn ablation(self) -> AblationConfig {
+        let a = AblationConfig::new();
+        match self {
+            Variant::Full => a,
+            Variant::NoEdgeClassifier => a.with_edge_classifier(false),
+            Variant::NoNodeLocalizer => a.with_node_localizer(false),
+            Variant::NoDemoInterpreter => a.with_demo_interpreter(false),
+            Variant::NoGcn => a.with_gcn(false),
+        }
+    }
+
+    /// Name used in files and reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::Full => "full",
+            Variant::NoEdgeClassifier => "no-edge-classifier",
+            Variant::NoNodeLocalizer => "no-node-localizer",
+            Variant::NoDemoInterpreter => "no-demo-interpreter",
+            Variant::NoGcn => "no-gcn",
+        }
+    }
+}
+
+/// Evaluates `model` on the first `test_tasks` unseen tasks: one demo per
+/// task → policy → rollout in a fresh scene, in parallel.
+pub fn evaluate(
+    model: &NtgModel,
+    obs: ObsKind,
+    failures: bool,
+    test_tasks: usize,
+    variant: Variant,
+) -> anyhow::Result<EvalResult> {
+    let split = env_blocks::standard_split()?;
+    if test_tasks > split.test.len() {
+        bail!(
+            "asked for {test_tasks} test tasks; there are {}",
+            split.test.len()
+        );
+    }
+    let mut model = model.valid();
+    model.config.ablation = variant.ablation();
+    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+    let env_cfg = env_config(obs, failures);
+    let bar = progress_bar(test_tasks as u64, "rollouts");
+    let names = |ids: &[ActionId]| -> Vec<String> {
+        ids.iter()
+            .map(|&a| vocab.name(a).unwrap_or("?").to_owned())
+            .collect()
+    };
+    let records: Vec<TaskRecord> = split.test[..test_tasks]
+        .par_iter()
+        .enumerate()
+        .map(|(i, task)| {
+            let mut env = BlocksEnv::stacking(task.clone(), env_cfg)?;
+            let demo = record_demonstration(
+                &mut env,
+                &mut BlocksExpert::new(),
+                DEMO_SEED_BASE + i as u64,
+            )
+            .with_context(|| format!("demo of test task {}", task.id))?;
+            let rows: Vec<Vec<f32>> = demo
+                .observations()
+                .iter()
+                .map(|o| featurize(o, obs))
+                .collect();
+            let policy = NtgPolicy::from_demo(&model, &rows, &vocab)?;
+            let mapped = policy.mapped(|o: &BlocksObservation| featurize(o, obs));
+            let (mut nodes, mut edges) = (&mapped, &mapped);
+            let rollout = policy
+                .executor()
+                .run(
+                    &mut env,
+                    &mut nodes,
+                    &mut edges,
+                    ROLLOUT_SEED_BASE + i as u64,
+                )
+                .with_context(|| format!("rollout of test task {}", task.id))?;
+            bar.inc(1);
+            let trace: Vec<ActionId> = rollout.steps.iter().map(|s| s.action).collect();
+            Ok(TaskRecord {
+                index: i,
+                task: task.id.clone(),
+                success: rollout.success,
+                steps: rollout.steps.len(),
+                trace: names(&trace),
+                transcription: names(policy.demo_actions()),
+                demo_actions: names(demo.actions()),
+            })
+        })
+        .collect::<anyhow::Result<_>>()?;
+    bar.finish_and_clear();
+    Ok(EvalResult {
+        variant: variant.name().to_owned(),
+        success: SuccessRate::from_outcomes(records.iter().map(|r| r.success)),
+        tasks: records,
+    })
+}

@@ -1,0 +1,170 @@
+//! `ntg train` and `ntg eval`.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, bail};
+use clap::{Args, ValueEnum};
+use ntg_model::NtgModel;
+
+use crate::blocks::{self, BlocksRunConfig, ObsKind, Variant};
+use crate::run_dir::RunDir;
+use crate::train::OptimConfig;
+
+/// Task domains `ntg train` knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Domain {
+    /// Block stacking (the paper's main experiment).
+    Blocks,
+}
+
+/// Arguments of `ntg train`.
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Task domain.
+    #[arg(long, value_enum, default_value_t = Domain::Blocks)]
+    pub domain: Domain,
+    /// Observation kind.
+    #[arg(long, value_enum, default_value_t = ObsKind::State)]
+    pub obs: ObsKind,
+    /// Training tasks (a prefix of the standard 1000-task pool).
+    #[arg(long, default_value_t = 100)]
+    pub train_tasks: usize,
+    /// Expert demonstrations per training task.
+    #[arg(long, default_value_t = 20)]
+    pub demos_per_task: usize,
+    /// Passes over the demonstrations.
+    #[arg(long, default_value_t = 20)]
+    pub epochs: usize,
+    /// Demonstrations per optimisation step.
+    #[arg(long, default_value_t = 32)]
+    pub batch_size: usize,
+    /// Adam learning rate.
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr: f64,
+    /// Seed of the weights and the shuffling.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Turn stochastic grasp/drop failures off (they are on by default).
+    #[arg(long)]
+    pub no_failures: bool,
+    /// Run folder to create (or, with --resume, to continue).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Continue the run in --out from its last checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+}
+
+impl TrainArgs {
+    /// The run configuration these arguments describe.
+    pub fn config(&self) -> BlocksRunConfig {
+        BlocksRunConfig {
+            obs: self.obs,
+            train_tasks: self.train_tasks,
+            demos_per_task: self.demos_per_task,
+            failures: !self.no_failures,
+            model_seed: self.seed,
+            optim: OptimConfig {
+                epochs: self.epochs,
+                batch_size: self.batch_size,
+                learning_rate: self.lr,
+                seed: self.seed,
+            },
+        }
+    }
+}
+
+/// Runs `ntg train`.
+pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
+    let config = args.config();
+    let run = if args.resume {
+        let run = RunDir::open(&args.out)?;
+        let saved: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+        if saved != config {
+            bail!(
+                "{} was started with a different configuration; resume it with the same arguments as the original run (saved: {})",
+                run.config_path().display(),
+                serde_json::to_string(&saved)?
+            );
+        }
+        run
+    } else {
+        if config.train_tasks == 0 || config.demos_per_task == 0 {
+            bail!("--train-tasks and --demos-per-task must be positive");
+        }
+        let run = RunDir::create(&args.out)?;
+        RunDir::write_json(&run.config_path(), &config)?;
+        run
+    };
+    let device = ntg_model::cpu_device().autodiff();
+    eprintln!(
+        "training NTG ({:?} observations) on {} tasks x {} demos for {} epochs -> {}",
+        config.obs,
+        config.train_tasks,
+        config.demos_per_task,
+        config.optim.epochs,
+        run.root().display()
+    );
+    blocks::train_run(&run, &config, &device, |m| {
+        eprintln!(
+            "epoch {:>3}: loss {:.3} | tokens {:.3} | edge F1 {:.3} | localizer {:.3} | steps {:.3} | {:.1}s",
+            m.epoch,
+            m.loss,
+            m.token_accuracy,
+            m.edge_f1,
+            m.localizer_accuracy,
+            m.step_accuracy,
+            m.seconds
+        );
+    })?;
+    eprintln!("done: weights in {}", run.checkpoint_dir().display());
+    Ok(())
+}
+
+/// Arguments of `ntg eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Run folder written by `ntg train`.
+    #[arg(long)]
+    pub run: PathBuf,
+    /// Number of unseen test tasks (from the start of the standard test set).
+    #[arg(long, default_value_t = 100)]
+    pub test_tasks: usize,
+    /// Which policy to evaluate.
+    #[arg(long, value_enum, default_value_t = Variant::Full)]
+    pub variant: Variant,
+}
+
+/// Runs `ntg eval`: prints the success rate and writes
+/// `eval/<variant>-<K>.json` in the run folder.
+pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
+    let run = RunDir::open(&args.run)?;
+    let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+    let device = ntg_model::cpu_device();
+    let model = NtgModel::load(run.checkpoint_dir(), &device)
+        .with_context(|| format!("{} has no trained model yet", run.root().display()))?;
+    let result = blocks::evaluate(
+        &model,
+        config.obs,
+        config.failures,
+        args.test_tasks,
+        args.variant,
+    )?;
+    std::fs::create_dir_all(run.eval_dir())?;
+    let path = run
+        .eval_dir()
+        .join(format!("{}-{}.json", args.variant.name(), args.test_tasks));
+    RunDir::write_json(&path, &result)?;
+    let s = result.success;
+    println!(
+        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); records in {}",
+        result.variant,
+        s.successes,
+        s.trials,
+        s.rate,
+        s.ci_low,
+        s.ci_high,
+        path.display()
+    );
+    Ok(())
+}
