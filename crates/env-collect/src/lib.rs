@@ -26,7 +26,12 @@
 //! [`generate_demos`] records many demonstrations in parallel (rayon), equal
 //! to [`generate_demos_sequential`]. [`TaskSplitter`] splits all tasks into
 //! disjoint train and test sets by task identity; [`export::write_demo`]
-//! writes a demonstration as JSON, PNG frames and a contact sheet.
+//! writes a demonstration as JSON, PNG frames and a contact sheet
+//! (`ntg collect demo --objects 4 --seed 3 --out DIR` wrote
+//! `docs/collect-contact-sheet.png`). [`frame_to_chw`] turns a frame into the
+//! CHW `[0, 1]` features the frame encoder reads.
+//!
+//! Speed (criterion, `cargo bench -p env-collect`): see `benches/collect.rs`.
 //!
 //! **Architecture invariant:** depends on `ctg-graph`, `image`, `rand`,
 //! `rayon`, `serde` and small utility crates only. It must never depend on

@@ -668,9 +668,10 @@ fn glyph(c: char) -> u16 {
 }
 
 /// Draws `text` with the built-in 3×5 font (upper case), `scale` pixels per
-/// font pixel, top-left at (`x`, `y`); clipped at the image border.
+/// font pixel (clamped to 1..=16), top-left at (`x`, `y`); clipped at the
+/// image border.
 pub fn draw_text(img: &mut RgbImage, text: &str, x: u32, y: u32, scale: u32, color: [u8; 3]) {
-    let scale = scale.max(1);
+    let scale = scale.clamp(1, 16);
     for (i, ch) in text.chars().enumerate() {
         let bits = glyph(ch);
         let gx = x as u64 + i as u64 * 4 * u64::from(scale);
@@ -682,7 +683,7 @@ pub fn draw_text(img: &mut RgbImage, text: &str, x: u32, y: u32, scale: u32, col
                 for dy in 0..scale {
                     for dx in 0..scale {
                         let px = gx + u64::from(col * scale + dx);
-                        let py = u64::from(y + row * scale + dy);
+                        let py = u64::from(y) + u64::from(row * scale + dy);
                         if px < u64::from(img.width()) && py < u64::from(img.height()) {
                             img.put_pixel(px as u32, py as u32, Rgb(color));
                         }
@@ -695,10 +696,12 @@ pub fn draw_text(img: &mut RgbImage, text: &str, x: u32, y: u32, scale: u32, col
 
 /// A grid of frames, each magnified `scale` times (nearest neighbour) with
 /// its caption (may be empty) under it, `columns` per row, on a dark
-/// background. Frames may have any size; cells take the largest.
+/// background. Frames may have any size; cells take the largest. `scale` is
+/// clamped to 1..=8; meant for frame-sized images (a sheet larger than
+/// `u32` pixels a side cannot be built).
 pub fn contact_sheet(frames: &[(&RgbImage, String)], columns: usize, scale: u32) -> RgbImage {
     let columns = columns.max(1);
-    let scale = scale.max(1);
+    let scale = scale.clamp(1, 8);
     let fw = frames.iter().map(|(f, _)| f.width()).max().unwrap_or(0) * scale;
     let fh = frames.iter().map(|(f, _)| f.height()).max().unwrap_or(0) * scale;
     let (gap, caption) = (4u32, 9u32);
@@ -858,5 +861,9 @@ mod tests {
         draw_text(&mut img, "a very long caption", 0, 0, 1, [255, 255, 255]);
         assert!(img.pixels().any(|p| p.0 == [255, 255, 255]));
         assert_eq!(contact_sheet(&[], 3, 2).dimensions(), (8, 4));
+        // Extreme positions and scales clip instead of overflowing.
+        draw_text(&mut img, "x", u32::MAX, u32::MAX, u32::MAX, [1, 2, 3]);
+        let big = contact_sheet(&[(&frame, "X".into())], 1, u32::MAX);
+        assert_eq!(big.width(), 4 + 64 * 8 + 4);
     }
 }
