@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 use crate::error::{JigsawsError, Problem, Result};
 use crate::kinematics::Kinematics;
 use crate::transcription::{
-    MetaRecord, Segment, format_meta_file, format_transcription, parse_meta_file,
-    parse_transcription,
+    MetaRecord, Segment, format_meta_file, format_transcription, overlapping_segments,
+    parse_meta_file, parse_transcription, segment_lines,
 };
 use crate::{Gesture, Task, TrialId};
 
@@ -31,9 +31,10 @@ pub struct Trial {
 }
 
 impl Trial {
-    /// A trial, checked: at least one segment, segments ordered and
-    /// non-overlapping with `end >= start >= 1`, and the last segment within
-    /// the kinematics rows.
+    /// A trial, checked: at least one segment, `end >= start >= 1`, each
+    /// segment starting after the previous one starts, and every segment
+    /// within the kinematics rows. (Overlapping segments are allowed; see
+    /// [`crate::overlapping_segments`].)
     pub fn new(meta: MetaRecord, segments: Vec<Segment>, kinematics: Kinematics) -> Result<Trial> {
         let trial = meta.trial;
         let invalid = |problem| JigsawsError::InvalidTrial { trial, problem };
@@ -52,21 +53,20 @@ impl Trial {
                 }));
             }
             if let Some(p) = prev
-                && s.start_frame <= p.end_frame
+                && s.start_frame <= p.start_frame
             {
-                return Err(invalid(Problem::Overlap {
+                return Err(invalid(Problem::OutOfOrder {
                     start: s.start_frame,
-                    previous_end: p.end_frame,
+                    previous_start: p.start_frame,
+                }));
+            }
+            if s.end_frame as usize > kinematics.num_rows() {
+                return Err(invalid(Problem::SegmentPastEnd {
+                    end: s.end_frame,
+                    rows: kinematics.num_rows(),
                 }));
             }
             prev = Some(s);
-        }
-        let last = segments[segments.len() - 1].end_frame;
-        if last as usize > kinematics.num_rows() {
-            return Err(invalid(Problem::SegmentPastEnd {
-                end: last,
-                rows: kinematics.num_rows(),
-            }));
         }
         Ok(Trial {
             meta,
@@ -87,7 +87,7 @@ impl Trial {
     }
 
     /// The gesture label of every kinematics row (`None` for unlabelled
-    /// frames).
+    /// frames; where segments overlap, the later segment's gesture).
     pub fn frame_labels(&self) -> Vec<Option<Gesture>> {
         let mut labels = vec![None; self.kinematics.num_rows()];
         for s in &self.segments {
@@ -99,9 +99,9 @@ impl Trial {
         labels
     }
 
-    /// Number of labelled frames.
+    /// Number of labelled frames (frames inside at least one segment).
     pub fn labelled_frames(&self) -> usize {
-        self.segments.iter().map(Segment::num_frames).sum()
+        self.frame_labels().iter().filter(|l| l.is_some()).count()
     }
 }
 
@@ -141,6 +141,18 @@ pub enum LoadWarning {
         /// The file.
         path: PathBuf,
     },
+    /// A segment that starts before the previous one ends; it was kept (its
+    /// frames are labelled with the later gesture).
+    OverlappingSegment {
+        /// The transcription.
+        path: PathBuf,
+        /// 1-based line of the segment.
+        line: usize,
+        /// Its start frame.
+        start: u32,
+        /// The previous segment's end frame.
+        previous_end: u32,
+    },
 }
 
 impl fmt::Display for LoadWarning {
@@ -165,6 +177,16 @@ impl fmt::Display for LoadWarning {
             LoadWarning::UnrecognisedFile { path } => write!(
                 f,
                 "{}: not named like a trial of this task; ignored",
+                path.display()
+            ),
+            LoadWarning::OverlappingSegment {
+                path,
+                line,
+                start,
+                previous_end,
+            } => write!(
+                f,
+                "{}:{line}: segment starting at frame {start} overlaps the previous one (ends at frame {previous_end}); kept",
                 path.display()
             ),
         }
@@ -502,7 +524,10 @@ fn load_task(folder: &Path, task: Task, warnings: &mut Vec<LoadWarning>) -> Resu
             });
             continue;
         };
-        let segments = parse_transcription(&read_text(t_path)?, t_path)?;
+        let text = read_text(t_path)?;
+        let segments = parse_transcription(&text, t_path)?;
+        let lines = segment_lines(&text);
+        let line_of = |i: usize| lines.get(i).copied().unwrap_or(i + 1);
         if segments.is_empty() {
             return Err(JigsawsError::Empty {
                 path: t_path.clone(),
@@ -521,22 +546,21 @@ fn load_task(folder: &Path, task: Task, warnings: &mut Vec<LoadWarning>) -> Resu
             .enumerate()
             .find(|(_, s)| s.end_frame as usize > kin.num_rows())
         {
-            // Segments are ordered, so the first one past the end is the
-            // line to report; count non-blank lines to find it.
-            let text = read_text(t_path)?;
-            let line = text
-                .lines()
-                .enumerate()
-                .filter(|(_, l)| !l.trim().is_empty())
-                .nth(i)
-                .map_or(i + 1, |(n, _)| n + 1);
             return Err(JigsawsError::Parse {
                 path: t_path.clone(),
-                line,
+                line: line_of(i),
                 problem: Problem::SegmentPastEnd {
                     end: s.end_frame,
                     rows: kin.num_rows(),
                 },
+            });
+        }
+        for i in overlapping_segments(&segments) {
+            warnings.push(LoadWarning::OverlappingSegment {
+                path: t_path.clone(),
+                line: line_of(i),
+                start: segments[i].start_frame,
+                previous_end: segments[i - 1].end_frame,
             });
         }
         let mut trial = Trial::new(*record, segments, kin)?;
@@ -620,10 +644,19 @@ mod tests {
         assert!(
             Trial::new(
                 meta(id),
-                vec![seg(2, 4, Gesture::G1), seg(4, 5, Gesture::G2)],
-                kin
+                vec![seg(4, 4, Gesture::G1), seg(4, 5, Gesture::G2)],
+                kin.clone()
             )
             .is_err()
         );
+        // An overlap is allowed; the later gesture labels the shared frame.
+        let overlap = Trial::new(
+            meta(id),
+            vec![seg(2, 4, Gesture::G1), seg(4, 5, Gesture::G2)],
+            kin,
+        )
+        .unwrap();
+        assert_eq!(overlap.frame_labels()[3], Some(Gesture::G2));
+        assert_eq!(overlap.labelled_frames(), 4);
     }
 }

@@ -70,15 +70,16 @@ pub enum Problem {
         /// The offending token.
         token: String,
     },
-    /// A segment that starts at or before the end of the previous one.
+    /// A segment that does not start after the previous one starts
+    /// (segments must be in order).
     #[error(
-        "segment starting at frame {start} overlaps the previous segment, which ends at frame {previous_end}"
+        "segment starting at frame {start} is out of order: the previous segment starts at frame {previous_start}"
     )]
-    Overlap {
+    OutOfOrder {
         /// Start frame of this segment.
         start: u32,
-        /// End frame of the previous segment.
-        previous_end: u32,
+        /// Start frame of the previous segment.
+        previous_start: u32,
     },
     /// A segment past the last kinematics row of its trial.
     #[error("segment ends at frame {end}, but the kinematics file has only {rows} rows")]

@@ -63,6 +63,6 @@ pub use observation::{
 pub use stats::{DatasetStats, GestureCount, TaskStats, TransitionCount};
 pub use synth::{SynthConfig, SyntheticJigsaws, generate, write_synthetic};
 pub use transcription::{
-    GRS_ITEMS, MetaRecord, Segment, format_meta_file, format_transcription, parse_meta_file,
-    parse_transcription,
+    GRS_ITEMS, MetaRecord, Segment, format_meta_file, format_transcription, overlapping_segments,
+    parse_meta_file, parse_transcription, segment_lines,
 };

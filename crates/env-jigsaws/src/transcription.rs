@@ -38,9 +38,11 @@ impl Segment {
 
 /// Parses a transcription file's text: one segment per non-blank line,
 /// `<start_frame> <end_frame> G<k>` separated by any whitespace (trailing
-/// spaces are common). Frames are positive, `end >= start`, segments are in
-/// order and do not overlap (frames between segments are unlabelled).
-/// `path` is only used in error messages.
+/// spaces are common). Frames are positive, `end >= start`, and segments are
+/// in order (each starts after the previous one starts). Frames between
+/// segments are unlabelled. A segment that starts before the previous one
+/// ends is accepted (see [`overlapping_segments`]; the loader reports it as
+/// a warning). `path` is only used in error messages.
 pub fn parse_transcription(text: &str, path: &Path) -> Result<Vec<Segment>> {
     let mut segments: Vec<Segment> = Vec::new();
     for (i, line) in text.lines().enumerate() {
@@ -82,14 +84,14 @@ pub fn parse_transcription(text: &str, path: &Path) -> Result<Vec<Segment>> {
             )
         })?;
         if let Some(prev) = segments.last()
-            && start <= prev.end_frame
+            && start <= prev.start_frame
         {
             return Err(parse_error(
                 path,
                 i,
-                Problem::Overlap {
+                Problem::OutOfOrder {
                     start,
-                    previous_end: prev.end_frame,
+                    previous_start: prev.start_frame,
                 },
             ));
         }
@@ -100,6 +102,24 @@ pub fn parse_transcription(text: &str, path: &Path) -> Result<Vec<Segment>> {
         });
     }
     Ok(segments)
+}
+
+/// Indices of the segments that start at or before the end of the previous
+/// segment (overlaps, which the real annotations are not expected to have).
+pub fn overlapping_segments(segments: &[Segment]) -> Vec<usize> {
+    (1..segments.len())
+        .filter(|&i| segments[i].start_frame <= segments[i - 1].end_frame)
+        .collect()
+}
+
+/// 1-based line numbers of the segments of a transcription text (its
+/// non-blank lines), for messages about segment `i`.
+pub fn segment_lines(text: &str) -> Vec<usize> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(n, _)| n + 1)
+        .collect()
 }
 
 /// The text of a transcription file (one `start end Gk ` line per segment,
@@ -301,9 +321,13 @@ mod tests {
             "t.txt:2: a segment needs 3 fields `<start_frame> <end_frame> G<k>`, found 2"
         );
         assert_eq!(
-            err("1 10 G1\n10 20 G2\n"),
-            "t.txt:2: segment starting at frame 10 overlaps the previous segment, which ends at frame 10"
+            err("5 10 G1\n5 20 G2\n"),
+            "t.txt:2: segment starting at frame 5 is out of order: the previous segment starts at frame 5"
         );
+        // Overlaps parse, and are found.
+        let s = parse_transcription("1 10 G1\n10 20 G2\n21 22 G3\n", Path::new("t")).unwrap();
+        assert_eq!(overlapping_segments(&s), [1]);
+        assert_eq!(segment_lines("\n1 2 G1\n  \n3 4 G2\n"), [2, 4]);
     }
 
     #[test]

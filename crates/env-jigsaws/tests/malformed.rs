@@ -147,6 +147,40 @@ fn segment_past_the_kinematics() {
 }
 
 #[test]
+fn out_of_order_segment() {
+    let (_, line, problem, _) =
+        load_error(|s| edit_line(&transcription(s), 3, |_| "8 19 G8 ".into()));
+    assert_eq!(line, 3);
+    assert_eq!(
+        problem,
+        Problem::OutOfOrder {
+            start: 8,
+            previous_start: 8
+        }
+    );
+}
+
+#[test]
+fn overlapping_segment_is_kept_with_a_warning() {
+    let (dir, suturing) = copy();
+    edit_line(&transcription(&suturing), 3, |_| "12 19 G8 ".into());
+    let loaded = Dataset::load(dir.path()).unwrap();
+    let warning = loaded
+        .report
+        .warnings
+        .iter()
+        .find(|w| matches!(w, env_jigsaws::LoadWarning::OverlappingSegment { .. }))
+        .expect("an overlap warning")
+        .to_string();
+    assert!(
+        warning.ends_with("transcriptions/Suturing_B001.txt:3: segment starting at frame 12 overlaps the previous one (ends at frame 12); kept"),
+        "{warning}"
+    );
+    let id = env_jigsaws::TrialId::new(env_jigsaws::Task::Suturing, 'B', 1);
+    assert_eq!(loaded.dataset.trial(id).unwrap().segments.len(), 3);
+}
+
+#[test]
 fn bad_meta_row() {
     let (file, line, problem, _) = load_error(|s| {
         edit_line(&s.join("meta_file_Suturing.txt"), 3, |l| {
