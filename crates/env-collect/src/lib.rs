@@ -3,7 +3,7 @@
 //!
 //! A [`Task`] is N ∈ [1, 5] target objects of distinct categories out of
 //! C = 8 ([`Category`]), each with its designated drop-off receptacle among
-//! K = 5 ([`Receptacle`]). Each episode ([`CollectEnv::reset`]) builds a
+//! K = 5 ([`Receptacle`]). Each episode (`reset(seed)` of [`CollectEnv`]) builds a
 //! fresh scene from its seed: M = N + 3 search locations visited in a random
 //! order, the targets hidden at distinct locations and 1–3 distractor
 //! objects (non-target categories) anywhere, every object with its own
