@@ -1,0 +1,280 @@
+//! A deterministic ray-casting renderer for 64×64 RGB frames.
+//!
+//! The camera is fixed: it looks down and forward at the table from
+//! [`CAMERA_EYE`] towards the origin, with a 60° field of view and up vector
+//! (1, 0, 0), like NTP's, but placed closer (NTP's eye at (0, −0.4, 1.4) was
+//! set for a raised table) so that the 0.45 m covered by the workspace fills
+//! most of the frame and a 5 cm cube spans about 6 pixels.
+//!
+//! Every pixel's primary ray is fixed, so the table (a plane at z = 0) is
+//! rendered once into a background. Per frame, each shape (cubes, bin pads,
+//! gripper fingers and palm) is projected to its screen-space bounding box
+//! and only the rays inside it are cast against the shape with parry3d's
+//! `cast_ray_and_get_normal`, keeping the nearest hit per pixel. Shading is
+//! Lambertian with one directional light plus ambient.
+
+use std::sync::OnceLock;
+
+use glam::Vec3;
+use image::RgbImage;
+use parry3d::math::Pose;
+use parry3d::query::{Ray, RayCast};
+use parry3d::shape::Cuboid;
+
+use crate::world::{BIN_HALF, BIN_THICKNESS, CUBE_HALF, WORKSPACE_HALF, World};
+
+/// Frame width and height in pixels.
+pub const FRAME_SIZE: u32 = 64;
+/// Vertical (and horizontal) field of view in degrees.
+pub const FIELD_OF_VIEW_DEG: f32 = 60.0;
+/// The camera position: NTP's viewing direction (from eye (0, −0.4, 1.4)
+/// towards the origin), 0.55 m from [`CAMERA_TARGET`] instead of 1.456 m, so
+/// that every possible cube position (grid ±0.2 m, jitter ±3 cm) is inside
+/// the frame and a cube at the centre spans 5 to 6 pixels (6 near the camera).
+pub const CAMERA_EYE: Vec3 = Vec3::new(0.0, -0.191096, 0.528836);
+/// The point the camera looks at: 4 cm towards the camera from the
+/// workspace centre, which centres the workspace in the perspective frame.
+pub const CAMERA_TARGET: Vec3 = Vec3::new(0.0, -0.04, 0.0);
+/// The camera's up vector, as in NTP.
+pub const CAMERA_UP: Vec3 = Vec3::new(1.0, 0.0, 0.0);
+
+/// Colours of cubes A–H in stacking (distinct, saturated).
+pub const CUBE_COLOURS: [[f32; 3]; 8] = [
+    [0.90, 0.10, 0.10], // A red
+    [0.10, 0.75, 0.15], // B green
+    [0.15, 0.25, 0.95], // C blue
+    [0.95, 0.85, 0.10], // D yellow
+    [0.90, 0.15, 0.85], // E magenta
+    [0.10, 0.85, 0.90], // F cyan
+    [1.00, 0.55, 0.05], // G orange
+    [0.50, 0.20, 0.75], // H purple
+];
+
+/// Colours of the four sorting categories; the two objects of a category
+/// differ in brightness.
+pub const CATEGORY_COLOURS: [[f32; 3]; 4] = [
+    [0.90, 0.10, 0.10],
+    [0.10, 0.75, 0.15],
+    [0.15, 0.25, 0.95],
+    [0.95, 0.85, 0.10],
+];
+
+/// Colours of the four bin pads.
+pub const BIN_COLOURS: [[f32; 3]; 4] = [
+    [0.45, 0.30, 0.20],
+    [0.20, 0.40, 0.40],
+    [0.40, 0.40, 0.15],
+    [0.35, 0.22, 0.40],
+];
+
+const TABLE_INSIDE: [f32; 3] = [0.82, 0.80, 0.74];
+const TABLE_OUTSIDE: [f32; 3] = [0.62, 0.60, 0.56];
+const GRIPPER_COLOUR: [f32; 3] = [0.22, 0.22, 0.25];
+const AMBIENT: f32 = 0.35;
+
+/// One box to draw: a centre, half extents and a colour.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DrawBox {
+    /// Centre (m).
+    pub centre: Vec3,
+    /// Half extents (m).
+    pub half: Vec3,
+    /// Linear RGB in [0, 1].
+    pub colour: [f32; 3],
+}
+
+/// The fixed camera with its precomputed rays and table background.
+#[derive(Debug, Clone)]
+pub struct Renderer {
+    eye: Vec3,
+    right: Vec3,
+    up: Vec3,
+    forward: Vec3,
+    tan_half: f32,
+    dirs: Vec<Vec3>,
+    background: Vec<u8>,
+    table_depth: Vec<f32>,
+    light: Vec3,
+}
+
+fn shade(colour: [f32; 3], normal: Vec3, light: Vec3) -> [u8; 3] {
+    let k = AMBIENT + (1.0 - AMBIENT) * normal.dot(light).max(0.0);
+    let q = |c: f32| ((c * k).clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
+    [q(colour[0]), q(colour[1]), q(colour[2])]
+}
+
+impl Renderer {
+    /// The standard camera (shared, built once).
+    pub fn standard() -> &'static Renderer {
+        static RENDERER: OnceLock<Renderer> = OnceLock::new();
+        RENDERER.get_or_init(|| Renderer::new(CAMERA_EYE, CAMERA_TARGET, CAMERA_UP))
+    }
+
+    /// A camera at `eye` looking at `target` with the given up vector, 60°
+    /// field of view, 64×64 pixels.
+    pub fn new(eye: Vec3, target: Vec3, up_hint: Vec3) -> Renderer {
+        let forward = (target - eye).normalize();
+        let right = forward.cross(up_hint).normalize();
+        let up = right.cross(forward);
+        let tan_half = (FIELD_OF_VIEW_DEG.to_radians() / 2.0).tan();
+        let n = FRAME_SIZE as usize;
+        let light = Vec3::new(0.4, -0.6, 1.0).normalize();
+        let mut dirs = Vec::with_capacity(n * n);
+        let mut background = Vec::with_capacity(n * n * 3);
+        let mut table_depth = Vec::with_capacity(n * n);
+        for py in 0..n {
+            for px in 0..n {
+                let sx = (2.0 * (px as f32 + 0.5) / n as f32 - 1.0) * tan_half;
+                let sy = (1.0 - 2.0 * (py as f32 + 0.5) / n as f32) * tan_half;
+                let dir = (forward + right * sx + up * sy).normalize();
+                dirs.push(dir);
+                // The table: the plane z = 0, lighter over the workspace.
+                if dir.z < 0.0 {
+                    let t = -eye.z / dir.z;
+                    let p = eye + dir * t;
+                    let inside = p.x.abs() <= WORKSPACE_HALF + CUBE_HALF
+                        && p.y.abs() <= WORKSPACE_HALF + CUBE_HALF;
+                    let c = if inside { TABLE_INSIDE } else { TABLE_OUTSIDE };
+                    background.extend_from_slice(&shade(c, Vec3::Z, light));
+                    table_depth.push(t);
+                } else {
+                    background.extend_from_slice(&[0, 0, 0]);
+                    table_depth.push(f32::INFINITY);
+                }
+            }
+        }
+        Renderer {
+            eye,
+            right,
+            up,
+            forward,
+            tan_half,
+            dirs,
+            background,
+            table_depth,
+            light,
+        }
+    }
+
+    /// Where a world point lands in the frame, in pixel coordinates (x to
+    /// the right, y down; pixel centres at +0.5), or `None` behind the camera.
+    pub fn project(&self, p: Vec3) -> Option<(f32, f32)> {
+        let d = p - self.eye;
+        let z = d.dot(self.forward);
+        if z <= 1e-4 {
+            return None;
+        }
+        let n = FRAME_SIZE as f32;
+        let sx = d.dot(self.right) / (z * self.tan_half);
+        let sy = d.dot(self.up) / (z * self.tan_half);
+        Some(((sx + 1.0) * n / 2.0, (1.0 - sy) * n / 2.0))
+    }
+
+    /// The boxes making up a world: cubes (coloured by `colours`, one per
+    /// cube), bin pads, and the gripper (two fingers and a palm, fingers
+    /// open wide, closed on a cube, or closed empty).
+    pub fn scene_boxes(world: &World, colours: &[[f32; 3]]) -> Vec<DrawBox> {
+        let mut boxes = Vec::with_capacity(world.objects().len() + world.bins().len() + 3);
+        for (b, bin) in world.bins().iter().enumerate() {
+            boxes.push(DrawBox {
+                centre: Vec3::new(bin.centre.x, bin.centre.y, BIN_THICKNESS / 2.0),
+                half: Vec3::new(BIN_HALF, BIN_HALF, BIN_THICKNESS / 2.0),
+                colour: BIN_COLOURS[b % BIN_COLOURS.len()],
+            });
+        }
+        for (i, p) in world.objects().iter().enumerate() {
+            boxes.push(DrawBox {
+                centre: *p,
+                half: Vec3::splat(CUBE_HALF),
+                colour: colours.get(i).copied().unwrap_or([0.5, 0.5, 0.5]),
+            });
+        }
+        let g = world.gripper();
+        let finger_half = Vec3::new(0.008, 0.005, 0.022);
+        let spread = match (world.is_closed(), world.held()) {
+            (false, _) => CUBE_HALF + 0.02,
+            (true, Some(_)) => CUBE_HALF + finger_half.y,
+            (true, None) => 0.01,
+        };
+        for side in [-1.0, 1.0] {
+            boxes.push(DrawBox {
+                centre: g + Vec3::new(0.0, side * spread, 0.005),
+                half: finger_half,
+                colour: GRIPPER_COLOUR,
+            });
+        }
+        boxes.push(DrawBox {
+            centre: g + Vec3::new(0.0, 0.0, 0.005 + finger_half.z + 0.004),
+            half: Vec3::new(0.006, spread + finger_half.y, 0.004),
+            colour: GRIPPER_COLOUR,
+        });
+        boxes
+    }
+
+    /// Renders the world with the given cube colours.
+    pub fn render_world(&self, world: &World, colours: &[[f32; 3]]) -> RgbImage {
+        self.render_boxes(&Self::scene_boxes(world, colours))
+    }
+
+    /// Renders boxes on the table.
+    pub fn render_boxes(&self, boxes: &[DrawBox]) -> RgbImage {
+        let n = FRAME_SIZE as usize;
+        let mut pixels = self.background.clone();
+        let mut depth = self.table_depth.clone();
+        for b in boxes {
+            let (x0, x1, y0, y1) = self.screen_bounds(b);
+            if x0 > x1 || y0 > y1 {
+                continue;
+            }
+            let shape = Cuboid::new(b.half);
+            let pose = Pose::from_translation(b.centre);
+            for py in y0..=y1 {
+                for px in x0..=x1 {
+                    let k = py * n + px;
+                    let ray = Ray::new(self.eye, self.dirs[k]);
+                    if let Some(hit) = shape.cast_ray_and_get_normal(&pose, &ray, depth[k], true)
+                        && hit.time_of_impact < depth[k]
+                    {
+                        depth[k] = hit.time_of_impact;
+                        pixels[3 * k..3 * k + 3]
+                            .copy_from_slice(&shade(b.colour, hit.normal, self.light));
+                    }
+                }
+            }
+        }
+        RgbImage::from_raw(FRAME_SIZE, FRAME_SIZE, pixels)
+            .unwrap_or_else(|| RgbImage::new(FRAME_SIZE, FRAME_SIZE))
+    }
+
+    /// Inclusive pixel bounds `(x0, x1, y0, y1)` covering the box's
+    /// projection (the whole frame if a corner is behind the camera).
+    fn screen_bounds(&self, b: &DrawBox) -> (usize, usize, usize, usize) {
+        let last = FRAME_SIZE as usize - 1;
+        let mut lo = (f32::INFINITY, f32::INFINITY);
+        let mut hi = (f32::NEG_INFINITY, f32::NEG_INFINITY);
+        for corner in 0..8 {
+            let s = Vec3::new(
+                if corner & 1 == 0 { -1.0 } else { 1.0 },
+                if corner & 2 == 0 { -1.0 } else { 1.0 },
+                if corner & 4 == 0 { -1.0 } else { 1.0 },
+            );
+            let Some((x, y)) = self.project(b.centre + b.half * s) else {
+                return (0, last, 0, last);
+            };
+            lo = (lo.0.min(x), lo.1.min(y));
+            hi = (hi.0.max(x), hi.1.max(y));
+        }
+        let n = FRAME_SIZE as f32;
+        if hi.0 < 0.0 || hi.1 < 0.0 || lo.0 > n || lo.1 > n {
+            return (1, 0, 1, 0); // empty
+        }
+        // Pixel px covers [px, px + 1); its ray passes through px + 0.5.
+        let clamp = |v: f32| (v.max(0.0) as usize).min(last);
+        (
+            clamp(lo.0 - 0.5),
+            clamp(hi.0 + 0.5),
+            clamp(lo.1 - 0.5),
+            clamp(hi.1 + 0.5),
+        )
+    }
+}
