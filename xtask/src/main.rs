@@ -1,7 +1,9 @@
 //! Project automation, run as `cargo xtask <command>`.
 //!
 //! - `reproduce-figures [--profile smoke|quick|paper]`: regenerates the
-//!   paper's figures through the `ntg` binary (crate `ntg-trainer`).
+//!   paper's figures by running `ntg reproduce` (crate `ntg-trainer`, release
+//!   build); run folders go to `runs/figures/<profile>/` (finished runs are
+//!   reused), figures, `results.json` and `REPORT.md` to `docs/figures/`.
 //! - `ci`: runs exactly what CI runs (`.ci/run`).
 //!
 //! xtask stays light (clap + anyhow): it drives the `ntg` binary and cargo
@@ -44,30 +46,6 @@ enum Profile {
     Paper,
 }
 
-/// The paper's figures and whether this checkout can make them yet.
-const FIGURES: &[(&str, &str, Option<&str>)] = &[
-    (
-        "ntp_exp",
-        "block stacking: success vs. number of training tasks (state, video)",
-        Some("needs the trainer (ntg train/eval), env-blocks and ntg-model"),
-    ),
-    (
-        "ablation",
-        "block stacking / object sorting ablations",
-        Some("needs the trainer and the ablation configs"),
-    ),
-    (
-        "thor_all",
-        "object collection: success vs. number of objects, NTG vs. Flat Policy",
-        Some("needs env-collect, the Flat Policy baseline and the trainer"),
-    ),
-    (
-        "jigsaws",
-        "JIGSAWS Needle Passing NLL: uniform vs. no graph vs. NTG",
-        Some("needs env-jigsaws and the trainer"),
-    ),
-];
-
 fn workspace_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .parent()
@@ -76,21 +54,33 @@ fn workspace_root() -> PathBuf {
 }
 
 fn reproduce_figures(profile: Profile) -> anyhow::Result<()> {
-    println!("reproduce-figures (profile: {profile:?})");
-    let mut made = 0;
-    for (name, what, missing) in FIGURES {
-        match missing {
-            None => made += 1,
-            Some(reason) => println!("  - {name}: {what}\n      not reproducible yet: {reason}"),
-        }
+    let root = workspace_root();
+    let profile = match profile {
+        Profile::Smoke => "smoke",
+        Profile::Quick => "quick",
+        Profile::Paper => "paper",
+    };
+    println!("reproduce-figures (profile: {profile}): building the ntg binary (release)");
+    let status = Command::new(env!("CARGO"))
+        .args([
+            "run",
+            "--release",
+            "--quiet",
+            "-p",
+            "ntg-trainer",
+            "--bin",
+            "ntg",
+            "--",
+        ])
+        .args(["reproduce", "--profile", profile])
+        .args(["--runs", "runs/figures", "--out", "docs/figures"])
+        .current_dir(&root)
+        .status()
+        .context("could not start cargo")?;
+    if !status.success() {
+        bail!("ntg reproduce failed ({status})");
     }
-    if made == 0 {
-        println!(
-            "\nThis checkout cannot make any of the paper's figures yet; nothing was written.\n\
-             What works today: the ctg-graph core and `ntg graph` (try\n  \
-             cargo run -p ntg-trainer --bin ntg -- graph --demo \"pick place\" --demo \"pick pick place\")."
-        );
-    }
+    println!("figures, results.json and REPORT.md are in docs/figures/");
     Ok(())
 }
 

@@ -1,9 +1,7 @@
 //! Property tests for the invariants of conjugate task graphs.
 
 use ctg_graph::symbolic::{SequenceObservation, SequenceTask};
-use ctg_graph::{
-    ActionId, Ctg, GraphExecutor, OracleEdgeScorer, OracleNodeScorer, Vocabulary,
-};
+use ctg_graph::{ActionId, Ctg, GraphExecutor, OracleEdgeScorer, OracleNodeScorer, Vocabulary};
 use proptest::prelude::*;
 
 const NUM_ACTIONS: usize = 6;

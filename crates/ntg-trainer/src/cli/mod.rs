@@ -33,6 +33,8 @@ pub enum Command {
     Train(train::TrainArgs),
     /// Evaluate a trained run on unseen tasks.
     Eval(train::EvalArgs),
+    /// Reproduce the paper's figures (what `cargo xtask reproduce-figures` runs).
+    Reproduce(train::ReproduceArgs),
     /// Block stacking and object sorting: task sets and demonstrations.
     #[command(subcommand)]
     Blocks(blocks::BlocksCommand),
@@ -50,6 +52,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Graph(args) => graph::run(&args, &mut std::io::stdout().lock()),
         Command::Train(args) => train::run_train(&args),
         Command::Eval(args) => train::run_eval(&args),
+        Command::Reproduce(args) => train::run_reproduce(&args),
         Command::Blocks(cmd) => blocks::run(cmd),
         Command::Collect(cmd) => collect::run(cmd),
         Command::Jigsaws(cmd) => jigsaws::run(cmd),

@@ -168,3 +168,36 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
+/// Arguments of `ntg reproduce`.
+#[derive(Debug, Args)]
+pub struct ReproduceArgs {
+    /// Experiment scale.
+    #[arg(long, value_enum, default_value_t = crate::reproduce::Profile::Quick)]
+    pub profile: crate::reproduce::Profile,
+    /// Where run folders go (finished runs are reused).
+    #[arg(long, default_value = "runs/figures")]
+    pub runs: PathBuf,
+    /// Where figures, results.json and REPORT.md go.
+    #[arg(long, default_value = "docs/figures")]
+    pub out: PathBuf,
+}
+
+/// Runs `ntg reproduce`.
+pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
+    let runs = args.runs.join(
+        serde_json::to_value(args.profile)?
+            .as_str()
+            .unwrap_or("profile"),
+    );
+    let results = crate::reproduce::reproduce(args.profile, &runs, &args.out)?;
+    println!(
+        "wrote {} (figure ntp_exp: {} points)",
+        args.out.display(),
+        results.ntp_exp.len()
+    );
+    for (what, why) in &results.not_yet {
+        println!("not reproduced yet: {what} ({why})");
+    }
+    Ok(())
+}
