@@ -35,7 +35,7 @@ pub use expert::{
     generate_demos, generate_demos_sequential, record_rich_demo,
 };
 pub use render::{FRAME_SIZE, Renderer};
-pub use sorting::{SortTask, generate_sort_tasks};
+pub use sorting::{SortTask, generate_sort_tasks, standard_sort_tasks};
 pub use task::{
     Goal, StackTask, StandardSplit, TaskStats, generate_stack_tasks, parse_ntp_tasks,
     read_ntp_tasks, standard_split, standard_tasks, write_ntp_tasks,

@@ -120,3 +120,12 @@ pub fn generate_sort_tasks(seed: u64, count: usize) -> Result<Vec<SortTask>, Blo
     }
     Ok(tasks)
 }
+
+/// The seed of the standard sorting task list.
+pub const STANDARD_SORT_SEED: u64 = 20_190_617;
+
+/// All 256 sorting tasks (every category→bin map) in the order drawn from
+/// [`STANDARD_SORT_SEED`], ids `sort_0`..`sort_255`, none presorted.
+pub fn standard_sort_tasks() -> Result<Vec<SortTask>, BlocksError> {
+    generate_sort_tasks(STANDARD_SORT_SEED, NUM_BINS.pow(NUM_CATEGORIES as u32))
+}

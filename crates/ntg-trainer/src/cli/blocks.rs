@@ -1,18 +1,334 @@
-//! `ntg blocks ...`: the env-blocks commands.
-//!
-//! Not built yet: every subcommand here reports that it is unavailable and
-//! exits non-zero.
+//! `ntg blocks ...`: block-stacking task sets and demos, object-sorting demos.
 
-use clap::Subcommand;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use clap::{Args, Subcommand};
+use env_blocks::{
+    BlocksTask, EnvConfig, RichDemo, SortTask, StackTask, TaskStats, expert_success,
+    read_ntp_tasks, record_rich_demo, sheet::contact_sheet, standard_sort_tasks, standard_tasks,
+    write_ntp_tasks,
+};
 
 /// Subcommands of `ntg blocks`.
 #[derive(Debug, Subcommand)]
 pub enum BlocksCommand {
-    /// Not available yet.
-    Unavailable,
+    /// Task-set statistics (NTP README format), or write the standard set.
+    Tasks(TasksArgs),
+    /// Record one expert demo of a block-stacking task: JSON, PNG frames and
+    /// a contact sheet.
+    Demo(DemoArgs),
+    /// Run the expert once on every task of a set and report its success rate.
+    Replay(ReplayArgs),
+    /// Object sorting.
+    #[command(subcommand)]
+    Sorting(SortingCommand),
+}
+
+/// Subcommands of `ntg blocks sorting`.
+#[derive(Debug, Subcommand)]
+pub enum SortingCommand {
+    /// Record one expert demo of a sorting task.
+    Demo(SortDemoArgs),
+}
+
+/// Arguments of `ntg blocks tasks`.
+#[derive(Debug, Args)]
+pub struct TasksArgs {
+    /// Print the statistics (the default when nothing else is asked).
+    #[arg(long)]
+    pub stats: bool,
+    /// An NTP-format task file; without it, the standard generated set.
+    #[arg(long, value_name = "FILE")]
+    pub source: Option<PathBuf>,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Write the task set in NTP format to FILE.
+    #[arg(long, value_name = "FILE")]
+    pub write: Option<PathBuf>,
+}
+
+/// Options shared by the demo commands.
+#[derive(Debug, Args)]
+pub struct DemoOptions {
+    /// Seed of the scene, the failures and the expert.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Output folder (created if needed).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Turn the stochastic failures off (they are on by default).
+    #[arg(long)]
+    pub no_failures: bool,
+    /// Frames per row of the contact sheet.
+    #[arg(long, default_value_t = 6)]
+    pub columns: usize,
+    /// Integer upscaling of the frames in the contact sheet.
+    #[arg(long, default_value_t = 3)]
+    pub scale: u32,
+}
+
+/// Arguments of `ntg blocks demo`.
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Task id (`stack_17`) or index (`17`).
+    #[arg(long)]
+    pub task: String,
+    /// An NTP-format task file; without it, the standard generated set.
+    #[arg(long, value_name = "FILE")]
+    pub source: Option<PathBuf>,
+    /// Demo options.
+    #[command(flatten)]
+    pub demo: DemoOptions,
+}
+
+/// Arguments of `ntg blocks sorting demo`.
+#[derive(Debug, Args)]
+pub struct SortDemoArgs {
+    /// Task id (`sort_3`) or index (`3`) among the 256 standard sorting tasks.
+    #[arg(long)]
+    pub task: String,
+    /// Number of objects that start already in their bins (part-done scene).
+    #[arg(long, default_value_t = 0)]
+    pub presorted: usize,
+    /// Demo options.
+    #[command(flatten)]
+    pub demo: DemoOptions,
+}
+
+/// Arguments of `ntg blocks replay`.
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// An NTP-format task file; without it, the standard generated set.
+    #[arg(long, value_name = "FILE")]
+    pub source: Option<PathBuf>,
+    /// Turn the stochastic failures off.
+    #[arg(long)]
+    pub no_failures: bool,
+    /// Seed of the first task's episode (task i uses seed + i).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
 }
 
 /// Runs an `ntg blocks` subcommand.
-pub fn run(_command: BlocksCommand) -> anyhow::Result<()> {
-    anyhow::bail!("`ntg blocks` is not available yet (env-blocks is not built)")
+pub fn run(command: BlocksCommand) -> anyhow::Result<()> {
+    let mut out = std::io::stdout().lock();
+    match command {
+        BlocksCommand::Tasks(args) => run_tasks(&args, &mut out),
+        BlocksCommand::Demo(args) => {
+            let tasks = load_tasks(args.source.as_deref())?;
+            let task = find_stack_task(&tasks, &args.task)?;
+            write_demo(BlocksTask::Stack(task.clone()), &args.demo, &mut out)
+        }
+        BlocksCommand::Replay(args) => run_replay(&args, &mut out),
+        BlocksCommand::Sorting(SortingCommand::Demo(args)) => {
+            let tasks = standard_sort_tasks()?;
+            let task = find_sort_task(&tasks, &args.task)?;
+            let task = task.with_random_presorted(args.presorted, args.demo.seed);
+            write_demo(BlocksTask::Sort(task), &args.demo, &mut out)
+        }
+    }
+}
+
+fn load_tasks(source: Option<&Path>) -> anyhow::Result<Vec<StackTask>> {
+    Ok(match source {
+        Some(path) => read_ntp_tasks(path)?,
+        None => standard_tasks()?,
+    })
+}
+
+fn find_stack_task<'a>(tasks: &'a [StackTask], key: &str) -> anyhow::Result<&'a StackTask> {
+    if let Some(t) = tasks.iter().find(|t| t.id == key) {
+        return Ok(t);
+    }
+    match key.parse::<usize>() {
+        Ok(i) => tasks
+            .get(i)
+            .with_context(|| format!("task index {i} is out of range ({} tasks)", tasks.len())),
+        Err(_) => bail!("no task with id `{key}` (give an id such as stack_17 or an index)"),
+    }
+}
+
+fn find_sort_task<'a>(tasks: &'a [SortTask], key: &str) -> anyhow::Result<&'a SortTask> {
+    if let Some(t) = tasks.iter().find(|t| t.id == key) {
+        return Ok(t);
+    }
+    match key.parse::<usize>() {
+        Ok(i) => tasks.get(i).with_context(|| {
+            format!(
+                "sorting task index {i} is out of range ({} tasks)",
+                tasks.len()
+            )
+        }),
+        Err(_) => bail!("no sorting task with id `{key}` (give an id such as sort_3 or an index)"),
+    }
+}
+
+/// Runs `ntg blocks tasks`, writing to `out`.
+pub fn run_tasks(args: &TasksArgs, out: &mut impl std::io::Write) -> anyhow::Result<()> {
+    let tasks = load_tasks(args.source.as_deref())?;
+    if let Some(path) = &args.write {
+        std::fs::write(path, write_ntp_tasks(&tasks))
+            .with_context(|| format!("writing {}", path.display()))?;
+        writeln!(out, "wrote {} tasks to {}", tasks.len(), path.display())?;
+    }
+    if args.stats || args.write.is_none() {
+        let stats = TaskStats::of(&tasks);
+        if args.json {
+            serde_json::to_writer_pretty(&mut *out, &stats)?;
+            writeln!(out)?;
+        } else {
+            write!(out, "{}", stats.to_text())?;
+        }
+    }
+    Ok(())
+}
+
+fn run_replay(args: &ReplayArgs, out: &mut impl std::io::Write) -> anyhow::Result<()> {
+    let tasks: Vec<BlocksTask> = load_tasks(args.source.as_deref())?
+        .into_iter()
+        .map(BlocksTask::Stack)
+        .collect();
+    let mut config = EnvConfig::state_only();
+    if args.no_failures {
+        config = config.without_failures();
+    }
+    let stats = expert_success(&tasks, config, args.seed);
+    serde_json::to_writer_pretty(
+        &mut *out,
+        &serde_json::json!({
+            "failures_on": !args.no_failures,
+            "success_rate": stats.success_rate(),
+            "stats": stats,
+        }),
+    )?;
+    writeln!(out)?;
+    Ok(())
+}
+
+fn save_png(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
+    img.save(path)
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+/// Records the demo and writes `demo.json`, `frames/*.png`,
+/// `contact_sheet.png` (flat steps) and `contact_sheet_primitives.png`.
+pub fn write_demo(
+    task: BlocksTask,
+    opts: &DemoOptions,
+    out: &mut impl std::io::Write,
+) -> anyhow::Result<()> {
+    let mut config = EnvConfig::default();
+    if opts.no_failures {
+        config = config.without_failures();
+    }
+    let demo: RichDemo =
+        record_rich_demo(task, config, opts.seed).context("recording the expert demo")?;
+    let frames_dir = opts.out.join("frames");
+    std::fs::create_dir_all(&frames_dir)
+        .with_context(|| format!("creating {}", frames_dir.display()))?;
+    let mut json = serde_json::to_value(&demo)?;
+    json["primitive_sequence"] = serde_json::json!(demo.trace.primitives());
+    json["action_sequence"] = serde_json::json!(demo.action_sequence());
+    let json_path = opts.out.join("demo.json");
+    std::fs::write(&json_path, serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("writing {}", json_path.display()))?;
+    let mut all_frames = Vec::new();
+    for (k, frame) in demo.frames.iter().enumerate() {
+        save_png(frame, &frames_dir.join(format!("step_{k:02}.png")))?;
+        all_frames.push(frame);
+        if let Some(prims) = demo.primitive_frames.get(k) {
+            for (j, f) in prims.iter().enumerate() {
+                save_png(
+                    f,
+                    &frames_dir.join(format!("step_{:02}_prim_{j}.png", k + 1)),
+                )?;
+                all_frames.push(f);
+            }
+        }
+    }
+    let flat: Vec<_> = demo.frames.iter().collect();
+    save_png(
+        &contact_sheet(&flat, opts.columns, opts.scale, 2),
+        &opts.out.join("contact_sheet.png"),
+    )?;
+    save_png(
+        &contact_sheet(&all_frames, opts.columns, opts.scale, 2),
+        &opts.out.join("contact_sheet_primitives.png"),
+    )?;
+    writeln!(
+        out,
+        "{}: {} actions, success {}: {}\nwrote {}",
+        demo.task.id(),
+        demo.steps.len(),
+        demo.success,
+        demo.action_sequence(),
+        opts.out.display()
+    )?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fixture() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../env-blocks/tests/fixtures/ntp_small.json")
+    }
+
+    #[test]
+    fn stats_json_of_a_file() {
+        let args = TasksArgs {
+            stats: true,
+            source: Some(fixture()),
+            json: true,
+            write: None,
+        };
+        let mut out = Vec::new();
+        run_tasks(&args, &mut out).unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
+        assert_eq!(v["tasks"], 3);
+        assert_eq!(v["goals_per_task"]["3"], 1);
+        assert_eq!(v["towers_per_task"]["2"], 2);
+    }
+
+    #[test]
+    fn missing_source_is_an_error_naming_the_file() {
+        let args = TasksArgs {
+            stats: true,
+            source: Some("/nonexistent.json".into()),
+            json: false,
+            write: None,
+        };
+        let err = run_tasks(&args, &mut Vec::new()).unwrap_err();
+        assert!(format!("{err:#}").contains("/nonexistent.json"), "{err:#}");
+    }
+
+    #[test]
+    fn demo_writes_json_frames_and_sheets() {
+        let dir = tempfile::tempdir().unwrap();
+        let tasks = load_tasks(Some(&fixture())).unwrap();
+        let task = find_stack_task(&tasks, "stack_2").unwrap().clone();
+        let opts = DemoOptions {
+            seed: 1,
+            out: dir.path().to_owned(),
+            no_failures: true,
+            columns: 4,
+            scale: 2,
+        };
+        write_demo(BlocksTask::Stack(task), &opts, &mut Vec::new()).unwrap();
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join("demo.json")).unwrap())
+                .unwrap();
+        assert_eq!(json["success"], true);
+        assert_eq!(json["steps"].as_array().unwrap().len(), 8);
+        assert_eq!(json["primitive_sequence"].as_array().unwrap().len(), 16);
+        assert!(dir.path().join("frames/step_00.png").exists());
+        assert!(dir.path().join("frames/step_08_prim_1.png").exists());
+        let sheet = image::open(dir.path().join("contact_sheet.png")).unwrap();
+        assert_eq!(sheet.width(), 4 * 128 + 5 * 2);
+        assert!(find_stack_task(&tasks, "stack_9").is_err());
+        assert!(find_stack_task(&tasks, "1").is_ok());
+    }
 }
