@@ -61,7 +61,29 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 
 /// Entry point of the `ntg` binary: parse, run, and report errors on one line.
 pub fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(err) if !err.use_stderr() => {
+            // --help / --version: print as clap formats it.
+            let _ = err.print();
+            return ExitCode::SUCCESS;
+        }
+        Err(err) => {
+            // Usage errors on one line (clap's first line), then a hint.
+            let rendered = err.render().to_string();
+            let first = rendered
+                .lines()
+                .next()
+                .unwrap_or("error: invalid arguments");
+            let hint = rendered
+                .lines()
+                .find(|l| l.trim_start().starts_with("[possible values"))
+                .map(|l| format!(" {}", l.trim()))
+                .unwrap_or_default();
+            eprintln!("{first}{hint}");
+            return ExitCode::from(2);
+        }
+    };
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {

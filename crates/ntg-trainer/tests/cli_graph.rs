@@ -1,0 +1,47 @@
+//! The `ntg graph` binary end to end: output, exit codes, one-line errors.
+
+use std::process::Command;
+
+fn ntg(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_ntg"))
+        .args(args)
+        .output()
+        .expect("the ntg binary runs");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn union_graph_has_a_pick_self_loop() {
+    let (code, stdout, _) = ntg(&[
+        "graph",
+        "--demo",
+        "pick place",
+        "--demo",
+        "pick pick place",
+        "--format",
+        "dot",
+    ]);
+    assert_eq!(code, 0);
+    assert!(stdout.starts_with("digraph ctg {"), "{stdout}");
+    assert!(stdout.contains("\"pick\" -> \"pick\";"), "{stdout}");
+}
+
+#[test]
+fn errors_are_one_line_and_non_zero() {
+    for args in [
+        &["graph", "--demo", ""][..],
+        &["graph", "--demo", "a", "--format", "xml"][..],
+        &["graph"][..],
+        &["eval", "--run", "/nonexistent/run"][..],
+    ] {
+        let (code, stdout, stderr) = ntg(args);
+        assert_ne!(code, 0, "{args:?}");
+        assert!(stdout.is_empty(), "{args:?}: {stdout}");
+        assert_eq!(stderr.trim_end().lines().count(), 1, "{args:?}: {stderr}");
+        assert!(stderr.starts_with("error:"), "{args:?}: {stderr}");
+    }
+}
