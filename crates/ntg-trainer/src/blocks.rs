@@ -16,7 +16,7 @@ use ntg_model::{AblationConfig, EncoderConfig, NtgConfig, NtgModel, NtgPolicy};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{DemoDataset, ObsDtype, generate, progress_bar};
+use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
 use crate::run_dir::RunDir;
 use crate::stats::SuccessRate;
 use crate::train::{EpochMetrics, OptimConfig, train};
@@ -126,11 +126,13 @@ pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::R
         |t| Ok(BlocksEnv::stacking(tasks[t].clone(), env_cfg)?),
         BlocksExpert::new,
         |o| featurize(o, kind),
-        env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat),
-        kind.dim(),
-        match kind {
-            ObsKind::State => ObsDtype::F32,
-            ObsKind::Vid => ObsDtype::U8,
+        DatasetSpec {
+            vocabulary: env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat),
+            obs_dim: kind.dim(),
+            dtype: match kind {
+                ObsKind::State => ObsDtype::F32,
+                ObsKind::Vid => ObsDtype::U8,
+            },
         },
         &bar,
     )

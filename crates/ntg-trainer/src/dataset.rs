@@ -296,6 +296,18 @@ pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
     bar
 }
 
+/// What the rows of a dataset are: the vocabulary of its actions, the
+/// number of values per observation, and how they are stored.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DatasetSpec {
+    /// The action vocabulary.
+    pub vocabulary: Vocabulary,
+    /// Values per observation row.
+    pub obs_dim: usize,
+    /// Storage of the values.
+    pub dtype: ObsDtype,
+}
+
 /// Records one expert demonstration per `(task, seed)` pair, in parallel
 /// (rayon), featurising each observation. The result is in the order of
 /// `pairs` and does not depend on the number of threads.
@@ -304,9 +316,7 @@ pub fn generate<E, X>(
     make_env: impl Fn(usize) -> anyhow::Result<E> + Sync,
     make_expert: impl Fn() -> X + Sync,
     featurize: impl Fn(&E::Observation) -> Vec<f32> + Sync,
-    vocab: Vocabulary,
-    obs_dim: usize,
-    dtype: ObsDtype,
+    spec: DatasetSpec,
     progress: &ProgressBar,
 ) -> anyhow::Result<DemoDataset>
 where
@@ -325,7 +335,7 @@ where
         })
         .collect::<anyhow::Result<_>>()?;
     progress.finish_and_clear();
-    DemoDataset::from_demos(vocab, obs_dim, dtype, demos)
+    DemoDataset::from_demos(spec.vocabulary, spec.obs_dim, spec.dtype, demos)
 }
 
 #[cfg(test)]
@@ -343,9 +353,11 @@ mod tests {
             |t| Ok(SequenceTask::new(v.clone(), v.parse_sequence(tasks[t])?)),
             || SequenceExpert,
             |o| vec![o.step as f32 / 10.0, o.last.index() as f32 / 10.0],
-            vocab,
-            2,
-            dtype,
+            DatasetSpec {
+                vocabulary: vocab,
+                obs_dim: 2,
+                dtype,
+            },
             &ProgressBar::hidden(),
         )
         .unwrap()
