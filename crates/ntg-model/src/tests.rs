@@ -600,3 +600,17 @@ fn flex_and_ndarray_agree() {
     }
     assert!(close(&results[0], &results[1], 1e-4));
 }
+
+#[test]
+fn model_and_policy_can_go_to_other_threads() {
+    fn send<T: Send>() {}
+    fn sync<T: Sync>() {}
+    send::<NtgModel>();
+    sync::<NtgModel>();
+    send::<NtgPolicy>();
+    // A policy built on one thread runs on another.
+    let model = NtgModel::new(small_config(14), &device()).unwrap();
+    let policy = NtgPolicy::from_actions(&model, &ids(&[2, 3])).unwrap();
+    let handle = std::thread::spawn(move || policy.action_distribution(&one_hot_row(0)).is_ok());
+    assert!(handle.join().unwrap());
+}
