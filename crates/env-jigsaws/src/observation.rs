@@ -4,7 +4,7 @@
 //!
 //! A trial with segments `s_0 .. s_{n-1}` becomes a
 //! [`Demonstration<Vec<f32>>`](ctg_graph::Demonstration) over
-//! [`gesture_vocabulary`](crate::gesture_vocabulary) with **one step per
+//! [`gesture_vocabulary`] with **one step per
 //! segment**: `actions[i] = s_i.gesture` (consecutive segments with the same
 //! gesture stay separate steps). It has `n + 1` observations:
 //!
