@@ -1,0 +1,97 @@
+//! Killing a training run and resuming it gives the same final weights as an
+//! uninterrupted run with the same seed (smoke scale).
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+
+use burn::module::Module;
+use ntg_model::NtgModel;
+use ntg_trainer::blocks::{BlocksRunConfig, ObsKind, train_run};
+use ntg_trainer::run_dir::RunDir;
+use ntg_trainer::train::OptimConfig;
+
+fn config() -> BlocksRunConfig {
+    BlocksRunConfig {
+        obs: ObsKind::State,
+        train_tasks: 4,
+        demos_per_task: 2,
+        failures: true,
+        model_seed: 7,
+        optim: OptimConfig {
+            epochs: 3,
+            batch_size: 3,
+            learning_rate: 3e-3,
+            seed: 11,
+        },
+    }
+}
+
+fn metrics_without_time(run: &RunDir) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(run.metrics_path())
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
+            v.as_object_mut().unwrap().remove("seconds");
+            v
+        })
+        .collect()
+}
+
+#[test]
+fn killed_and_resumed_run_matches_uninterrupted_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let device = ntg_model::cpu_device().autodiff();
+
+    let straight = RunDir::create(&tmp.path().join("straight")).unwrap();
+    train_run(&straight, &config(), &device, |_| {}).unwrap();
+
+    let killed = RunDir::create(&tmp.path().join("killed")).unwrap();
+    let outcome = catch_unwind(AssertUnwindSafe(|| {
+        train_run(&killed, &config(), &device, |m| {
+            if m.epoch == 1 {
+                panic!("simulated kill after epoch 1");
+            }
+        })
+    }));
+    assert!(
+        outcome.is_err(),
+        "the simulated kill must interrupt training"
+    );
+    assert_eq!(metrics_without_time(&killed).len(), 2);
+    train_run(&killed, &config(), &device, |_| {}).unwrap();
+
+    assert_eq!(
+        metrics_without_time(&killed),
+        metrics_without_time(&straight)
+    );
+    // Compare the final weights parameter by parameter (the checkpoint file
+    // itself may carry per-save metadata).
+    let weights = |run: &RunDir| -> Vec<Vec<f32>> {
+        let model = NtgModel::load(run.checkpoint_dir(), &ntg_model::cpu_device()).unwrap();
+        let mut collector = ParamCollector(Vec::new());
+        model.visit(&mut collector);
+        collector.0
+    };
+    let (a, b) = (weights(&killed), weights(&straight));
+    assert!(!a.is_empty());
+    assert_eq!(a.len(), b.len());
+    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+        assert!(
+            x == y,
+            "parameter {i} differs between the resumed and the uninterrupted run"
+        );
+    }
+}
+
+/// Collects every float parameter of a module, in visiting order.
+struct ParamCollector(Vec<Vec<f32>>);
+
+impl burn::module::ModuleVisitor for ParamCollector {
+    fn visit_float<const D: usize>(
+        &mut self,
+        param: &burn::module::Param<burn::tensor::Tensor<D>>,
+    ) {
+        self.0
+            .push(param.val().into_data().try_to_vec::<f32>().unwrap());
+    }
+}
