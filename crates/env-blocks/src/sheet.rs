@@ -28,3 +28,21 @@ pub fn contact_sheet(frames: &[&RgbImage], columns: usize, scale: u32, gap: u32)
     }
     sheet
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_frames_in_a_grid() {
+        let a = RgbImage::from_pixel(4, 4, Rgb([255, 0, 0]));
+        let b = RgbImage::from_pixel(4, 4, Rgb([0, 255, 0]));
+        let sheet = contact_sheet(&[&a, &b, &a], 2, 2, 1);
+        assert_eq!(sheet.dimensions(), (2 * 8 + 3, 2 * 8 + 3));
+        assert_eq!(sheet.get_pixel(1, 1), &Rgb([255, 0, 0]));
+        assert_eq!(sheet.get_pixel(10, 1), &Rgb([0, 255, 0]));
+        assert_eq!(sheet.get_pixel(1, 10), &Rgb([255, 0, 0]));
+        assert_eq!(sheet.get_pixel(0, 0), &Rgb([30, 30, 30]));
+        assert_eq!(contact_sheet(&[], 3, 1, 0).dimensions(), (1, 1));
+    }
+}

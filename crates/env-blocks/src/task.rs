@@ -611,3 +611,62 @@ pub fn standard_split() -> Result<StandardSplit, BlocksError> {
         test,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn joint_has_ntp_marginals() {
+        let joint = goal_tower_joint();
+        let goals: usize = NTP_GOALS_PER_TASK.iter().sum();
+        let towers: usize = NTP_TOWERS_PER_TASK.iter().sum();
+        for (k, &c) in NTP_GOALS_PER_TASK.iter().enumerate() {
+            let p: f64 = joint
+                .iter()
+                .filter(|(c, _)| c.0 == k + 1)
+                .map(|(_, p)| p)
+                .sum();
+            assert!(
+                (p - c as f64 / goals as f64).abs() < 1e-6,
+                "goals {}",
+                k + 1
+            );
+        }
+        for (k, &c) in NTP_TOWERS_PER_TASK.iter().enumerate() {
+            let p: f64 = joint
+                .iter()
+                .filter(|(c, _)| c.1 == k + 1)
+                .map(|(_, p)| p)
+                .sum();
+            assert!(
+                (p - c as f64 / towers as f64).abs() < 1e-6,
+                "towers {}",
+                k + 1
+            );
+        }
+        // Every cell fits eight cubes.
+        assert!(joint.iter().all(|((g, t), _)| g + t <= NUM_OBJECTS));
+    }
+
+    #[test]
+    fn compositions_use_towers_of_two_to_four() {
+        for ((goals, towers), comps) in cells() {
+            for c in comps {
+                assert_eq!(c.len(), towers);
+                assert_eq!(c.iter().sum::<usize>(), goals);
+                assert!(c.iter().all(|&g| (1..=3).contains(&g)));
+            }
+        }
+    }
+
+    #[test]
+    fn letters_and_names() {
+        assert_eq!(cube_letter(0), 'A');
+        assert_eq!(cube_letter(7), 'H');
+        assert_eq!(cube_letter(99), '?');
+        assert_eq!(parse_cube_name("cube_3"), Some(3));
+        assert_eq!(parse_cube_name("cube_8"), None);
+        assert_eq!(parse_cube_name("cube_x"), None);
+    }
+}

@@ -699,3 +699,50 @@ impl World {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bin_slots_lie_inside_the_pad_without_overlap() {
+        let bin = Bin {
+            centre: Vec2::new(0.1, 0.2),
+        };
+        let slots = bin.slots();
+        for (i, s) in slots.iter().enumerate() {
+            assert!(bin.contains(*s));
+            assert!((*s - bin.centre).abs().max_element() + CUBE_HALF <= BIN_HALF + 1e-6);
+            for t in &slots[i + 1..] {
+                assert!(!footprints_overlap(*s, *t, CUBE_SIZE));
+            }
+        }
+        assert!(!bin.contains(Vec2::new(0.1 + BIN_HALF + 0.001, 0.2)));
+    }
+
+    #[test]
+    fn move_to_a_bin_fills_the_lowest_slot() {
+        let bin = Bin { centre: Vec2::ZERO };
+        let s0 = bin.slots()[0];
+        let mut w = World::new(
+            vec![Vec3::new(s0.x, s0.y, BIN_THICKNESS + CUBE_HALF)],
+            vec![bin],
+        );
+        let out = w.apply(
+            Primitive::Move(Target::Bin(0)),
+            &FailureConfig::none(),
+            &mut <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(0),
+        );
+        assert_eq!(out, Outcome::Moved { to: Target::Bin(0) });
+        assert_eq!(w.gripper().truncate(), bin.slots()[1]);
+    }
+
+    #[test]
+    fn state_is_relative_to_the_gripper() {
+        let w = World::new(vec![Vec3::new(0.1, 0.0, CUBE_HALF)], Vec::new());
+        let s = w.state();
+        assert_eq!(s[0], 0.1 - GRIPPER_HOME.x);
+        assert_eq!(s[2], CUBE_HALF - GRIPPER_HOME.z);
+        assert_eq!(&s[24..], &[1.0, 0.0]);
+    }
+}

@@ -309,3 +309,54 @@ fn random_start_respects_grid_jitter_and_no_overlap() {
         }
     }
 }
+
+mod properties {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn primitive() -> impl Strategy<Value = Primitive> {
+        prop_oneof![
+            (0usize..8).prop_map(|i| Primitive::Move(Target::Object(i))),
+            Just(Primitive::Grasp),
+            Just(Primitive::Drop),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        /// Whatever primitives run, with failures on: no two cubes
+        /// interpenetrate, every resting cube rests on the table or on a cube
+        /// below it, and the gripper is closed exactly while holding.
+        #[test]
+        fn physics_invariants(seed in 0u64..1000, prims in proptest::collection::vec(primitive(), 1..60)) {
+            let ys = [-0.2, -0.1, 0.0, 0.1, 0.2];
+            let mut r = ChaCha8Rng::seed_from_u64(seed);
+            let mut w = World::random_start(&mut r, &ys, Vec::new());
+            let cfg = FailureConfig { grasp_slip: 0.3, drop_off_centre: 0.5, ..FailureConfig::none() };
+            for p in prims {
+                w.apply(p, &cfg, &mut r);
+                prop_assert_eq!(w.is_closed(), w.held().is_some());
+                let objs = w.objects();
+                for i in 0..objs.len() {
+                    for j in i + 1..objs.len() {
+                        let d = (objs[i] - objs[j]).abs();
+                        let apart = d.x >= CUBE_SIZE - 2e-4 || d.y >= CUBE_SIZE - 2e-4 || d.z >= CUBE_SIZE - 2e-4;
+                        prop_assert!(apart, "cubes {} and {} interpenetrate: {} {}", i, j, objs[i], objs[j]);
+                    }
+                    if Some(i) == w.held() {
+                        continue;
+                    }
+                    let p = objs[i];
+                    let on_table = (p.z - CUBE_HALF).abs() < 1e-4;
+                    let on_cube = objs.iter().enumerate().any(|(j, q)| {
+                        j != i && Some(j) != w.held()
+                            && (p.z - q.z - CUBE_SIZE).abs() < 2e-3
+                            && (p - *q).truncate().abs().max_element() < CUBE_SIZE
+                    });
+                    prop_assert!(on_table || on_cube, "cube {} floats at {}", i, p);
+                }
+            }
+        }
+    }
+}
