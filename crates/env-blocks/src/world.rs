@@ -48,7 +48,7 @@ pub const BIN_THICKNESS: f32 = 0.005;
 const TOPPLE_GAP: f32 = 0.002;
 /// Lateral shrink of a falling cube, so that side-by-side faces at zero
 /// distance do not count as a landing (m).
-const CAST_SHRINK: f32 = 1e-4;
+const CAST_SHRINK: f32 = 1e-3;
 /// Tolerance for "resting at the same height" (m).
 const LEVEL_EPS: f32 = 1e-4;
 /// How many times a falling cube may topple off a support and fall again.
@@ -563,35 +563,43 @@ impl World {
         let mut toppled = false;
         for attempt in 0..=MAX_TOPPLES {
             let start = Pose::from_translation(Vec3::new(xy.x, xy.y, start_z));
-            // The table: the cube's bottom reaches z = 0.
-            let mut toi = start_z - CUBE_HALF;
-            let options = ShapeCastOptions::with_max_time_of_impact(toi);
+            // The table: the cube's bottom reaches z = 0. Each cube and pad
+            // whose footprint overlaps the falling cube's is shape-cast
+            // against; the cube rests on the highest top hit, snapped to
+            // that top exactly (the cast's own tolerance is ~1e-4 m).
+            let max_toi = start_z - CUBE_HALF;
+            let options = ShapeCastOptions::with_max_time_of_impact(max_toi);
+            let mut level: f32 = 0.0;
             for (j, q) in self.objects.iter().enumerate() {
-                if j == h {
+                if j == h || !footprints_overlap(xy, q.truncate(), CUBE_SIZE - CAST_SHRINK) {
                     continue;
                 }
                 let pose = Pose::from_translation(*q);
-                if let Ok(Some(hit)) =
+                if let Ok(Some(_)) =
                     cast_shapes(&start, down, &falling, &pose, Vec3::ZERO, &cube, options)
                 {
-                    toi = toi.min(hit.time_of_impact);
+                    level = level.max(q.z + CUBE_HALF);
                 }
             }
             for bin in &self.bins {
+                if !footprints_overlap(xy, bin.centre, CUBE_HALF + BIN_HALF - CAST_SHRINK) {
+                    continue;
+                }
                 let pose = Pose::from_translation(Vec3::new(
                     bin.centre.x,
                     bin.centre.y,
                     BIN_THICKNESS / 2.0,
                 ));
-                if let Ok(Some(hit)) =
+                if let Ok(Some(_)) =
                     cast_shapes(&start, down, &falling, &pose, Vec3::ZERO, &pad, options)
                 {
-                    toi = toi.min(hit.time_of_impact);
+                    level = level.max(bin.top());
                 }
             }
-            let z = start_z - toi;
-            let bottom = z - CUBE_HALF;
+            let z = level + CUBE_HALF;
+            let bottom = level;
             if bottom <= LEVEL_EPS {
+                let xy = self.settle(h, xy, CUBE_HALF);
                 return (Vec3::new(xy.x, xy.y, CUBE_HALF), Support::Table, toppled);
             }
             // Supports: everything whose top is at the cube's bottom under
@@ -602,7 +610,7 @@ impl World {
             let mut main: Option<(Support, f32)> = None;
             for (j, q) in self.objects.iter().enumerate() {
                 if j != h
-                    && (q.z + CUBE_HALF - bottom).abs() <= 1e-3
+                    && (q.z + CUBE_HALF - bottom).abs() <= LEVEL_EPS
                     && footprints_overlap(xy, q.truncate(), CUBE_SIZE - CAST_SHRINK)
                 {
                     lo = lo.min(q.truncate() - CUBE_HALF);
@@ -614,7 +622,7 @@ impl World {
                 }
             }
             for (b, bin) in self.bins.iter().enumerate() {
-                if (bin.top() - bottom).abs() <= 1e-3
+                if (bin.top() - bottom).abs() <= LEVEL_EPS
                     && footprints_overlap(xy, bin.centre, CUBE_HALF + BIN_HALF - CAST_SHRINK)
                 {
                     lo = lo.min(bin.centre - BIN_HALF);
@@ -632,6 +640,7 @@ impl World {
             };
             let stable = xy.cmpge(lo).all() && xy.cmple(hi).all();
             if stable || attempt == MAX_TOPPLES {
+                let xy = self.settle(h, xy, z);
                 return (Vec3::new(xy.x, xy.y, z), support, toppled);
             }
             // Topple: slide off along the axis of the largest overhang until
@@ -656,6 +665,25 @@ impl World {
             }
         }
         unreachable!("the loop returns on its last attempt")
+    }
+
+    /// A cube that fell past a neighbour within the cast's lateral
+    /// tolerance (under 1 mm of overlap) is pushed out to touch it instead.
+    fn settle(&self, h: usize, mut xy: Vec2, z: f32) -> Vec2 {
+        for (j, q) in self.objects.iter().enumerate() {
+            if j == h || Some(j) == self.held || (q.z - z).abs() >= CUBE_SIZE - LEVEL_EPS {
+                continue;
+            }
+            let d = xy - q.truncate();
+            if d.x.abs() < CUBE_SIZE && d.y.abs() < CUBE_SIZE {
+                if d.x.abs() >= d.y.abs() {
+                    xy.x = q.x + CUBE_SIZE.copysign(d.x);
+                } else {
+                    xy.y = q.y + CUBE_SIZE.copysign(d.y);
+                }
+            }
+        }
+        xy
     }
 
     /// The 26-number state: each cube's centre relative to the gripper
