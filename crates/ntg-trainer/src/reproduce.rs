@@ -73,8 +73,8 @@ pub fn ntp_exp_scale(profile: Profile) -> [(ObsKind, PanelScale); 2] {
                 ObsKind::State,
                 PanelScale {
                     train_tasks: tasks(&[50, 100, 500, 1000]),
-                    demos_per_task: 4,
-                    epochs: 25,
+                    demos_per_task: 10,
+                    epochs: 8,
                     test_tasks: 100,
                 },
             ),
@@ -82,8 +82,8 @@ pub fn ntp_exp_scale(profile: Profile) -> [(ObsKind, PanelScale); 2] {
                 ObsKind::Vid,
                 PanelScale {
                     train_tasks: tasks(&[50, 100, 500, 1000]),
-                    demos_per_task: 1,
-                    epochs: 4,
+                    demos_per_task: 2,
+                    epochs: 3,
                     test_tasks: 50,
                 },
             ),
