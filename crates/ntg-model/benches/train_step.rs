@@ -48,10 +48,14 @@ fn backends() -> Vec<BackendKind> {
     BackendKind::available()
 }
 
-fn encoders() -> [(&'static str, EncoderConfig); 2] {
-    [
+fn encoders() -> Vec<(&'static str, EncoderConfig)> {
+    vec![
         ("state", EncoderConfig::state(26)),
         ("frame", EncoderConfig::frame()),
+        (
+            "frame_k4",
+            EncoderConfig::Frame(FrameEncoderConfig::new().with_kernel(4)),
+        ),
     ]
 }
 
@@ -125,7 +129,27 @@ fn train_steps(c: &mut Criterion) {
                 })
             });
 
-            // Demo interpreter: 32 demos of 30 frames → 20 tokens.
+            // Forward pass of the encoder alone (inference), for scale.
+            let plain = backend.device().expect("backend");
+            let encoder = config.localizer.encoder.init(1, &plain).unwrap();
+            let plain_obs = rows_tensor(&obs_rows, d, &plain).unwrap();
+            group.bench_function(format!("{backend}/{enc_name}/encoder_forward_only"), |b| {
+                b.iter(|| {
+                    let out = encoder.forward(plain_obs.clone()).unwrap();
+                    plain.sync().expect("device sync");
+                    black_box(out)
+                })
+            });
+            if enc_name == "frame_k4" {
+                continue;
+            }
+
+            // Demo interpreter: 32 demos of 30 frames → 20 tokens (960
+            // frames a step: skipped for frames on burn-ndarray, whose
+            // convolutions would take minutes per sample).
+            if enc_name != "state" && backend == BackendKind::NdArray {
+                continue;
+            }
             let frames = Tensor::<3>::from_data(
                 TensorData::new(
                     random(&mut rng, BATCH * DEMO_FRAMES * d),
