@@ -114,6 +114,8 @@ where
                 .x_desc(panel.x_label.as_str())
                 .y_desc(panel.y_label.as_str())
                 .label_style(("sans-serif", 13))
+                .x_label_formatter(&|x| format!("{x}"))
+                .light_line_style(WHITE)
                 .draw()
                 .map_err(|e| anyhow!("drawing the axes: {e}"))?;
             for (i, series) in panel.series.iter().enumerate() {
@@ -154,9 +156,18 @@ where
         }};
     }
     if panel.x_log {
+        // Ticks exactly at the measured x values: a log axis's own ticks
+        // crowd into unreadable labels over a short range.
+        let mut ticks: Vec<f64> = panel
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().map(|p| p.x))
+            .collect();
+        ticks.sort_by(f64::total_cmp);
+        ticks.dedup();
         body!(
             builder
-                .build_cartesian_2d((x0..x1).log_scale(), y0..y1)
+                .build_cartesian_2d((x0..x1).log_scale().with_key_points(ticks), y0..y1)
                 .map_err(|e| anyhow!("building the chart: {e}"))?
         );
     } else {
