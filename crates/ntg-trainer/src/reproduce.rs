@@ -186,7 +186,6 @@ pub fn reproduce(profile: Profile, runs: &Path, out: &Path) -> anyhow::Result<Re
                 "ntp_exp ({obs:?}, {n} tasks): training -> {}",
                 dir.display()
             );
-            let t = Instant::now();
             let device = ntg_model::cpu_device().autodiff();
             let model = blocks::train_run(&run, &config, &device, |m| {
                 eprintln!(
@@ -194,7 +193,6 @@ pub fn reproduce(profile: Profile, runs: &Path, out: &Path) -> anyhow::Result<Re
                     m.epoch, m.loss, m.token_accuracy, m.step_accuracy
                 )
             })?;
-            let _ = t;
             let train_seconds = epoch_seconds(&run)?;
             let eval_path = run
                 .eval_dir()
