@@ -22,7 +22,9 @@ use burn::tensor::{Device, Tensor};
 use crate::nn::Init;
 use crate::{ModelError, Result};
 
-/// An MLP over a state vector: `Enc(o) = W₂ relu(W₁ o + b₁) + b₂`.
+/// An MLP over a state vector: `Enc(o) = W_out h_L + b_out` with
+/// `h_1 = relu(W₁ o + b₁)` and `h_{k+1} = relu(W_k h_k + b_k)` for
+/// `hidden_layers = L` hidden layers.
 #[derive(Config, Debug)]
 pub struct StateEncoderConfig {
     /// Length `D` of the state vector (26 for block stacking).
@@ -30,6 +32,10 @@ pub struct StateEncoderConfig {
     /// Hidden width.
     #[config(default = 128)]
     pub hidden: usize,
+    /// Number of hidden layers `L ≥ 1`. Relations between objects (is a
+    /// cube on the one under the gripper?) need more than one.
+    #[config(default = 1)]
+    pub hidden_layers: usize,
     /// Embedding size `H`.
     #[config(default = 128)]
     pub out_dim: usize,
@@ -139,6 +145,7 @@ impl EncoderConfig {
             EncoderConfig::State(c) => {
                 positive("input_dim", c.input_dim)?;
                 positive("hidden", c.hidden)?;
+                positive("hidden_layers", c.hidden_layers)?;
                 positive("out_dim", c.out_dim)
             }
             EncoderConfig::Frame(c) => {
@@ -178,6 +185,9 @@ impl EncoderConfig {
         Ok(match self {
             EncoderConfig::State(c) => Encoder::State(StateEncoder {
                 fc1: init.linear(c.input_dim, c.hidden, true),
+                mid: (1..c.hidden_layers)
+                    .map(|_| init.linear(c.hidden, c.hidden, true))
+                    .collect(),
                 fc2: init.linear(c.hidden, c.out_dim, true),
             }),
             EncoderConfig::Frame(c) => {
@@ -208,6 +218,8 @@ impl EncoderConfig {
 pub struct StateEncoder {
     /// First layer.
     pub fc1: Linear,
+    /// Hidden layers after the first (`hidden_layers − 1` of them).
+    pub mid: Vec<Linear>,
     /// Output layer.
     pub fc2: Linear,
 }
@@ -292,7 +304,13 @@ impl Encoder {
     pub(crate) fn forward_unchecked(&self, obs: Tensor<2>) -> Tensor<2> {
         let [batch, _] = obs.dims();
         match self {
-            Encoder::State(e) => e.fc2.forward(relu(e.fc1.forward(obs))),
+            Encoder::State(e) => {
+                let h = e
+                    .mid
+                    .iter()
+                    .fold(relu(e.fc1.forward(obs)), |h, layer| relu(layer.forward(h)));
+                e.fc2.forward(h)
+            }
             Encoder::Frame(e) => {
                 let s = e.image_size;
                 let x: Tensor<4> = obs.reshape([batch, e.channels, s, s]);

@@ -117,6 +117,88 @@ fn demo_batch(dev: &Device, rng: &mut ChaCha8Rng) -> (DemoBatch, Vec<Vec<f32>>, 
 }
 
 #[test]
+fn token_dropout_replaces_decoder_inputs_with_start() {
+    let dev = device();
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let model = NtgModel::new(small_config(2), &dev).unwrap();
+    let interp = &model.interpreter;
+    let (batch, _, _) = demo_batch(&dev, &mut rng);
+    let [b, l] = batch.targets.dims();
+    let logits = |targets: Tensor<2, Int>, dropped: Option<Tensor<2, Bool>>| {
+        let out = interp
+            .forward_with_token_dropout(
+                batch.frames.clone(),
+                batch.frame_mask.clone(),
+                targets,
+                dropped,
+            )
+            .unwrap();
+        to_vec(out.logits).unwrap()
+    };
+    // No dropout is plain teacher forcing.
+    let plain = to_vec(
+        interp
+            .forward(
+                batch.frames.clone(),
+                batch.frame_mask.clone(),
+                batch.targets.clone(),
+            )
+            .unwrap()
+            .logits,
+    )
+    .unwrap();
+    let none = Tensor::<2, Bool>::from_data(TensorData::new(vec![false; b * l], [b, l]), &dev);
+    assert!(close(
+        &plain,
+        &logits(batch.targets.clone(), Some(none)),
+        1e-6
+    ));
+    // Everything dropped: the decoder never sees the targets, so other
+    // targets of the same length give the same logits; without dropout they
+    // differ.
+    let all = Tensor::<2, Bool>::from_data(TensorData::new(vec![true; b * l], [b, l]), &dev);
+    let other = (batch.targets.clone() + 1).remainder_scalar(N as i64);
+    assert!(close(
+        &logits(batch.targets.clone(), Some(all.clone())),
+        &logits(other.clone(), Some(all)),
+        1e-6
+    ));
+    assert!(!close(&plain, &logits(other, None), 1e-3));
+    // A mask of the wrong shape is an error, not a panic.
+    let wrong = Tensor::<2, Bool>::from_data(TensorData::new(vec![true; b], [b, 1]), &dev);
+    assert!(
+        interp
+            .forward_with_token_dropout(
+                batch.frames.clone(),
+                batch.frame_mask.clone(),
+                batch.targets.clone(),
+                Some(wrong)
+            )
+            .is_err()
+    );
+}
+
+#[test]
+fn deeper_state_encoder_has_the_same_interface() {
+    let dev = device();
+    let enc = EncoderConfig::State(
+        StateEncoderConfig::new(D)
+            .with_hidden(16)
+            .with_out_dim(12)
+            .with_hidden_layers(3),
+    );
+    let e = enc.init(0, &dev).unwrap();
+    let Encoder::State(ref s) = e else {
+        panic!("a state encoder")
+    };
+    assert_eq!(s.mid.len(), 2);
+    let out = e.forward(Tensor::<2>::ones([4, D], &dev)).unwrap();
+    assert_eq!(out.dims(), [4, 12]);
+    let zero = EncoderConfig::State(StateEncoderConfig::new(D).with_hidden_layers(0));
+    assert!(zero.init(0, &dev).is_err());
+}
+
+#[test]
 fn interpreter_shapes_and_attention() {
     let dev = device();
     let mut rng = ChaCha8Rng::seed_from_u64(1);

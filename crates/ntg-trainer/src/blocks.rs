@@ -47,10 +47,13 @@ impl ObsKind {
         }
     }
 
-    /// The matching encoder.
-    pub fn encoder(self) -> EncoderConfig {
+    /// The matching encoder (`state_hidden_layers` applies to the state MLP).
+    pub fn encoder(self, state_hidden_layers: usize) -> EncoderConfig {
         match self {
-            ObsKind::State => EncoderConfig::state(env_blocks::STATE_DIM),
+            ObsKind::State => EncoderConfig::State(
+                ntg_model::StateEncoderConfig::new(env_blocks::STATE_DIM)
+                    .with_hidden_layers(state_hidden_layers),
+            ),
             ObsKind::Vid => EncoderConfig::frame(),
         }
     }
@@ -106,8 +109,15 @@ pub struct BlocksRunConfig {
     pub failures: bool,
     /// Seed of the model's initial weights.
     pub model_seed: u64,
+    /// Hidden layers of the state encoder MLP (ignored for video).
+    #[serde(default = "one")]
+    pub state_hidden_layers: usize,
     /// Optimisation.
     pub optim: OptimConfig,
+}
+
+fn one() -> usize {
+    1
 }
 
 /// Records the training demonstrations of a run, in parallel.
@@ -156,7 +166,8 @@ pub fn train_run(
         dataset
     };
     let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
-    let mut model_config = NtgConfig::for_domain(vocab.len(), config.obs.encoder());
+    let mut model_config =
+        NtgConfig::for_domain(vocab.len(), config.obs.encoder(config.state_hidden_layers));
     model_config.seed = config.model_seed;
     let model = NtgModel::new(model_config, device)?;
     train(model, &dataset, &config.optim, run, device, &mut on_epoch)
@@ -232,6 +243,28 @@ impl Variant {
     }
 }
 
+/// Records the conditioning demo of test task `index` (seed
+/// `DEMO_SEED_BASE + index`) in `env` and builds the policy from it: the
+/// first half of every evaluation and trace.
+pub fn conditioned_policy(
+    model: &NtgModel,
+    env: &mut BlocksEnv,
+    task: &StackTask,
+    index: usize,
+    obs: ObsKind,
+) -> anyhow::Result<(ctg_graph::Demonstration<BlocksObservation>, NtgPolicy)> {
+    let demo = record_demonstration(env, &mut BlocksExpert::new(), DEMO_SEED_BASE + index as u64)
+        .with_context(|| format!("demo of test task {}", task.id))?;
+    let rows: Vec<Vec<f32>> = demo
+        .observations()
+        .iter()
+        .map(|o| featurize(o, obs))
+        .collect();
+    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+    let policy = NtgPolicy::from_demo(model, &rows, &vocab)?;
+    Ok((demo, policy))
+}
+
 /// Evaluates `model` on the first `test_tasks` unseen tasks: one demo per
 /// task → policy → rollout in a fresh scene, in parallel.
 pub fn evaluate(
@@ -263,18 +296,7 @@ pub fn evaluate(
         .enumerate()
         .map(|(i, task)| {
             let mut env = BlocksEnv::stacking(task.clone(), env_cfg)?;
-            let demo = record_demonstration(
-                &mut env,
-                &mut BlocksExpert::new(),
-                DEMO_SEED_BASE + i as u64,
-            )
-            .with_context(|| format!("demo of test task {}", task.id))?;
-            let rows: Vec<Vec<f32>> = demo
-                .observations()
-                .iter()
-                .map(|o| featurize(o, obs))
-                .collect();
-            let policy = NtgPolicy::from_demo(&model, &rows, &vocab)?;
+            let (demo, policy) = conditioned_policy(&model, &mut env, task, i, obs)?;
             let mapped = policy.mapped(|o: &BlocksObservation| featurize(o, obs));
             let (mut nodes, mut edges) = (&mapped, &mapped);
             let rollout = policy

@@ -156,11 +156,13 @@ pub fn reproduce(profile: Profile, runs: &Path, out: &Path) -> anyhow::Result<Re
                 demos_per_task: scale.demos_per_task,
                 failures: true,
                 model_seed: 0,
+                state_hidden_layers: 1,
                 optim: OptimConfig {
                     epochs: scale.epochs,
                     batch_size: 32,
                     learning_rate: 3e-3,
                     seed: 0,
+                    token_dropout: 0.0,
                 },
             };
             let dir = runs.join(format!(

@@ -44,6 +44,13 @@ pub struct TrainArgs {
     /// Seed of the weights and the shuffling.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Probability that the demo interpreter's decoder reads `<start>`
+    /// instead of the previous action in training (0 = plain teacher forcing).
+    #[arg(long, default_value_t = 0.0)]
+    pub token_dropout: f32,
+    /// Hidden layers of the state encoder MLP (state observations only).
+    #[arg(long, default_value_t = 1)]
+    pub state_hidden_layers: usize,
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
@@ -64,11 +71,13 @@ impl TrainArgs {
             demos_per_task: self.demos_per_task,
             failures: !self.no_failures,
             model_seed: self.seed,
+            state_hidden_layers: self.state_hidden_layers,
             optim: OptimConfig {
                 epochs: self.epochs,
                 batch_size: self.batch_size,
                 learning_rate: self.lr,
                 seed: self.seed,
+                token_dropout: self.token_dropout,
             },
         }
     }
@@ -91,6 +100,12 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
     } else {
         if config.train_tasks == 0 || config.demos_per_task == 0 {
             bail!("--train-tasks and --demos-per-task must be positive");
+        }
+        if !(0.0..1.0).contains(&config.optim.token_dropout) {
+            bail!(
+                "--token-dropout must be in [0, 1), got {}",
+                config.optim.token_dropout
+            );
         }
         let run = RunDir::create(&args.out)?;
         RunDir::write_json(&run.config_path(), &config)?;
@@ -133,6 +148,28 @@ pub struct EvalArgs {
     /// Which policy to evaluate.
     #[arg(long, value_enum, default_value_t = Variant::Full)]
     pub variant: Variant,
+    /// Keep GCN edges with probability at least this (default: the
+    /// model's configured threshold, 0.5).
+    #[arg(long)]
+    pub edge_threshold: Option<f32>,
+}
+
+/// Loads the trained model of `run`, with its edge threshold overridden
+/// when `edge_threshold` is given (checked to lie in [0, 1]).
+pub fn load_trained(
+    run: &RunDir,
+    edge_threshold: Option<f32>,
+    device: &burn::tensor::Device,
+) -> anyhow::Result<NtgModel> {
+    let mut model = NtgModel::load(run.checkpoint_dir(), device)
+        .with_context(|| format!("{} has no trained model yet", run.root().display()))?;
+    if let Some(t) = edge_threshold {
+        if !(0.0..=1.0).contains(&t) {
+            bail!("--edge-threshold must be in [0, 1], got {t}");
+        }
+        model.config.edge_threshold = t;
+    }
+    Ok(model)
 }
 
 /// Runs `ntg eval`: prints the success rate and writes
@@ -141,8 +178,11 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     let run = RunDir::open(&args.run)?;
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     let device = ntg_model::cpu_device();
-    let model = NtgModel::load(run.checkpoint_dir(), &device)
-        .with_context(|| format!("{} has no trained model yet", run.root().display()))?;
+    let model = load_trained(&run, args.edge_threshold, &device)?;
+    let mut name = format!("{}-{}", args.variant.name(), args.test_tasks);
+    if let Some(t) = args.edge_threshold {
+        name.push_str(&format!("-threshold{t}"));
+    }
     let result = blocks::evaluate(
         &model,
         config.obs,
@@ -151,9 +191,7 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
         args.variant,
     )?;
     std::fs::create_dir_all(run.eval_dir())?;
-    let path = run
-        .eval_dir()
-        .join(format!("{}-{}.json", args.variant.name(), args.test_tasks));
+    let path = run.eval_dir().join(format!("{name}.json"));
     RunDir::write_json(&path, &result)?;
     let s = result.success;
     println!(
