@@ -109,7 +109,8 @@ pub struct BlocksRunConfig {
     pub failures: bool,
     /// Seed of the model's initial weights.
     pub model_seed: u64,
-    /// Hidden layers of the state encoder MLP (ignored for video).
+    /// Hidden layers of the node localizer's and edge classifier's state
+    /// encoder MLPs (the demo interpreter keeps one; ignored for video).
     #[serde(default = "one")]
     pub state_hidden_layers: usize,
     /// Optimisation.
@@ -166,8 +167,13 @@ pub fn train_run(
         dataset
     };
     let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
-    let mut model_config =
-        NtgConfig::for_domain(vocab.len(), config.obs.encoder(config.state_hidden_layers));
+    let mut model_config = NtgConfig::for_domain(vocab.len(), config.obs.encoder(1));
+    // The localizer and edge classifier judge a single observation, so
+    // relations between cubes (is something on the cube under the
+    // gripper?) must come from their encoders; the demo interpreter has
+    // its GRU on top of its encoder and keeps the one-layer MLP.
+    model_config.localizer.encoder = config.obs.encoder(config.state_hidden_layers);
+    model_config.edge.encoder = config.obs.encoder(config.state_hidden_layers);
     model_config.seed = config.model_seed;
     let model = NtgModel::new(model_config, device)?;
     train(model, &dataset, &config.optim, run, device, &mut on_epoch)
@@ -184,6 +190,12 @@ pub struct TaskRecord {
     pub success: bool,
     /// Actions taken (`<end>` included if chosen).
     pub steps: usize,
+    /// Goal constraints (`on_top(src, target)`) that held at the end.
+    #[serde(default)]
+    pub goals_met: usize,
+    /// Goal constraints of the task.
+    #[serde(default)]
+    pub goals: usize,
     /// The executed actions, by name.
     pub trace: Vec<String>,
     /// The demo interpreter's transcription of the conditioning demo.
@@ -199,6 +211,11 @@ pub struct EvalResult {
     pub variant: String,
     /// Success rate with its 95% interval.
     pub success: SuccessRate,
+    /// Mean over tasks of the fraction of goal constraints that held at
+    /// the end: partial progress, informative where whole tasks rarely
+    /// succeed.
+    #[serde(default)]
+    pub mean_goal_fraction: f64,
     /// Per-task records.
     pub tasks: Vec<TaskRecord>,
 }
@@ -309,12 +326,19 @@ pub fn evaluate(
                 )
                 .with_context(|| format!("rollout of test task {}", task.id))?;
             bar.inc(1);
+            let goals_met = task
+                .goals
+                .iter()
+                .filter(|g| env.world().on_top(g.src, g.target))
+                .count();
             let trace: Vec<ActionId> = rollout.steps.iter().map(|s| s.action).collect();
             Ok(TaskRecord {
                 index: i,
                 task: task.id.clone(),
                 success: rollout.success,
                 steps: rollout.steps.len(),
+                goals_met,
+                goals: task.goals.len(),
                 trace: names(&trace),
                 transcription: names(policy.demo_actions()),
                 demo_actions: names(demo.actions()),
@@ -325,6 +349,11 @@ pub fn evaluate(
     Ok(EvalResult {
         variant: variant.name().to_owned(),
         success: SuccessRate::from_outcomes(records.iter().map(|r| r.success)),
+        mean_goal_fraction: records
+            .iter()
+            .map(|r| r.goals_met as f64 / r.goals.max(1) as f64)
+            .sum::<f64>()
+            / records.len().max(1) as f64,
         tasks: records,
     })
 }

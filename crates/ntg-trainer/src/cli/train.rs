@@ -48,7 +48,8 @@ pub struct TrainArgs {
     /// instead of the previous action in training (0 = plain teacher forcing).
     #[arg(long, default_value_t = 0.0)]
     pub token_dropout: f32,
-    /// Hidden layers of the state encoder MLP (state observations only).
+    /// Hidden layers of the localizer's and edge classifier's state encoder
+    /// MLPs (state observations only; the demo interpreter keeps one).
     #[arg(long, default_value_t = 1)]
     pub state_hidden_layers: usize,
     /// Turn stochastic grasp/drop failures off (they are on by default).
@@ -162,7 +163,7 @@ pub fn load_trained(
     device: &burn::tensor::Device,
 ) -> anyhow::Result<NtgModel> {
     let mut model = NtgModel::load(run.checkpoint_dir(), device)
-        .with_context(|| format!("{} has no trained model yet", run.root().display()))?;
+        .with_context(|| format!("loading the trained model of {}", run.root().display()))?;
     if let Some(t) = edge_threshold {
         if !(0.0..=1.0).contains(&t) {
             bail!("--edge-threshold must be in [0, 1], got {t}");
@@ -195,13 +196,14 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     RunDir::write_json(&path, &result)?;
     let s = result.success;
     println!(
-        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); records in {}",
+        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); goals met {:.3}; records in {}",
         result.variant,
         s.successes,
         s.trials,
         s.rate,
         s.ci_low,
         s.ci_high,
+        result.mean_goal_fraction,
         path.display()
     );
     Ok(())
