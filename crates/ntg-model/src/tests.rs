@@ -199,6 +199,54 @@ fn deeper_state_encoder_has_the_same_interface() {
 }
 
 #[test]
+fn pairwise_state_encoder_reads_relative_positions() {
+    let dev = device();
+    // D = 9: three objects' positions. With pairwise input, moving every
+    // object by the same offset changes only the raw part of the input, so
+    // an encoder whose raw-input weights are zero cannot tell the scenes
+    // apart, while one without pairwise input (all weights raw) can.
+    let config = StateEncoderConfig::new(D)
+        .with_hidden(16)
+        .with_out_dim(12)
+        .with_pairwise_objects(3);
+    let mut e = EncoderConfig::State(config).init(0, &dev).unwrap();
+    assert_eq!(e.input_dim(), D);
+    let Encoder::State(ref mut s) = e else {
+        panic!("a state encoder")
+    };
+    assert_eq!(s.fc1.weight.dims(), [D + 27, 16]);
+    let w = s.fc1.weight.val();
+    let raw_zeroed = w
+        .clone()
+        .slice_assign([0..D, 0..16], Tensor::<2>::zeros([D, 16], &dev));
+    s.fc1.weight = Param::from_tensor(raw_zeroed);
+    let scene: Vec<f32> = (0..D).map(|i| i as f32 * 0.1).collect();
+    let shifted: Vec<f32> = scene.iter().map(|v| v + 0.5).collect();
+    let rows = |r: &Vec<f32>| Tensor::<2>::from_data(TensorData::new(r.clone(), [1, D]), &dev);
+    let a = to_vec(e.forward(rows(&scene)).unwrap()).unwrap();
+    let b = to_vec(e.forward(rows(&shifted)).unwrap()).unwrap();
+    assert!(close(&a, &b, 1e-5));
+    let c = to_vec(
+        e.forward(rows(
+            &scene
+                .iter()
+                .enumerate()
+                .map(|(i, v)| if i == 0 { v + 0.5 } else { *v })
+                .collect(),
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    assert!(
+        !close(&a, &c, 1e-4),
+        "moving one object must change the encoding"
+    );
+    // More objects than the state holds is a configuration error.
+    let too_many = StateEncoderConfig::new(D).with_pairwise_objects(4);
+    assert!(EncoderConfig::State(too_many).init(0, &dev).is_err());
+}
+
+#[test]
 fn interpreter_shapes_and_attention() {
     let dev = device();
     let mut rng = ChaCha8Rng::seed_from_u64(1);

@@ -47,12 +47,18 @@ impl ObsKind {
         }
     }
 
-    /// The matching encoder (`state_hidden_layers` applies to the state MLP).
-    pub fn encoder(self, state_hidden_layers: usize) -> EncoderConfig {
+    /// The matching encoder (`state_hidden_layers` and `pairwise` apply to
+    /// the state MLP: the relational input covers the 8 cube positions).
+    pub fn encoder(self, state_hidden_layers: usize, pairwise: bool) -> EncoderConfig {
         match self {
             ObsKind::State => EncoderConfig::State(
                 ntg_model::StateEncoderConfig::new(env_blocks::STATE_DIM)
-                    .with_hidden_layers(state_hidden_layers),
+                    .with_hidden_layers(state_hidden_layers)
+                    .with_pairwise_objects(if pairwise {
+                        env_blocks::world::NUM_OBJECTS
+                    } else {
+                        0
+                    }),
             ),
             ObsKind::Vid => EncoderConfig::frame(),
         }
@@ -113,6 +119,10 @@ pub struct BlocksRunConfig {
     /// encoder MLPs (the demo interpreter keeps one; ignored for video).
     #[serde(default = "one")]
     pub state_hidden_layers: usize,
+    /// State encoders also read every pairwise difference of cube
+    /// positions (see `StateEncoderConfig::pairwise_objects`).
+    #[serde(default)]
+    pub pairwise: bool,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -167,13 +177,18 @@ pub fn train_run(
         dataset
     };
     let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
-    let mut model_config = NtgConfig::for_domain(vocab.len(), config.obs.encoder(1));
+    let mut model_config =
+        NtgConfig::for_domain(vocab.len(), config.obs.encoder(1, config.pairwise));
     // The localizer and edge classifier judge a single observation, so
     // relations between cubes (is something on the cube under the
     // gripper?) must come from their encoders; the demo interpreter has
     // its GRU on top of its encoder and keeps the one-layer MLP.
-    model_config.localizer.encoder = config.obs.encoder(config.state_hidden_layers);
-    model_config.edge.encoder = config.obs.encoder(config.state_hidden_layers);
+    model_config.localizer.encoder = config
+        .obs
+        .encoder(config.state_hidden_layers, config.pairwise);
+    model_config.edge.encoder = config
+        .obs
+        .encoder(config.state_hidden_layers, config.pairwise);
     model_config.seed = config.model_seed;
     let model = NtgModel::new(model_config, device)?;
     train(model, &dataset, &config.optim, run, device, &mut on_epoch)

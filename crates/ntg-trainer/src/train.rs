@@ -153,6 +153,10 @@ pub fn train(
         let mut sums = [0.0f32; 8];
         let mut edge_counts = EdgeCounts::default();
         let mut steps = 0usize;
+        let bar = crate::dataset::progress_bar(
+            order.len().div_ceil(optim.batch_size) as u64,
+            &format!("epoch {epoch}"),
+        );
         for chunk in order.chunks(optim.batch_size) {
             let dropout = TokenDropout {
                 rate: optim.token_dropout,
@@ -168,7 +172,9 @@ pub fn train(
             edge_counts.false_positives += out.edges.false_positives;
             edge_counts.false_negatives += out.edges.false_negatives;
             steps += 1;
+            bar.inc(1);
         }
+        bar.finish_and_clear();
         let mean = |i: usize| sums[i] / steps as f32;
         let metrics = EpochMetrics {
             epoch,

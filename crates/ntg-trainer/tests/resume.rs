@@ -17,6 +17,7 @@ fn config() -> BlocksRunConfig {
         failures: true,
         model_seed: 7,
         state_hidden_layers: 1,
+        pairwise: false,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,

@@ -23,6 +23,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         failures: true,
         model_seed: 0,
         state_hidden_layers: 1,
+        pairwise: false,
         optim: OptimConfig {
             epochs: 25,
             batch_size: 32,

@@ -48,6 +48,9 @@ pub struct TrainArgs {
     /// instead of the previous action in training (0 = plain teacher forcing).
     #[arg(long, default_value_t = 0.0)]
     pub token_dropout: f32,
+    /// State encoders also read every pairwise difference of cube positions.
+    #[arg(long)]
+    pub pairwise: bool,
     /// Hidden layers of the localizer's and edge classifier's state encoder
     /// MLPs (state observations only; the demo interpreter keeps one).
     #[arg(long, default_value_t = 1)]
@@ -73,6 +76,7 @@ impl TrainArgs {
             failures: !self.no_failures,
             model_seed: self.seed,
             state_hidden_layers: self.state_hidden_layers,
+            pairwise: self.pairwise,
             optim: OptimConfig {
                 epochs: self.epochs,
                 batch_size: self.batch_size,
