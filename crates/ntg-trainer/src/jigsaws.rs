@@ -128,6 +128,14 @@ pub enum DataSource {
 }
 
 impl DataSource {
+    /// Part of the run-folder names: `synth<seed>` or `root`.
+    pub fn run_tag(&self) -> String {
+        match self {
+            DataSource::Synthetic { seed, .. } => format!("synth{seed}"),
+            DataSource::Root { .. } => "root".to_owned(),
+        }
+    }
+
     /// A one-line description for reports.
     pub fn describe(&self) -> String {
         match self {
@@ -1077,8 +1085,9 @@ pub fn train_method(
 }
 
 /// Runs the whole experiment: data, the two trained models (run folders
-/// `<runs>/jigsaws-full` and `<runs>/jigsaws-no-graph`, reused when
-/// finished with the same config), the three methods' scores and the
+/// `<runs>/jigsaws-<tag>-full` and `<runs>/jigsaws-<tag>-no-graph`, tag
+/// from [`DataSource::run_tag`], reused when finished with the same
+/// config), the three methods' scores and the
 /// predicted graph.
 pub fn run_experiment(
     config: &JigsawsConfig,
@@ -1112,7 +1121,11 @@ pub fn run_experiment(
         let model = if method == Method::Uniform {
             None
         } else {
-            let dir = runs.join(format!("jigsaws-{}", method.name()));
+            let dir = runs.join(format!(
+                "jigsaws-{}-{}",
+                config.source.run_tag(),
+                method.name()
+            ));
             log(&format!(
                 "jigsaws ({}): training -> {}",
                 method.name(),
@@ -1226,8 +1239,12 @@ pub fn write_figure(result: &JigsawsResult, stem: &Path) -> anyhow::Result<()> {
     crate::figure::write_bar_chart(
         &crate::figure::BarChart {
             title: format!(
-                "{TEST_TASK} from one demo ({} conditioning demos)",
-                result.test_demos
+                "{TEST_TASK} from one demo ({} demos, {})",
+                result.test_demos,
+                match result.config.source {
+                    DataSource::Synthetic { .. } => "synthetic stand-in",
+                    DataSource::Root { .. } => "JIGSAWS copy",
+                }
             ),
             y_label: "NLL per step (nats, lower is better)".into(),
             bars,
