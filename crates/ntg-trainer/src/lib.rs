@@ -18,6 +18,7 @@ pub mod blocks;
 pub mod cli;
 pub mod dataset;
 pub mod figure;
+pub mod jigsaws;
 pub mod reproduce;
 pub mod run_dir;
 pub mod stats;

@@ -225,6 +225,10 @@ pub struct ReproduceArgs {
     /// Where figures, results.json and REPORT.md go.
     #[arg(long, default_value = "docs/figures")]
     pub out: PathBuf,
+    /// Run fig. "jigsaws" on this JIGSAWS copy instead of the synthetic
+    /// stand-in.
+    #[arg(long, value_name = "DIR")]
+    pub jigsaws_root: Option<PathBuf>,
 }
 
 /// Runs `ntg reproduce`.
@@ -234,7 +238,8 @@ pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
             .as_str()
             .unwrap_or("profile"),
     );
-    let results = crate::reproduce::reproduce(args.profile, &runs, &args.out)?;
+    let results =
+        crate::reproduce::reproduce(args.profile, &runs, &args.out, args.jigsaws_root.as_deref())?;
     println!(
         "wrote {} (figure ntp_exp: {} points)",
         args.out.display(),
