@@ -64,6 +64,10 @@ pub const BATCH_SIZE: usize = 32;
 /// reproduced runs.
 pub const STATE_HIDDEN_LAYERS: usize = 3;
 
+/// Whether reproduced runs' state encoders read pairwise cube-position
+/// differences.
+pub const PAIRWISE: bool = true;
+
 /// The scales of both panels under `profile`.
 pub fn ntp_exp_scale(profile: Profile) -> [(ObsKind, PanelScale); 2] {
     let tasks = |v: &[usize]| v.to_vec();
@@ -202,7 +206,7 @@ pub fn reproduce(
                 failures: true,
                 model_seed: 0,
                 state_hidden_layers: STATE_HIDDEN_LAYERS,
-                pairwise: false,
+                pairwise: PAIRWISE,
                 optim: OptimConfig {
                     epochs,
                     batch_size: BATCH_SIZE,
