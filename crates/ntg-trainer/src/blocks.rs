@@ -119,8 +119,9 @@ pub struct BlocksRunConfig {
     /// encoder MLPs (the demo interpreter keeps one; ignored for video).
     #[serde(default = "one")]
     pub state_hidden_layers: usize,
-    /// State encoders also read every pairwise difference of cube
-    /// positions (see `StateEncoderConfig::pairwise_objects`).
+    /// The localizer's and edge classifier's state encoders also read every
+    /// pairwise difference of cube positions (see
+    /// `StateEncoderConfig::pairwise_objects`).
     #[serde(default)]
     pub pairwise: bool,
     /// Optimisation.
@@ -177,12 +178,14 @@ pub fn train_run(
         dataset
     };
     let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
-    let mut model_config =
-        NtgConfig::for_domain(vocab.len(), config.obs.encoder(1, config.pairwise));
+    let mut model_config = NtgConfig::for_domain(vocab.len(), config.obs.encoder(1, false));
     // The localizer and edge classifier judge a single observation, so
     // relations between cubes (is something on the cube under the
-    // gripper?) must come from their encoders; the demo interpreter has
-    // its GRU on top of its encoder and keeps the one-layer MLP.
+    // gripper?) must come from their encoders. The demo interpreter has its
+    // GRU on top of its encoder and keeps the plain one-layer MLP: with the
+    // relational input it fit its training demos as well but transcribed
+    // unseen ones worse (held-out token accuracy 0.73 against 0.98 at 1000
+    // tasks x 20 demos).
     model_config.localizer.encoder = config
         .obs
         .encoder(config.state_hidden_layers, config.pairwise);

@@ -48,7 +48,8 @@ pub struct TrainArgs {
     /// instead of the previous action in training (0 = plain teacher forcing).
     #[arg(long, default_value_t = 0.0)]
     pub token_dropout: f32,
-    /// State encoders also read every pairwise difference of cube positions.
+    /// The localizer's and edge classifier's state encoders also read every
+    /// pairwise difference of cube positions.
     #[arg(long)]
     pub pairwise: bool,
     /// Hidden layers of the localizer's and edge classifier's state encoder
