@@ -194,6 +194,7 @@ impl JigsawsConfig {
                 learning_rate: 3e-3,
                 seed: 0,
                 token_dropout: 0.0,
+                cosine_decay: false,
             },
             smoothing: DEFAULT_SMOOTHING,
             validation_every: 5,
@@ -1508,6 +1509,7 @@ mod tests {
             learning_rate: 3e-3,
             seed: 0,
             token_dropout: 0.0,
+            cosine_decay: false,
         };
         let train = || {
             let mut config = NtgConfig::for_domain(data.vocab.len(), EncoderConfig::kinematics(10));

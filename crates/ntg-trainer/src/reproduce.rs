@@ -213,6 +213,7 @@ pub fn reproduce(
                     learning_rate: 3e-3,
                     seed: 0,
                     token_dropout: 0.0,
+                    cosine_decay: false,
                 },
             };
             let dir = runs.join(format!(
@@ -437,6 +438,26 @@ fn report(results: &Results, seconds: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cosine_decay_runs_from_the_rate_to_a_tenth() {
+        let optim = OptimConfig {
+            epochs: 1,
+            batch_size: 1,
+            learning_rate: 1e-2,
+            seed: 0,
+            token_dropout: 0.0,
+            cosine_decay: true,
+        };
+        assert!((optim.learning_rate_at(0, 101) - 1e-2).abs() < 1e-12);
+        assert!((optim.learning_rate_at(50, 101) - 5.5e-3).abs() < 1e-9);
+        assert!((optim.learning_rate_at(100, 101) - 1e-3).abs() < 1e-12);
+        let constant = OptimConfig {
+            cosine_decay: false,
+            ..optim
+        };
+        assert_eq!(constant.learning_rate_at(100, 101), 1e-2);
+    }
 
     #[test]
     fn small_training_sets_get_epochs_up_to_the_minimum_steps() {

@@ -49,6 +49,22 @@ pub struct OptimConfig {
     /// reading the demo; 0 = plain teacher forcing).
     #[serde(default)]
     pub token_dropout: f32,
+    /// Decay the learning rate along a half cosine from `learning_rate` to
+    /// a tenth of it over the run (per step); off = constant.
+    #[serde(default)]
+    pub cosine_decay: bool,
+}
+
+impl OptimConfig {
+    /// The learning rate at `step` of `total_steps`.
+    pub fn learning_rate_at(&self, step: usize, total_steps: usize) -> f64 {
+        if !self.cosine_decay || total_steps <= 1 {
+            return self.learning_rate;
+        }
+        let progress = step.min(total_steps - 1) as f64 / (total_steps - 1) as f64;
+        let floor = 0.1 * self.learning_rate;
+        floor + (self.learning_rate - floor) * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos())
+    }
 }
 
 /// Metrics of one epoch, as logged to `metrics.jsonl`.
@@ -143,6 +159,8 @@ pub fn train(
         start = progress.epochs_done;
     }
 
+    let steps_per_epoch = dataset.demos().len().div_ceil(optim.batch_size);
+    let total_steps = steps_per_epoch * optim.epochs;
     for epoch in start..optim.epochs {
         let started = std::time::Instant::now();
         let mut order: Vec<usize> = (0..dataset.demos().len()).collect();
@@ -153,10 +171,7 @@ pub fn train(
         let mut sums = [0.0f32; 8];
         let mut edge_counts = EdgeCounts::default();
         let mut steps = 0usize;
-        let bar = crate::dataset::progress_bar(
-            order.len().div_ceil(optim.batch_size) as u64,
-            &format!("epoch {epoch}"),
-        );
+        let bar = crate::dataset::progress_bar(steps_per_epoch as u64, &format!("epoch {epoch}"));
         for chunk in order.chunks(optim.batch_size) {
             let dropout = TokenDropout {
                 rate: optim.token_dropout,
@@ -164,7 +179,8 @@ pub fn train(
             };
             let out = step(&model, dataset, &graphs, chunk, &dropout, device)?;
             let grads = GradientsParams::from_grads(out.total.backward(), &model);
-            model = optimizer.step(optim.learning_rate, model, grads);
+            let lr = optim.learning_rate_at(epoch * steps_per_epoch + steps, total_steps);
+            model = optimizer.step(lr, model, grads);
             for (s, v) in sums.iter_mut().zip(out.values) {
                 *s += v;
             }

@@ -24,6 +24,7 @@ fn config() -> BlocksRunConfig {
             learning_rate: 3e-3,
             seed: 11,
             token_dropout: 0.3,
+            cosine_decay: true,
         },
     }
 }

@@ -30,6 +30,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
             learning_rate: 3e-3,
             seed: 0,
             token_dropout: 0.0,
+            cosine_decay: false,
         },
     };
     let run = RunDir::create(&tmp.path().join("run")).unwrap();

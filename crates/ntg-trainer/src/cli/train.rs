@@ -44,6 +44,9 @@ pub struct TrainArgs {
     /// Seed of the weights and the shuffling.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Decay the learning rate along a half cosine to a tenth of --lr.
+    #[arg(long)]
+    pub cosine_decay: bool,
     /// Probability that the demo interpreter's decoder reads `<start>`
     /// instead of the previous action in training (0 = plain teacher forcing).
     #[arg(long, default_value_t = 0.0)]
@@ -84,6 +87,7 @@ impl TrainArgs {
                 learning_rate: self.lr,
                 seed: self.seed,
                 token_dropout: self.token_dropout,
+                cosine_decay: self.cosine_decay,
             },
         }
     }
