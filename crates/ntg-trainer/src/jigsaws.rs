@@ -195,6 +195,7 @@ impl JigsawsConfig {
                 seed: 0,
                 token_dropout: 0.0,
                 cosine_decay: false,
+                gcn_from_other_demo: false,
             },
             smoothing: DEFAULT_SMOOTHING,
             validation_every: 5,
@@ -1510,6 +1511,7 @@ mod tests {
             seed: 0,
             token_dropout: 0.0,
             cosine_decay: false,
+            gcn_from_other_demo: false,
         };
         let train = || {
             let mut config = NtgConfig::for_domain(data.vocab.len(), EncoderConfig::kinematics(10));

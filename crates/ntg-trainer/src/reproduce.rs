@@ -219,6 +219,7 @@ pub fn reproduce(
                     seed: 0,
                     token_dropout: 0.0,
                     cosine_decay: COSINE_DECAY,
+                    gcn_from_other_demo: false,
                 },
             };
             let dir = runs.join(format!(
@@ -453,12 +454,14 @@ mod tests {
             seed: 0,
             token_dropout: 0.0,
             cosine_decay: true,
+            gcn_from_other_demo: false,
         };
         assert!((optim.learning_rate_at(0, 101) - 1e-2).abs() < 1e-12);
         assert!((optim.learning_rate_at(50, 101) - 5.5e-3).abs() < 1e-9);
         assert!((optim.learning_rate_at(100, 101) - 1e-3).abs() < 1e-12);
         let constant = OptimConfig {
             cosine_decay: false,
+            gcn_from_other_demo: false,
             ..optim
         };
         assert_eq!(constant.learning_rate_at(100, 101), 1e-2);

@@ -49,6 +49,13 @@ pub struct OptimConfig {
     /// reading the demo; 0 = plain teacher forcing).
     #[serde(default)]
     pub token_dropout: f32,
+    /// The GCN reads another demo of the same task than the one the edge
+    /// classifier imitates (drawn from a seeded generator; the demo itself
+    /// when its task has no other). Otherwise the GCN's node embeddings
+    /// carry where the imitated demo itself ends or retries, and the edge
+    /// classifier learns to copy that instead of reading the observation.
+    #[serde(default)]
+    pub gcn_from_other_demo: bool,
     /// Decay the learning rate along a half cosine from `learning_rate` to
     /// a tenth of it over the run (per step); off = constant.
     #[serde(default)]
@@ -144,6 +151,10 @@ pub fn train(
         );
     }
     let graphs = task_graphs(dataset)?;
+    let mut demos_of_task: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    for (i, e) in dataset.demos().iter().enumerate() {
+        demos_of_task.entry(e.task).or_default().push(i);
+    }
     let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
 
     // Resume from the checkpoint if there is one.
@@ -177,7 +188,34 @@ pub fn train(
                 rate: optim.token_dropout,
                 seed: optim.seed ^ (epoch as u64) << 32 ^ steps as u64,
             };
-            let out = step(&model, dataset, &graphs, chunk, &dropout, device)?;
+            // The demo each GCN input path comes from (see
+            // `OptimConfig::gcn_from_other_demo`).
+            let gcn_sources: Vec<usize> = if optim.gcn_from_other_demo {
+                let mut rng = ChaCha8Rng::seed_from_u64(dropout.seed ^ 0x005E_ED0F_07E4);
+                chunk
+                    .iter()
+                    .map(|&i| {
+                        let same = &demos_of_task[&dataset.demos()[i].task];
+                        let others: Vec<usize> = same.iter().copied().filter(|&j| j != i).collect();
+                        if others.is_empty() {
+                            i
+                        } else {
+                            others[rng.random_range(0..others.len())]
+                        }
+                    })
+                    .collect()
+            } else {
+                chunk.to_vec()
+            };
+            let out = step(
+                &model,
+                dataset,
+                &graphs,
+                chunk,
+                &gcn_sources,
+                &dropout,
+                device,
+            )?;
             let grads = GradientsParams::from_grads(out.total.backward(), &model);
             let lr = optim.learning_rate_at(epoch * steps_per_epoch + steps, total_steps);
             model = optimizer.step(lr, model, grads);
@@ -255,6 +293,7 @@ fn step(
     dataset: &DemoDataset,
     graphs: &BTreeMap<usize, Ctg>,
     chunk: &[usize],
+    gcn_sources: &[usize],
     dropout: &TokenDropout,
     device: &Device,
 ) -> anyhow::Result<StepOutput> {
@@ -277,10 +316,11 @@ fn step(
         .interpreter
         .loss_with_token_dropout(&batch, dropout.mask(&batch, device))?;
 
-    // GCN: each demo's path graph -> its task's graph.
-    let paths: Vec<Ctg> = entries
+    // GCN: a demo's path graph (this demo's, or another of its task's)
+    // -> the task's graph.
+    let paths: Vec<Ctg> = gcn_sources
         .iter()
-        .map(|e| Ctg::from_path(n, &e.actions))
+        .map(|&i| Ctg::from_path(n, &dataset.demos()[i].actions))
         .collect::<Result<_, _>>()?;
     let targets: Vec<&Ctg> = entries.iter().map(|e| &graphs[&e.task]).collect();
     let path_refs: Vec<&Ctg> = paths.iter().collect();

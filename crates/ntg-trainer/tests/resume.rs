@@ -25,6 +25,7 @@ fn config() -> BlocksRunConfig {
             seed: 11,
             token_dropout: 0.3,
             cosine_decay: true,
+            gcn_from_other_demo: true,
         },
     }
 }

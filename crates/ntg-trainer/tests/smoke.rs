@@ -31,6 +31,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
             seed: 0,
             token_dropout: 0.0,
             cosine_decay: false,
+            gcn_from_other_demo: false,
         },
     };
     let run = RunDir::create(&tmp.path().join("run")).unwrap();

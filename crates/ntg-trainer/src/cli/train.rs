@@ -44,6 +44,10 @@ pub struct TrainArgs {
     /// Seed of the weights and the shuffling.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Train the edge classifier on GCN embeddings of another demo of the
+    /// same task than the one it imitates.
+    #[arg(long)]
+    pub gcn_from_other_demo: bool,
     /// Decay the learning rate along a half cosine to a tenth of --lr.
     #[arg(long)]
     pub cosine_decay: bool,
@@ -88,6 +92,7 @@ impl TrainArgs {
                 seed: self.seed,
                 token_dropout: self.token_dropout,
                 cosine_decay: self.cosine_decay,
+                gcn_from_other_demo: self.gcn_from_other_demo,
             },
         }
     }
