@@ -132,6 +132,32 @@ struct Encoded {
     last: Tensor<2>,
 }
 
+/// Luong "general" attention of queries `[B, L, H]` over encoder states
+/// `[B, T, H]` with keys `W_a h̄` `[B, T, H]`, padding frames (`frame_mask`
+/// `[B, T]` below 0.5) masked out: returns `h̃ = tanh(W_c [c; query])`
+/// `[B, L, H]` and the weights `α` `[B, L, T]`. Shared by the demo
+/// interpreter and the Flat Policy baseline.
+pub(crate) fn luong_attention(
+    combine: &Linear,
+    states: Tensor<3>,
+    keys: Tensor<3>,
+    frame_mask: &Tensor<2>,
+    queries: Tensor<3>,
+) -> (Tensor<3>, Tensor<3>) {
+    let [batch, len, _] = queries.dims();
+    let steps = states.dims()[1];
+    let scores = queries.clone().matmul(keys.swap_dims(1, 2)); // [B, L, T]
+    let padding = frame_mask
+        .clone()
+        .lower_elem(0.5)
+        .unsqueeze_dim::<3>(1)
+        .expand([batch, len, steps]);
+    let alpha = softmax(scores.mask_fill(padding, MASKED_LOGIT), 2);
+    let context = alpha.clone().matmul(states); // [B, L, H]
+    let combined = tanh(combine.forward(Tensor::cat(vec![context, queries], 2)));
+    (combined, alpha)
+}
+
 impl DemoInterpreter {
     fn encode(&self, frames: Tensor<3>, frame_mask: Tensor<2>) -> Result<Encoded> {
         let [batch, steps, _] = frames.dims();
@@ -155,17 +181,13 @@ impl DemoInterpreter {
         frame_mask: &Tensor<2>,
         dec: Tensor<3>,
     ) -> (Tensor<3>, Tensor<3>) {
-        let [batch, len, _] = dec.dims();
-        let steps = enc.states.dims()[1];
-        let scores = dec.clone().matmul(enc.keys.clone().swap_dims(1, 2)); // [B, L, T]
-        let padding = frame_mask
-            .clone()
-            .lower_elem(0.5)
-            .unsqueeze_dim::<3>(1)
-            .expand([batch, len, steps]);
-        let alpha = softmax(scores.mask_fill(padding, MASKED_LOGIT), 2);
-        let context = alpha.clone().matmul(enc.states.clone()); // [B, L, H]
-        let combined = tanh(self.combine.forward(Tensor::cat(vec![context, dec], 2)));
+        let (combined, alpha) = luong_attention(
+            &self.combine,
+            enc.states.clone(),
+            enc.keys.clone(),
+            frame_mask,
+            dec,
+        );
         (self.out.forward(combined), alpha)
     }
 

@@ -5,15 +5,23 @@
 //!   writing `DIR/demo.json`, `DIR/frame_NNN.png` and `DIR/contact_sheet.png`.
 //! - `ntg collect tasks --objects N --count K --split test`: lists distinct
 //!   tasks of one side of the fixed train/test split.
+//!
+//! `ntg train --domain collect …` and `ntg eval --run DIR` on a collect run
+//! are implemented here ([`train`], [`eval`]) and dispatched from
+//! [`super::train`].
 
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use env_collect::{CollectConfig, Split, TaskSplitter, export};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+
+use crate::collect::{self, CollectRunConfig};
+use crate::run_dir::RunDir;
+use crate::train::OptimConfig;
 
 /// Subcommands of `ntg collect`.
 #[derive(Debug, Subcommand)]
@@ -128,6 +136,94 @@ pub fn demo(args: &DemoArgs, out: &mut impl Write) -> anyhow::Result<()> {
     if let Some(sheet) = &written.contact_sheet {
         writeln!(out, "wrote {}", sheet.display())?;
     }
+    Ok(())
+}
+
+/// `ntg train --domain collect`: trains NTG or the Flat Policy on tasks
+/// with `--objects` targets (`--train-tasks` distinct tasks per N).
+pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
+    let config = CollectRunConfig {
+        domain: "collect".into(),
+        method: args.method,
+        obs: args.obs,
+        train_objects: args.objects.clone(),
+        tasks_per_n: args.train_tasks,
+        demos_per_task: args.demos_per_task,
+        model_seed: args.seed,
+        optim: OptimConfig {
+            epochs: args.epochs,
+            batch_size: args.batch_size,
+            learning_rate: args.lr,
+            seed: args.seed,
+        },
+    };
+    config.validate()?;
+    let run = if args.resume {
+        let run = RunDir::open(&args.out)?;
+        let saved: CollectRunConfig = RunDir::read_json(&run.config_path())?;
+        if saved != config {
+            bail!(
+                "{} was started with a different configuration; resume it with the same arguments as the original run (saved: {})",
+                run.config_path().display(),
+                serde_json::to_string(&saved)?
+            );
+        }
+        run
+    } else {
+        let run = RunDir::create(&args.out)?;
+        RunDir::write_json(&run.config_path(), &config)?;
+        run
+    };
+    eprintln!(
+        "training {} ({:?} observations) on N = {:?}, {} tasks per N x {} demos, {} epochs -> {}",
+        config.method.name(),
+        config.obs,
+        config.train_objects,
+        config.tasks_per_n,
+        config.demos_per_task,
+        config.optim.epochs,
+        run.root().display()
+    );
+    let device = ntg_model::cpu_device().autodiff();
+    collect::train_run(&run, &config, &device, |p| eprintln!("{}", p.line()))?;
+    eprintln!("done: weights in {}", run.checkpoint_dir().display());
+    Ok(())
+}
+
+/// `ntg eval` on a collect run: success per N = 1..5 on `--test-tasks`
+/// unseen test episodes each; writes `eval/collect-<K>.json`.
+pub fn eval(
+    run: &RunDir,
+    config: &CollectRunConfig,
+    args: &super::train::EvalArgs,
+) -> anyhow::Result<()> {
+    let model = collect::load_model(run, config)?;
+    let result = collect::evaluate(
+        &model,
+        config.method,
+        config.obs,
+        &collect::EVAL_OBJECTS,
+        args.test_tasks,
+    )?;
+    std::fs::create_dir_all(run.eval_dir())?;
+    let path = run
+        .eval_dir()
+        .join(format!("collect-{}.json", args.test_tasks));
+    RunDir::write_json(&path, &result)?;
+    for p in &result.points {
+        let s = p.success;
+        println!(
+            "{} N = {}: success {}/{} = {:.3} (95% CI {:.3}-{:.3})",
+            config.method.name(),
+            p.objects,
+            s.successes,
+            s.trials,
+            s.rate,
+            s.ci_low,
+            s.ci_high
+        );
+    }
+    println!("records in {}", path.display());
     Ok(())
 }
 
