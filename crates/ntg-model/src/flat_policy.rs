@@ -271,6 +271,7 @@ impl FlatPolicy {
             demo.keys.clone(),
             &demo.frame_mask,
             q,
+            None,
         );
         let logits = self.out.forward(relu(self.mlp.forward(combined)));
         let n = self.num_nodes();

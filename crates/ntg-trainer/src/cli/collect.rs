@@ -32,6 +32,50 @@ pub enum CollectCommand {
     /// List distinct tasks with N objects from one side of the train/test
     /// split.
     Tasks(TasksArgs),
+    /// Run fig. "thor_all" (b) alone, as `ntg reproduce` does: train NTG
+    /// and the Flat Policy on N = 2 and 4, evaluate on N = 1..5, write the
+    /// figure and print the report section.
+    Figure(FigureArgs),
+}
+
+/// The `ntg train` options that only `--domain collect` reads.
+#[derive(Debug, Args)]
+#[command(next_help_heading = "Object collection (--domain collect)")]
+pub struct CollectTrainArgs {
+    /// Which model to train.
+    #[arg(long, value_enum, default_value_t = collect::Method::Ntg)]
+    pub method: collect::Method,
+    /// Numbers of target objects of the training tasks.
+    #[arg(long, value_delimiter = ',', default_values_t = [2, 4])]
+    pub objects: Vec<usize>,
+    /// NTG: train the demo interpreter on whole demos alone, without
+    /// random stretches of them.
+    #[arg(long)]
+    pub no_segments: bool,
+    /// Also train the final `<end>` decision, which the last frame cannot
+    /// support (without it, episodes end at the step limit).
+    #[arg(long)]
+    pub learn_end: bool,
+    /// NTG: which demo interpreter.
+    #[arg(long, value_enum, default_value_t = collect::InterpreterKind::Stepping)]
+    pub interpreter: collect::InterpreterKind,
+    /// Learning-rate schedule.
+    #[arg(long, value_enum, default_value_t = collect::LrSchedule::Cosine)]
+    pub lr_schedule: collect::LrSchedule,
+}
+
+/// Arguments of `ntg collect figure`.
+#[derive(Debug, Args)]
+pub struct FigureArgs {
+    /// Experiment scale.
+    #[arg(long, value_enum, default_value_t = crate::reproduce::Profile::Quick)]
+    pub profile: crate::reproduce::Profile,
+    /// Where run folders go (finished runs are reused).
+    #[arg(long, default_value = "runs/figures")]
+    pub runs: PathBuf,
+    /// Where `thor_all.svg` and `thor_all.png` go.
+    #[arg(long, default_value = "docs/figures")]
+    pub out: PathBuf,
 }
 
 /// Which side of the fixed train/test split to draw tasks from.
@@ -101,6 +145,7 @@ pub fn run(command: CollectCommand) -> anyhow::Result<()> {
     match command {
         CollectCommand::Demo(args) => demo(&args, &mut out),
         CollectCommand::Tasks(args) => tasks(&args, &mut out),
+        CollectCommand::Figure(args) => figure(&args, &mut out),
     }
 }
 
@@ -142,13 +187,18 @@ pub fn demo(args: &DemoArgs, out: &mut impl Write) -> anyhow::Result<()> {
 /// `ntg train --domain collect`: trains NTG or the Flat Policy on tasks
 /// with `--objects` targets (`--train-tasks` distinct tasks per N).
 pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
+    let c = &args.collect;
     let config = CollectRunConfig {
         domain: "collect".into(),
-        method: args.method,
+        method: c.method,
         obs: args.obs,
-        train_objects: args.objects.clone(),
+        train_objects: c.objects.clone(),
         tasks_per_n: args.train_tasks,
         demos_per_task: args.demos_per_task,
+        segments: !c.no_segments,
+        learn_end: c.learn_end,
+        interpreter: c.interpreter,
+        lr_schedule: c.lr_schedule,
         model_seed: args.seed,
         optim: OptimConfig {
             epochs: args.epochs,
@@ -224,6 +274,26 @@ pub fn eval(
         );
     }
     println!("records in {}", path.display());
+    Ok(())
+}
+
+/// `ntg collect figure`: runs the panel, writes the figure, prints the
+/// report section and the wall time.
+pub fn figure(args: &FigureArgs, out: &mut impl Write) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    let profile = serde_json::to_value(args.profile)?;
+    let runs = args.runs.join(profile.as_str().unwrap_or("profile"));
+    let result = collect::thor_all(args.profile, &runs)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    collect::write_thor_all_figure(&result, &args.out.join("thor_all"))?;
+    write!(out, "{}", collect::report_section(&result))?;
+    writeln!(
+        out,
+        "wrote {} in {:.0} s",
+        args.out.join("thor_all.png").display(),
+        started.elapsed().as_secs_f64()
+    )?;
     Ok(())
 }
 

@@ -32,12 +32,9 @@ pub struct TrainArgs {
     /// collect: distinct training tasks per number of objects).
     #[arg(long, default_value_t = 100)]
     pub train_tasks: usize,
-    /// Collect only: which model to train.
-    #[arg(long, value_enum, default_value_t = crate::collect::Method::Ntg)]
-    pub method: crate::collect::Method,
-    /// Collect only: numbers of target objects of the training tasks.
-    #[arg(long, value_delimiter = ',', default_values_t = [2, 4])]
-    pub objects: Vec<usize>,
+    /// Options only `--domain collect` reads.
+    #[command(flatten)]
+    pub collect: super::collect::CollectTrainArgs,
     /// Expert demonstrations per training task.
     #[arg(long, default_value_t = 20)]
     pub demos_per_task: usize,
