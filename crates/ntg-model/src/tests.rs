@@ -1,7 +1,7 @@
 //! Unit tests of shapes, masks, attention, the GCN fixed point, the policy
 //! and checkpoints.
 
-use burn::module::Param;
+use burn::module::{Module, Param};
 use burn::tensor::activation::softmax;
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use ctg_graph::symbolic::{SequenceObservation, SequenceTask};
@@ -727,4 +727,65 @@ fn location_attention_steps_one_frame_per_token() {
     let mut bad = small_config(4).interpreter;
     bad.location_attention = Some(true);
     assert!(matches!(bad.init(0, &dev), Err(ModelError::Config(_))));
+}
+
+/// Frames that show the last action (one-hot over the `N` nodes, `<start>`
+/// first) and random actions: frame `k + 1` reveals action `k`.
+fn revealing_demo(rng: &mut ChaCha8Rng, len: usize) -> (Vec<Vec<f32>>, Vec<ActionId>) {
+    let actions: Vec<ActionId> = (0..len)
+        .map(|_| ActionId::new(rng.random_range(2..N)))
+        .collect();
+    let frame = |id: usize| {
+        let mut row = vec![0.0f32; D];
+        row[id] = 1.0;
+        row
+    };
+    let mut frames = vec![frame(Vocabulary::START.index())];
+    frames.extend(actions.iter().map(|a| frame(a.index())));
+    (frames, actions)
+}
+
+/// The length-independent interpreter (local annotations, input feeding,
+/// location-aware attention, stateless decoder), trained on demos of 1 to
+/// 5 actions only, transcribes demos of 9 actions.
+#[test]
+fn stepping_interpreter_learns_and_carries_over_to_longer_demos() {
+    use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+    let dev = device().autodiff();
+    let mut config = small_config(8).interpreter;
+    config.input_feeding = Some(true);
+    config.location_attention = Some(true);
+    config.stateless_decoder = Some(true);
+    config.local_annotations = Some(true);
+    let mut interp = config.init(8, &dev).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let long: Vec<_> = (0..20).map(|_| revealing_demo(&mut rng, 9)).collect();
+    let exact = |model: &DemoInterpreter| {
+        long.iter()
+            .filter(|(frames, actions)| model.decode(frames).unwrap() == *actions)
+            .count()
+    };
+    let before = exact(&interp.valid());
+    let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
+    for _ in 0..300 {
+        let demos: Vec<_> = (0..16)
+            .map(|_| {
+                let len = rng.random_range(1..=5);
+                revealing_demo(&mut rng, len)
+            })
+            .collect();
+        let pairs: Vec<(&[Vec<f32>], &[ActionId])> =
+            demos.iter().map(|(f, a)| (&f[..], &a[..])).collect();
+        let batch = DemoBatch::new(&pairs, D, N, &dev).unwrap();
+        let loss = interp.loss(&batch).unwrap();
+        let grads = GradientsParams::from_grads(loss.loss.backward(), &interp);
+        interp = optimizer.step(3e-3, interp, grads);
+    }
+    let after = exact(&interp.valid());
+    eprintln!("exact transcriptions of 9-action demos: {before}/20 -> {after}/20");
+    assert!(before < 2, "untrained: {before}/20");
+    assert!(
+        after >= 18,
+        "only {after}/20 demos of 9 actions transcribed exactly"
+    );
 }
