@@ -1,6 +1,6 @@
 //! Project automation, run as `cargo xtask <command>`.
 //!
-//! - `reproduce-figures [--profile smoke|quick|paper]`: regenerates the
+//! - `reproduce-figures [--profile smoke|quick|paper] [--jigsaws-root DIR]`: regenerates the
 //!   paper's figures by running `ntg reproduce` (crate `ntg-trainer`, release
 //!   build); run folders go to `runs/figures/<profile>/` (finished runs are
 //!   reused), figures, `results.json` and `REPORT.md` to `docs/figures/`.
@@ -30,6 +30,10 @@ enum Task {
         /// How much compute to spend.
         #[arg(long, value_enum, default_value_t = Profile::Quick)]
         profile: Profile,
+        /// Run fig. "jigsaws" on a real JIGSAWS copy instead of the
+        /// synthetic stand-in.
+        #[arg(long)]
+        jigsaws_root: Option<PathBuf>,
     },
     /// Run what CI runs: formatting, clippy, the test suite (see .ci/run).
     Ci,
@@ -53,7 +57,7 @@ fn workspace_root() -> PathBuf {
         .to_path_buf()
 }
 
-fn reproduce_figures(profile: Profile) -> anyhow::Result<()> {
+fn reproduce_figures(profile: Profile, jigsaws_root: Option<PathBuf>) -> anyhow::Result<()> {
     let root = workspace_root();
     let profile = match profile {
         Profile::Smoke => "smoke",
@@ -61,6 +65,14 @@ fn reproduce_figures(profile: Profile) -> anyhow::Result<()> {
         Profile::Paper => "paper",
     };
     println!("reproduce-figures (profile: {profile}): building the ntg binary (release)");
+    let mut extra = Vec::new();
+    if let Some(dir) = jigsaws_root {
+        // Relative to where the user ran the command, not the workspace.
+        let dir =
+            std::path::absolute(&dir).with_context(|| format!("resolving {}", dir.display()))?;
+        extra.push("--jigsaws-root".into());
+        extra.push(dir.into_os_string());
+    }
     let status = Command::new(env!("CARGO"))
         .args([
             "run",
@@ -74,6 +86,7 @@ fn reproduce_figures(profile: Profile) -> anyhow::Result<()> {
         ])
         .args(["reproduce", "--profile", profile])
         .args(["--runs", "runs/figures", "--out", "docs/figures"])
+        .args(&extra)
         .current_dir(&root)
         .status()
         .context("could not start cargo")?;
@@ -100,7 +113,10 @@ fn ci() -> anyhow::Result<()> {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Task::ReproduceFigures { profile } => reproduce_figures(profile),
+        Task::ReproduceFigures {
+            profile,
+            jigsaws_root,
+        } => reproduce_figures(profile, jigsaws_root),
         Task::Ci => ci(),
     };
     match result {

@@ -22,7 +22,9 @@ use burn::tensor::{Device, Tensor};
 use crate::nn::Init;
 use crate::{ModelError, Result};
 
-/// An MLP over a state vector: `Enc(o) = W₂ relu(W₁ o + b₁) + b₂`.
+/// An MLP over a state vector: `Enc(o) = W_out h_L + b_out` with
+/// `h_1 = relu(W₁ o + b₁)` and `h_{k+1} = relu(W_k h_k + b_k)` for
+/// `hidden_layers = L` hidden layers.
 #[derive(Config, Debug)]
 pub struct StateEncoderConfig {
     /// Length `D` of the state vector (26 for block stacking).
@@ -30,6 +32,17 @@ pub struct StateEncoderConfig {
     /// Hidden width.
     #[config(default = 128)]
     pub hidden: usize,
+    /// Number of hidden layers `L ≥ 1`. Relations between objects (is a
+    /// cube on the one under the gripper?) need more than one.
+    #[config(default = 1)]
+    pub hidden_layers: usize,
+    /// Relational input: when `K > 0`, the first `3K` values of the state
+    /// are `K` object positions, and the MLP reads the state followed by
+    /// every pairwise difference `p_i − p_j` (`3K²` more values). The
+    /// encoder sees nothing new, only structure: whether one cube is on
+    /// another becomes a single feature instead of a learned comparison.
+    #[config(default = 0)]
+    pub pairwise_objects: usize,
     /// Embedding size `H`.
     #[config(default = 128)]
     pub out_dim: usize,
@@ -139,6 +152,15 @@ impl EncoderConfig {
             EncoderConfig::State(c) => {
                 positive("input_dim", c.input_dim)?;
                 positive("hidden", c.hidden)?;
+                positive("hidden_layers", c.hidden_layers)?;
+                if 3 * c.pairwise_objects > c.input_dim {
+                    return Err(ModelError::Config(format!(
+                        "encoder: pairwise_objects = {} needs at least {} state values, got {}",
+                        c.pairwise_objects,
+                        3 * c.pairwise_objects,
+                        c.input_dim
+                    )));
+                }
                 positive("out_dim", c.out_dim)
             }
             EncoderConfig::Frame(c) => {
@@ -177,8 +199,17 @@ impl EncoderConfig {
         let mut init = Init::new(seed, device);
         Ok(match self {
             EncoderConfig::State(c) => Encoder::State(StateEncoder {
-                fc1: init.linear(c.input_dim, c.hidden, true),
+                fc1: init.linear(
+                    c.input_dim + 3 * c.pairwise_objects * c.pairwise_objects,
+                    c.hidden,
+                    true,
+                ),
+                mid: (1..c.hidden_layers)
+                    .map(|_| init.linear(c.hidden, c.hidden, true))
+                    .collect(),
                 fc2: init.linear(c.hidden, c.out_dim, true),
+                input_dim: c.input_dim,
+                pairwise_objects: c.pairwise_objects,
             }),
             EncoderConfig::Frame(c) => {
                 let [c1, c2, c3] = c.conv_channels;
@@ -208,8 +239,14 @@ impl EncoderConfig {
 pub struct StateEncoder {
     /// First layer.
     pub fc1: Linear,
+    /// Hidden layers after the first (`hidden_layers − 1` of them).
+    pub mid: Vec<Linear>,
     /// Output layer.
     pub fc2: Linear,
+    /// Length `D` of the state.
+    pub input_dim: usize,
+    /// `K` of [`StateEncoderConfig::pairwise_objects`].
+    pub pairwise_objects: usize,
 }
 
 /// The frame CNN (see [`FrameEncoderConfig`]).
@@ -260,7 +297,7 @@ impl Encoder {
     /// Length `D` of the observation rows this encoder reads.
     pub fn input_dim(&self) -> usize {
         match self {
-            Encoder::State(e) => e.fc1.weight.dims()[0],
+            Encoder::State(e) => e.input_dim,
             Encoder::Frame(e) => e.channels * e.image_size * e.image_size,
             Encoder::Kinematics(e) => e.window * e.columns,
         }
@@ -292,7 +329,21 @@ impl Encoder {
     pub(crate) fn forward_unchecked(&self, obs: Tensor<2>) -> Tensor<2> {
         let [batch, _] = obs.dims();
         match self {
-            Encoder::State(e) => e.fc2.forward(relu(e.fc1.forward(obs))),
+            Encoder::State(e) => {
+                let k = e.pairwise_objects;
+                let x = if k > 0 {
+                    let p: Tensor<3> = obs.clone().narrow(1, 0, 3 * k).reshape([batch, k, 3]);
+                    let diff = p.clone().unsqueeze_dim::<4>(2) - p.unsqueeze_dim::<4>(1);
+                    Tensor::cat(vec![obs, diff.reshape([batch, 3 * k * k])], 1)
+                } else {
+                    obs
+                };
+                let h = e
+                    .mid
+                    .iter()
+                    .fold(relu(e.fc1.forward(x)), |h, layer| relu(layer.forward(h)));
+                e.fc2.forward(h)
+            }
             Encoder::Frame(e) => {
                 let s = e.image_size;
                 let x: Tensor<4> = obs.reshape([batch, e.channels, s, s]);

@@ -421,6 +421,22 @@ impl DemoInterpreter {
         frame_mask: Tensor<2>,
         targets: Tensor<2, Int>,
     ) -> Result<InterpreterOutput> {
+        self.forward_with_token_dropout(frames, frame_mask, targets, None)
+    }
+
+    /// [`DemoInterpreter::forward`] with decoder-input dropout: where
+    /// `dropped` `[B, L]` is true, the decoder reads `<start>` (the "no
+    /// previous token" input) instead of the previous target token, so it
+    /// must find the action in the demo through attention rather than
+    /// predict it from the tokens before. The caller draws `dropped` from
+    /// its own seeded generator; column 0 is `<start>` already.
+    pub fn forward_with_token_dropout(
+        &self,
+        frames: Tensor<3>,
+        frame_mask: Tensor<2>,
+        targets: Tensor<2, Int>,
+        dropped: Option<Tensor<2, burn::tensor::Bool>>,
+    ) -> Result<InterpreterOutput> {
         let [batch, len] = targets.dims();
         if batch != frames.dims()[0] || len == 0 {
             return Err(ModelError::shape(
@@ -432,7 +448,17 @@ impl DemoInterpreter {
         let enc = self.encode(frames, frame_mask.clone())?;
         let device = targets.device();
         let start = Tensor::<2, Int>::full([batch, 1], Vocabulary::START.index() as i64, &device);
-        let inputs = Tensor::cat(vec![start, targets.narrow(1, 0, len - 1)], 1);
+        let mut inputs = Tensor::cat(vec![start, targets.narrow(1, 0, len - 1)], 1);
+        if let Some(dropped) = dropped {
+            if dropped.dims() != [batch, len] {
+                return Err(ModelError::shape(
+                    "token dropout mask",
+                    format!("[{batch}, {len}]"),
+                    dropped.dims(),
+                ));
+            }
+            inputs = inputs.mask_fill(dropped, Vocabulary::START.index() as i64);
+        }
         let embedded = self
             .tokens
             .val()
@@ -462,10 +488,21 @@ impl DemoInterpreter {
 
     /// Masked token cross-entropy and teacher-forced token accuracy on a batch.
     pub fn loss(&self, batch: &DemoBatch) -> Result<LossOutput> {
-        let out = self.forward(
+        self.loss_with_token_dropout(batch, None)
+    }
+
+    /// [`DemoInterpreter::loss`] with decoder-input dropout (see
+    /// [`DemoInterpreter::forward_with_token_dropout`]).
+    pub fn loss_with_token_dropout(
+        &self,
+        batch: &DemoBatch,
+        dropped: Option<Tensor<2, burn::tensor::Bool>>,
+    ) -> Result<LossOutput> {
+        let out = self.forward_with_token_dropout(
             batch.frames.clone(),
             batch.frame_mask.clone(),
             batch.targets.clone(),
+            dropped,
         )?;
         let [b, l, n] = out.logits.dims();
         let logits = out.logits.reshape([b * l, n]);

@@ -117,6 +117,136 @@ fn demo_batch(dev: &Device, rng: &mut ChaCha8Rng) -> (DemoBatch, Vec<Vec<f32>>, 
 }
 
 #[test]
+fn token_dropout_replaces_decoder_inputs_with_start() {
+    let dev = device();
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let model = NtgModel::new(small_config(2), &dev).unwrap();
+    let interp = &model.interpreter;
+    let (batch, _, _) = demo_batch(&dev, &mut rng);
+    let [b, l] = batch.targets.dims();
+    let logits = |targets: Tensor<2, Int>, dropped: Option<Tensor<2, Bool>>| {
+        let out = interp
+            .forward_with_token_dropout(
+                batch.frames.clone(),
+                batch.frame_mask.clone(),
+                targets,
+                dropped,
+            )
+            .unwrap();
+        to_vec(out.logits).unwrap()
+    };
+    // No dropout is plain teacher forcing.
+    let plain = to_vec(
+        interp
+            .forward(
+                batch.frames.clone(),
+                batch.frame_mask.clone(),
+                batch.targets.clone(),
+            )
+            .unwrap()
+            .logits,
+    )
+    .unwrap();
+    let none = Tensor::<2, Bool>::from_data(TensorData::new(vec![false; b * l], [b, l]), &dev);
+    assert!(close(
+        &plain,
+        &logits(batch.targets.clone(), Some(none)),
+        1e-6
+    ));
+    // Everything dropped: the decoder never sees the targets, so other
+    // targets of the same length give the same logits; without dropout they
+    // differ.
+    let all = Tensor::<2, Bool>::from_data(TensorData::new(vec![true; b * l], [b, l]), &dev);
+    let other = (batch.targets.clone() + 1).remainder_scalar(N as i64);
+    assert!(close(
+        &logits(batch.targets.clone(), Some(all.clone())),
+        &logits(other.clone(), Some(all)),
+        1e-6
+    ));
+    assert!(!close(&plain, &logits(other, None), 1e-3));
+    // A mask of the wrong shape is an error, not a panic.
+    let wrong = Tensor::<2, Bool>::from_data(TensorData::new(vec![true; b], [b, 1]), &dev);
+    assert!(
+        interp
+            .forward_with_token_dropout(
+                batch.frames.clone(),
+                batch.frame_mask.clone(),
+                batch.targets.clone(),
+                Some(wrong)
+            )
+            .is_err()
+    );
+}
+
+#[test]
+fn deeper_state_encoder_has_the_same_interface() {
+    let dev = device();
+    let enc = EncoderConfig::State(
+        StateEncoderConfig::new(D)
+            .with_hidden(16)
+            .with_out_dim(12)
+            .with_hidden_layers(3),
+    );
+    let e = enc.init(0, &dev).unwrap();
+    let Encoder::State(ref s) = e else {
+        panic!("a state encoder")
+    };
+    assert_eq!(s.mid.len(), 2);
+    let out = e.forward(Tensor::<2>::ones([4, D], &dev)).unwrap();
+    assert_eq!(out.dims(), [4, 12]);
+    let zero = EncoderConfig::State(StateEncoderConfig::new(D).with_hidden_layers(0));
+    assert!(zero.init(0, &dev).is_err());
+}
+
+#[test]
+fn pairwise_state_encoder_reads_relative_positions() {
+    let dev = device();
+    // D = 9: three objects' positions. With pairwise input, moving every
+    // object by the same offset changes only the raw part of the input, so
+    // an encoder whose raw-input weights are zero cannot tell the scenes
+    // apart, while one without pairwise input (all weights raw) can.
+    let config = StateEncoderConfig::new(D)
+        .with_hidden(16)
+        .with_out_dim(12)
+        .with_pairwise_objects(3);
+    let mut e = EncoderConfig::State(config).init(0, &dev).unwrap();
+    assert_eq!(e.input_dim(), D);
+    let Encoder::State(ref mut s) = e else {
+        panic!("a state encoder")
+    };
+    assert_eq!(s.fc1.weight.dims(), [D + 27, 16]);
+    let w = s.fc1.weight.val();
+    let raw_zeroed = w
+        .clone()
+        .slice_assign([0..D, 0..16], Tensor::<2>::zeros([D, 16], &dev));
+    s.fc1.weight = Param::from_tensor(raw_zeroed);
+    let scene: Vec<f32> = (0..D).map(|i| i as f32 * 0.1).collect();
+    let shifted: Vec<f32> = scene.iter().map(|v| v + 0.5).collect();
+    let rows = |r: &Vec<f32>| Tensor::<2>::from_data(TensorData::new(r.clone(), [1, D]), &dev);
+    let a = to_vec(e.forward(rows(&scene)).unwrap()).unwrap();
+    let b = to_vec(e.forward(rows(&shifted)).unwrap()).unwrap();
+    assert!(close(&a, &b, 1e-5));
+    let c = to_vec(
+        e.forward(rows(
+            &scene
+                .iter()
+                .enumerate()
+                .map(|(i, v)| if i == 0 { v + 0.5 } else { *v })
+                .collect(),
+        ))
+        .unwrap(),
+    )
+    .unwrap();
+    assert!(
+        !close(&a, &c, 1e-4),
+        "moving one object must change the encoding"
+    );
+    // More objects than the state holds is a configuration error.
+    let too_many = StateEncoderConfig::new(D).with_pairwise_objects(4);
+    assert!(EncoderConfig::State(too_many).init(0, &dev).is_err());
+}
+
+#[test]
 fn interpreter_shapes_and_attention() {
     // The default interpreter; bidirectional GRU annotations with input
     // feeding, location-aware attention and a stateless decoder; the same

@@ -1082,6 +1082,8 @@ pub fn thor_all(profile: Profile, runs: &Path) -> anyhow::Result<ThorAllResult> 
                 batch_size: scale.batch_size,
                 learning_rate: scale.learning_rate,
                 seed: 0,
+                token_dropout: 0.0,
+                cosine_decay: false,
             },
         };
         let dir = runs.join(format!("thor_all-{}", method.name()));
@@ -1300,6 +1302,8 @@ mod tests {
                 batch_size: 4,
                 learning_rate: 3e-3,
                 seed: 1,
+                token_dropout: 0.0,
+                cosine_decay: false,
             },
         }
     }

@@ -212,6 +212,118 @@ pub fn write_figure(panels: &[Panel], stem: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+// --- Bar charts (added with the JIGSAWS experiment, issue 7) ---
+
+/// One bar: a value with an error bar.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Bar {
+    /// Category label under the bar.
+    pub label: String,
+    /// Height.
+    pub value: f64,
+    /// Lower end of the error bar.
+    pub lo: f64,
+    /// Upper end of the error bar.
+    pub hi: f64,
+}
+
+/// A bar chart of categories, one colour per bar.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BarChart {
+    /// Title above the chart.
+    pub title: String,
+    /// y-axis label.
+    pub y_label: String,
+    /// The bars, left to right.
+    pub bars: Vec<Bar>,
+}
+
+fn draw_bars<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    chart: &BarChart,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+    let top = chart
+        .bars
+        .iter()
+        .map(|b| b.hi.max(b.value))
+        .filter(|v| v.is_finite())
+        .fold(0.0f64, f64::max);
+    let y1 = if top > 0.0 { top * 1.15 } else { 1.0 };
+    let n = chart.bars.len().max(1);
+    let mut c = ChartBuilder::on(&root)
+        .caption(&chart.title, ("sans-serif", 18))
+        .margin(12)
+        .x_label_area_size(36)
+        .y_label_area_size(52)
+        .build_cartesian_2d(-0.5f64..n as f64 - 0.5, 0.0..y1)
+        .map_err(|e| anyhow!("building the chart: {e}"))?;
+    let labels: Vec<String> = chart.bars.iter().map(|b| b.label.clone()).collect();
+    c.configure_mesh()
+        .disable_x_mesh()
+        .x_labels(n)
+        .x_label_formatter(&|x| {
+            let i = x.round();
+            if (x - i).abs() < 1e-6 && i >= 0.0 {
+                labels.get(i as usize).cloned().unwrap_or_default()
+            } else {
+                String::new()
+            }
+        })
+        .y_desc(chart.y_label.as_str())
+        .label_style(("sans-serif", 13))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(|e| anyhow!("drawing the axes: {e}"))?;
+    for (i, bar) in chart.bars.iter().enumerate() {
+        let colour = PALETTE[i % PALETTE.len()];
+        let x = i as f64;
+        c.draw_series(std::iter::once(Rectangle::new(
+            [(x - 0.3, 0.0), (x + 0.3, bar.value)],
+            colour.mix(0.8).filled(),
+        )))
+        .map_err(|e| anyhow!("drawing {}: {e}", bar.label))?;
+        c.draw_series(std::iter::once(ErrorBar::new_vertical(
+            x,
+            bar.lo,
+            bar.value,
+            bar.hi,
+            BLACK.stroke_width(1),
+            10,
+        )))
+        .map_err(|e| anyhow!("drawing {}: {e}", bar.label))?;
+        c.draw_series(std::iter::once(Text::new(
+            format!("{:.3}", bar.value),
+            (x - 0.12, bar.hi.max(bar.value) + y1 * 0.07),
+            ("sans-serif", 13),
+        )))
+        .map_err(|e| anyhow!("drawing {}: {e}", bar.label))?;
+    }
+    root.present().map_err(|e| anyhow!("{e}"))?;
+    Ok(())
+}
+
+/// Writes a bar chart as `<stem>.svg` and `<stem>.png`.
+pub fn write_bar_chart(chart: &BarChart, stem: &Path) -> anyhow::Result<()> {
+    register_font()?;
+    let size = (560, 380);
+    let svg = stem.with_extension("svg");
+    let png = stem.with_extension("png");
+    if let Some(dir) = stem.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    draw_bars(SVGBackend::new(&svg, size).into_drawing_area(), chart)
+        .with_context(|| format!("writing {}", svg.display()))?;
+    draw_bars(BitMapBackend::new(&png, size).into_drawing_area(), chart)
+        .with_context(|| format!("writing {}", png.display()))?;
+    Ok(())
+}
+
+// --- end of bar charts ---
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -245,5 +357,27 @@ mod tests {
         assert!(svg.contains("NTG") && svg.contains("training tasks"));
         let png = image::open(stem.with_extension("png")).unwrap();
         assert_eq!((png.width(), png.height()), (920, 360));
+    }
+
+    #[test]
+    fn writes_a_bar_chart() {
+        let dir = tempfile::tempdir().unwrap();
+        let stem = dir.path().join("bars");
+        let bar = |label: &str, value: f64| Bar {
+            label: label.into(),
+            value,
+            lo: value - 0.1,
+            hi: value + 0.1,
+        };
+        let chart = BarChart {
+            title: "NLL".into(),
+            y_label: "nats".into(),
+            bars: vec![bar("uniform", 2.77), bar("full", 1.2)],
+        };
+        write_bar_chart(&chart, &stem).unwrap();
+        let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
+        assert!(svg.contains("uniform") && svg.contains("2.770"), "{svg}");
+        let png = image::open(stem.with_extension("png")).unwrap();
+        assert_eq!((png.width(), png.height()), (560, 380));
     }
 }

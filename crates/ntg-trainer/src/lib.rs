@@ -1,11 +1,13 @@
 //! Wires the environments and networks of ntg-rs together, and holds the
 //! `ntg` command-line tool.
 //!
-//! Built so far: the `ntg` CLI ([`cli`]) with `ntg graph`, which builds the
-//! union conjugate task graph of demonstrated action sequences; success-rate
-//! statistics ([`stats`]); figures as SVG + PNG ([`figure`]); task graphs
-//! rendered to SVG in-process ([`svg`]). Dataset building, training and
-//! evaluation come with the trainer issue.
+//! What is here: the `ntg` CLI ([`cli`]); demo datasets generated in
+//! parallel and cached on disk ([`dataset`]); joint training of the four NTG
+//! networks with checkpoints and exact resume ([`train`]); the block-stacking
+//! experiment, evaluation on unseen tasks ([`blocks`]) and step-by-step
+//! traces ([`trace`]); success-rate statistics ([`stats`]); the paper's
+//! figures as experiment configs ([`reproduce`]), drawn as SVG + PNG
+//! ([`figure`]); task graphs rendered to SVG in-process ([`svg`]).
 //!
 //! **Architecture invariant:** this is the only crate that knows every other
 //! crate (environments and networks); no other crate depends on it except
@@ -17,8 +19,10 @@ pub mod cli;
 pub mod collect;
 pub mod dataset;
 pub mod figure;
+pub mod jigsaws;
 pub mod reproduce;
 pub mod run_dir;
 pub mod stats;
 pub mod svg;
+pub mod trace;
 pub mod train;

@@ -18,15 +18,15 @@ use std::collections::BTreeMap;
 
 use anyhow::{Context, bail};
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Bool, Device, Tensor, TensorData};
 use ctg_graph::{ActionId, Ctg};
 use ntg_model::nn::to_vec;
 use ntg_model::{
     DemoBatch, EdgeCounts, NtgConfig, NtgModel, ids_tensor, load_optimizer, rows_tensor,
     save_optimizer, successor_mask,
 };
-use rand::SeedableRng;
 use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -44,6 +44,27 @@ pub struct OptimConfig {
     pub learning_rate: f64,
     /// Seed of the shuffling.
     pub seed: u64,
+    /// Probability that the demo interpreter's decoder reads `<start>`
+    /// instead of the previous action in training (regularises it towards
+    /// reading the demo; 0 = plain teacher forcing).
+    #[serde(default)]
+    pub token_dropout: f32,
+    /// Decay the learning rate along a half cosine from `learning_rate` to
+    /// a tenth of it over the run (per step); off = constant.
+    #[serde(default)]
+    pub cosine_decay: bool,
+}
+
+impl OptimConfig {
+    /// The learning rate at `step` of `total_steps`.
+    pub fn learning_rate_at(&self, step: usize, total_steps: usize) -> f64 {
+        if !self.cosine_decay || total_steps <= 1 {
+            return self.learning_rate;
+        }
+        let progress = step.min(total_steps - 1) as f64 / (total_steps - 1) as f64;
+        let floor = 0.1 * self.learning_rate;
+        floor + (self.learning_rate - floor) * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos())
+    }
 }
 
 /// Metrics of one epoch, as logged to `metrics.jsonl`.
@@ -138,6 +159,8 @@ pub fn train(
         start = progress.epochs_done;
     }
 
+    let steps_per_epoch = dataset.demos().len().div_ceil(optim.batch_size);
+    let total_steps = steps_per_epoch * optim.epochs;
     for epoch in start..optim.epochs {
         let started = std::time::Instant::now();
         let mut order: Vec<usize> = (0..dataset.demos().len()).collect();
@@ -148,10 +171,16 @@ pub fn train(
         let mut sums = [0.0f32; 8];
         let mut edge_counts = EdgeCounts::default();
         let mut steps = 0usize;
+        let bar = crate::dataset::progress_bar(steps_per_epoch as u64, &format!("epoch {epoch}"));
         for chunk in order.chunks(optim.batch_size) {
-            let out = step(&model, dataset, &graphs, chunk, device)?;
+            let dropout = TokenDropout {
+                rate: optim.token_dropout,
+                seed: optim.seed ^ (epoch as u64) << 32 ^ steps as u64,
+            };
+            let out = step(&model, dataset, &graphs, chunk, &dropout, device)?;
             let grads = GradientsParams::from_grads(out.total.backward(), &model);
-            model = optimizer.step(optim.learning_rate, model, grads);
+            let lr = optim.learning_rate_at(epoch * steps_per_epoch + steps, total_steps);
+            model = optimizer.step(lr, model, grads);
             for (s, v) in sums.iter_mut().zip(out.values) {
                 *s += v;
             }
@@ -159,7 +188,9 @@ pub fn train(
             edge_counts.false_positives += out.edges.false_positives;
             edge_counts.false_negatives += out.edges.false_negatives;
             steps += 1;
+            bar.inc(1);
         }
+        bar.finish_and_clear();
         let mean = |i: usize| sums[i] / steps as f32;
         let metrics = EpochMetrics {
             epoch,
@@ -198,11 +229,33 @@ struct StepOutput {
     edges: EdgeCounts,
 }
 
+/// Decoder-input dropout of one step: rate and the seed of its mask.
+struct TokenDropout {
+    rate: f32,
+    seed: u64,
+}
+
+impl TokenDropout {
+    /// The `[B, L]` mask (true = read `<start>`), or `None` at rate 0.
+    fn mask(&self, batch: &DemoBatch, device: &Device) -> Option<Tensor<2, Bool>> {
+        if self.rate <= 0.0 {
+            return None;
+        }
+        let [b, l] = batch.targets.dims();
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
+        let values: Vec<bool> = (0..b * l)
+            .map(|i| i % l != 0 && rng.random::<f32>() < self.rate)
+            .collect();
+        Some(Tensor::from_data(TensorData::new(values, [b, l]), device))
+    }
+}
+
 fn step(
     model: &NtgModel,
     dataset: &DemoDataset,
     graphs: &BTreeMap<usize, Ctg>,
     chunk: &[usize],
+    dropout: &TokenDropout,
     device: &Device,
 ) -> anyhow::Result<StepOutput> {
     let n = model.num_nodes();
@@ -220,7 +273,9 @@ fn step(
         .map(|(e, rows)| (rows.as_slice(), e.actions.as_slice()))
         .collect();
     let batch = DemoBatch::new(&pairs, dim, n, device)?;
-    let interp = model.interpreter.loss(&batch)?;
+    let interp = model
+        .interpreter
+        .loss_with_token_dropout(&batch, dropout.mask(&batch, device))?;
 
     // GCN: each demo's path graph -> its task's graph.
     let paths: Vec<Ctg> = entries

@@ -16,11 +16,15 @@ fn config() -> BlocksRunConfig {
         demos_per_task: 2,
         failures: true,
         model_seed: 7,
+        state_hidden_layers: 1,
+        pairwise: false,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,
             learning_rate: 3e-3,
             seed: 11,
+            token_dropout: 0.3,
+            cosine_decay: true,
         },
     }
 }

@@ -205,6 +205,8 @@ pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
             batch_size: args.batch_size,
             learning_rate: args.lr,
             seed: args.seed,
+            token_dropout: 0.0,
+            cosine_decay: false,
         },
     };
     config.validate()?;

@@ -4,7 +4,10 @@
 //!   dataset in the real JIGSAWS layout;
 //! - `ntg jigsaws stats --root DIR [--json]` reads a JIGSAWS copy (real or
 //!   synthetic; task folders are searched for, nested ones included) and
-//!   prints trials, gestures, frames and transition counts per task.
+//!   prints trials, gestures, frames and transition counts per task;
+//! - `ntg jigsaws nll [--jigsaws-root DIR] --out DIR [--profile P]` runs the
+//!   cross-task NLL experiment ([`crate::jigsaws`]): on the synthetic
+//!   stand-in by default, on a JIGSAWS copy with `--jigsaws-root`.
 //!
 //! Warnings of the reader (skipped trials, stray files) go to stderr.
 
@@ -24,6 +27,10 @@ pub enum JigsawsCommand {
     /// Trials, gestures, frames and gesture transitions per task of a JIGSAWS
     /// copy (real or synthetic).
     Stats(StatsArgs),
+    /// The cross-task experiment: train NTG on Suturing + Knot Tying, build a
+    /// policy from each Needle Passing demo and score the NLL of the others
+    /// (uniform, NTG without graph, full NTG).
+    Nll(NllArgs),
 }
 
 /// Arguments of `ntg jigsaws synth`.
@@ -52,6 +59,31 @@ pub struct StatsArgs {
     pub json: bool,
 }
 
+/// Arguments of `ntg jigsaws nll`.
+#[derive(Debug, Args)]
+pub struct NllArgs {
+    /// A JIGSAWS copy (real, or written by `ntg jigsaws synth`); without it,
+    /// the synthetic stand-in generated in memory with `--synth-seed`.
+    #[arg(long, value_name = "DIR")]
+    pub jigsaws_root: Option<PathBuf>,
+    /// Seed of the synthetic stand-in (ignored with `--jigsaws-root`).
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    pub synth_seed: u64,
+    /// Experiment scale (epochs).
+    #[arg(long, value_enum, default_value_t = crate::reproduce::Profile::Quick)]
+    pub profile: crate::reproduce::Profile,
+    /// Training epochs (default: the profile's).
+    #[arg(long, value_name = "N")]
+    pub epochs: Option<usize>,
+    /// Where the figure, the predicted graph and `jigsaws.json` go.
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Where the two training runs go (finished runs with the same
+    /// configuration are reused); default `<out>/runs`.
+    #[arg(long, value_name = "DIR")]
+    pub runs: Option<PathBuf>,
+}
+
 /// Runs an `ntg jigsaws` subcommand.
 pub fn run(command: JigsawsCommand) -> anyhow::Result<()> {
     run_with(
@@ -71,7 +103,50 @@ pub fn run_with(
     match command {
         JigsawsCommand::Synth(args) => synth(&args, out),
         JigsawsCommand::Stats(args) => stats(&args, out, err),
+        JigsawsCommand::Nll(args) => nll(&args, out, err),
     }
+}
+
+fn nll(args: &NllArgs, out: &mut impl Write, err: &mut impl Write) -> anyhow::Result<()> {
+    use crate::jigsaws::{DataSource, JigsawsConfig, Method, run_experiment, write_outputs};
+    let source = match &args.jigsaws_root {
+        Some(path) => DataSource::Root { path: path.clone() },
+        None => DataSource::Synthetic {
+            seed: args.synth_seed,
+            duration_scale: 1.0,
+        },
+    };
+    let mut config = JigsawsConfig::for_profile(args.profile, source);
+    if let Some(epochs) = args.epochs {
+        config.optim.epochs = epochs;
+    }
+    let runs = args.runs.clone().unwrap_or_else(|| args.out.join("runs"));
+    let result = run_experiment(&config, &runs, |line| {
+        let _ = writeln!(err, "{line}");
+    })?;
+    write_outputs(&result, &args.out)?;
+    writeln!(out, "{}", result.source)?;
+    for m in Method::ALL {
+        if let Some(r) = result.method(m) {
+            writeln!(
+                out,
+                "  {:<14} NLL {:.3} ± {:.3} (min {:.3}, max {:.3}; {} of {} steps at probability 0)",
+                m.label(),
+                r.mean_nll,
+                r.std_nll,
+                r.min_nll,
+                r.max_nll,
+                r.zero_probability_steps,
+                r.steps
+            )?;
+        }
+    }
+    writeln!(
+        out,
+        "wrote {} (jigsaws.svg/png, jigsaws_graph.dot/svg, jigsaws.json)",
+        args.out.display()
+    )?;
+    Ok(())
 }
 
 fn synth(args: &SynthArgs, out: &mut impl Write) -> anyhow::Result<()> {
@@ -309,6 +384,77 @@ mod tests {
         }))
         .unwrap_err();
         assert!(err.to_string().contains("--duration-scale"), "{err}");
+    }
+
+    #[test]
+    fn nll_runs_on_a_jigsaws_root_and_reuses_its_runs() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path().join("jigsaws");
+        let config = SynthConfig {
+            max_trials_per_task: Some(5),
+            duration_scale: 0.3,
+            ..SynthConfig::new(2)
+        };
+        write_synthetic(&config, &root).unwrap();
+        let out = dir.path().join("out");
+        let args = || NllArgs {
+            jigsaws_root: Some(root.clone()),
+            synth_seed: 0,
+            profile: crate::reproduce::Profile::Smoke,
+            epochs: Some(1),
+            out: out.clone(),
+            runs: None,
+        };
+        let (text, log) = run_to_strings(JigsawsCommand::Nll(args())).unwrap();
+        assert!(text.contains("JIGSAWS copy at"), "{text}");
+        for label in ["uniform", "NTG, no graph", "NTG (full)"] {
+            assert!(text.contains(label), "{text}");
+        }
+        assert!(log.contains("epoch   0"), "{log}");
+        for file in [
+            "jigsaws.svg",
+            "jigsaws.png",
+            "jigsaws_graph.dot",
+            "jigsaws_graph.svg",
+            "jigsaws.json",
+        ] {
+            assert!(out.join(file).is_file(), "{file} missing");
+        }
+        let first: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("jigsaws.json")).unwrap())
+                .unwrap();
+        assert_eq!(first["test_demos"], 5);
+        // A second run reuses the selected models: no training, same numbers.
+        let (again, log) = run_to_strings(JigsawsCommand::Nll(args())).unwrap();
+        assert!(!log.contains("epoch   0"), "{log}");
+        assert_eq!(again, text);
+        // A different configuration in the same run folders is refused.
+        let mut other = args();
+        other.epochs = Some(2);
+        let err = run_to_strings(JigsawsCommand::Nll(other)).unwrap_err();
+        assert!(
+            format!("{err:#}").contains("another configuration"),
+            "{err:#}"
+        );
+    }
+
+    #[test]
+    fn nll_on_a_wrong_root_names_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = run_to_strings(JigsawsCommand::Nll(NllArgs {
+            jigsaws_root: Some(dir.path().join("missing")),
+            synth_seed: 0,
+            profile: crate::reproduce::Profile::Smoke,
+            epochs: None,
+            out: dir.path().join("out"),
+            runs: None,
+        }))
+        .unwrap_err();
+        let msg = format!("{err:#}");
+        assert!(
+            msg.contains("missing") && msg.contains("no such folder"),
+            "{msg}"
+        );
     }
 
     #[test]

@@ -12,6 +12,7 @@ pub mod blocks;
 pub mod collect;
 pub mod graph;
 pub mod jigsaws;
+pub mod trace;
 pub mod train;
 
 /// Neural Task Graphs: one-shot visual imitation from a single demonstration.
@@ -33,6 +34,10 @@ pub enum Command {
     Train(train::TrainArgs),
     /// Evaluate a trained run on unseen tasks.
     Eval(train::EvalArgs),
+    /// Execute one unseen test task with a trained run and write the trace:
+    /// frames, the CTG (DOT and SVG), and per step the localised node and
+    /// chosen edge.
+    Trace(trace::TraceArgs),
     /// Reproduce the paper's figures (what `cargo xtask reproduce-figures` runs).
     Reproduce(train::ReproduceArgs),
     /// Block stacking and object sorting: task sets and demonstrations.
@@ -52,6 +57,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Graph(args) => graph::run(&args, &mut std::io::stdout().lock()),
         Command::Train(args) => train::run_train(&args),
         Command::Eval(args) => train::run_eval(&args),
+        Command::Trace(args) => trace::run(&args),
         Command::Reproduce(args) => train::run_reproduce(&args),
         Command::Blocks(cmd) => blocks::run(cmd),
         Command::Collect(cmd) => collect::run(cmd),

@@ -50,6 +50,21 @@ pub struct TrainArgs {
     /// Seed of the weights and the shuffling.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Decay the learning rate along a half cosine to a tenth of --lr.
+    #[arg(long)]
+    pub cosine_decay: bool,
+    /// Probability that the demo interpreter's decoder reads `<start>`
+    /// instead of the previous action in training (0 = plain teacher forcing).
+    #[arg(long, default_value_t = 0.0)]
+    pub token_dropout: f32,
+    /// The localizer's and edge classifier's state encoders also read every
+    /// pairwise difference of cube positions.
+    #[arg(long)]
+    pub pairwise: bool,
+    /// Hidden layers of the localizer's and edge classifier's state encoder
+    /// MLPs (state observations only; the demo interpreter keeps one).
+    #[arg(long, default_value_t = 1)]
+    pub state_hidden_layers: usize,
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
@@ -70,11 +85,15 @@ impl TrainArgs {
             demos_per_task: self.demos_per_task,
             failures: !self.no_failures,
             model_seed: self.seed,
+            state_hidden_layers: self.state_hidden_layers,
+            pairwise: self.pairwise,
             optim: OptimConfig {
                 epochs: self.epochs,
                 batch_size: self.batch_size,
                 learning_rate: self.lr,
                 seed: self.seed,
+                token_dropout: self.token_dropout,
+                cosine_decay: self.cosine_decay,
             },
         }
     }
@@ -100,6 +119,12 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
     } else {
         if config.train_tasks == 0 || config.demos_per_task == 0 {
             bail!("--train-tasks and --demos-per-task must be positive");
+        }
+        if !(0.0..1.0).contains(&config.optim.token_dropout) {
+            bail!(
+                "--token-dropout must be in [0, 1), got {}",
+                config.optim.token_dropout
+            );
         }
         let run = RunDir::create(&args.out)?;
         RunDir::write_json(&run.config_path(), &config)?;
@@ -143,6 +168,28 @@ pub struct EvalArgs {
     /// Which policy to evaluate.
     #[arg(long, value_enum, default_value_t = Variant::Full)]
     pub variant: Variant,
+    /// Keep GCN edges with probability at least this (default: the
+    /// model's configured threshold, 0.5).
+    #[arg(long)]
+    pub edge_threshold: Option<f32>,
+}
+
+/// Loads the trained model of `run`, with its edge threshold overridden
+/// when `edge_threshold` is given (checked to lie in [0, 1]).
+pub fn load_trained(
+    run: &RunDir,
+    edge_threshold: Option<f32>,
+    device: &burn::tensor::Device,
+) -> anyhow::Result<NtgModel> {
+    let mut model = NtgModel::load(run.checkpoint_dir(), device)
+        .with_context(|| format!("loading the trained model of {}", run.root().display()))?;
+    if let Some(t) = edge_threshold {
+        if !(0.0..=1.0).contains(&t) {
+            bail!("--edge-threshold must be in [0, 1], got {t}");
+        }
+        model.config.edge_threshold = t;
+    }
+    Ok(model)
 }
 
 /// Runs `ntg eval`: prints the success rate and writes
@@ -154,8 +201,11 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     }
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     let device = ntg_model::cpu_device();
-    let model = NtgModel::load(run.checkpoint_dir(), &device)
-        .with_context(|| format!("{} has no trained model yet", run.root().display()))?;
+    let model = load_trained(&run, args.edge_threshold, &device)?;
+    let mut name = format!("{}-{}", args.variant.name(), args.test_tasks);
+    if let Some(t) = args.edge_threshold {
+        name.push_str(&format!("-threshold{t}"));
+    }
     let result = blocks::evaluate(
         &model,
         config.obs,
@@ -164,19 +214,18 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
         args.variant,
     )?;
     std::fs::create_dir_all(run.eval_dir())?;
-    let path = run
-        .eval_dir()
-        .join(format!("{}-{}.json", args.variant.name(), args.test_tasks));
+    let path = run.eval_dir().join(format!("{name}.json"));
     RunDir::write_json(&path, &result)?;
     let s = result.success;
     println!(
-        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); records in {}",
+        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); goals met {:.3}; records in {}",
         result.variant,
         s.successes,
         s.trials,
         s.rate,
         s.ci_low,
         s.ci_high,
+        result.mean_goal_fraction,
         path.display()
     );
     Ok(())
@@ -194,6 +243,10 @@ pub struct ReproduceArgs {
     /// Where figures, results.json and REPORT.md go.
     #[arg(long, default_value = "docs/figures")]
     pub out: PathBuf,
+    /// Run fig. "jigsaws" on this JIGSAWS copy instead of the synthetic
+    /// stand-in.
+    #[arg(long, value_name = "DIR")]
+    pub jigsaws_root: Option<PathBuf>,
 }
 
 /// Runs `ntg reproduce`.
@@ -203,7 +256,8 @@ pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
             .as_str()
             .unwrap_or("profile"),
     );
-    let results = crate::reproduce::reproduce(args.profile, &runs, &args.out)?;
+    let results =
+        crate::reproduce::reproduce(args.profile, &runs, &args.out, args.jigsaws_root.as_deref())?;
     println!(
         "wrote {} (figure ntp_exp: {} points)",
         args.out.display(),

@@ -1,0 +1,41 @@
+//! `ntg trace`: one unseen test task executed by a trained run, written out
+//! step by step (see [`crate::trace`]).
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+use crate::blocks::BlocksRunConfig;
+use crate::run_dir::RunDir;
+
+/// Arguments of `ntg trace`.
+#[derive(Debug, Args)]
+pub struct TraceArgs {
+    /// Run folder written by `ntg train`.
+    #[arg(long)]
+    pub run: PathBuf,
+    /// The test task: an index into the standard test set (0-999) or a task
+    /// id such as `stack_1003`.
+    #[arg(long)]
+    pub task: String,
+    /// Folder to write the trace into (must not exist, or be empty).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Keep GCN edges with probability at least this (default: the
+    /// model's configured threshold).
+    #[arg(long)]
+    pub edge_threshold: Option<f32>,
+}
+
+/// Runs `ntg trace`.
+pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
+    let run = RunDir::open(&args.run)?;
+    let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+    let device = ntg_model::cpu_device();
+    let model = super::train::load_trained(&run, args.edge_threshold, &device)?;
+    let index = crate::trace::resolve_test_task(&args.task)?;
+    let trace = crate::trace::trace_task(&model, config.obs, config.failures, index, &args.out)?;
+    print!("{}", crate::trace::trace_table(&trace));
+    println!("trace written to {}", args.out.display());
+    Ok(())
+}

@@ -1,0 +1,296 @@
+//! `ntg trace`: one test task executed step by step, written out so a
+//! person can see what the policy did and why.
+//!
+//! The trace folder holds `trace.json` (every step: the localised node with
+//! its probability, the CTG successors of that node with ε, the chosen
+//! action with π, and what the environment reported), `trace.txt` (the same
+//! as a table), `ctg.dot` / `ctg.svg` (the executed graph, rendered
+//! in-process), `demo.txt`, and one PNG per observation under `frames/`
+//! plus `contact-sheet.png`.
+//!
+//! The rollout is the one `ntg eval` scores for the same task: same
+//! conditioning-demo seed, same rollout seed, greedy action choice. Frames
+//! are rendered even for state-input runs; rendering draws no random
+//! numbers, so the rollout is unchanged by it.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use ctg_graph::{ActionId, Environment, GraphExecutor, Vocabulary};
+use env_blocks::{BlocksEnv, BlocksObservation};
+use ntg_model::NtgModel;
+use serde::{Deserialize, Serialize};
+
+use crate::blocks::{ObsKind, ROLLOUT_SEED_BASE, env_config, featurize};
+
+/// A node or action with its probability.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Scored {
+    /// Vocabulary name.
+    pub name: String,
+    /// Probability.
+    pub p: f32,
+}
+
+/// One executed step.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TraceStep {
+    /// Step index (0-based); frame `frames/step_NNN.png` is the observation
+    /// the step was decided on.
+    pub step: usize,
+    /// The most likely node under ℓ(·|o), and the next two.
+    pub localized: Vec<Scored>,
+    /// Successors of the most likely node in the CTG with ε(·|n,o).
+    pub edges_from_localized: Vec<Scored>,
+    /// The chosen action with π(a|o).
+    pub chosen: Scored,
+    /// What went wrong in the environment, if anything (slip, off-centre
+    /// drop, invalid action).
+    pub failure: Option<String>,
+    /// Whether every goal held after the step.
+    pub success_after: bool,
+}
+
+/// The whole trace (`trace.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Trace {
+    /// Index in the standard test set.
+    pub index: usize,
+    /// Task id.
+    pub task: String,
+    /// The expert's actions in the conditioning demo.
+    pub demo_actions: Vec<String>,
+    /// The demo interpreter's transcription.
+    pub transcription: Vec<String>,
+    /// Steps in order.
+    pub steps: Vec<TraceStep>,
+    /// Whether the task was completed.
+    pub success: bool,
+    /// Whether the step limit cut the episode.
+    pub truncated: bool,
+}
+
+fn top(probabilities: &[f32], vocab: &Vocabulary, k: usize) -> Vec<Scored> {
+    let mut order: Vec<usize> = (0..probabilities.len()).collect();
+    order.sort_by(|&a, &b| {
+        probabilities[b]
+            .total_cmp(&probabilities[a])
+            .then(a.cmp(&b))
+    });
+    order
+        .into_iter()
+        .take(k)
+        .filter(|&i| probabilities[i] > 0.0)
+        .map(|i| Scored {
+            name: vocab.name(ActionId::new(i)).unwrap_or("?").to_owned(),
+            p: probabilities[i],
+        })
+        .collect()
+}
+
+/// Resolves `task` (a test-set index or a task id such as `stack_1003`) to
+/// its index in the standard test set.
+pub fn resolve_test_task(task: &str) -> anyhow::Result<usize> {
+    let split = env_blocks::standard_split()?;
+    if let Ok(i) = task.parse::<usize>() {
+        if i < split.test.len() {
+            return Ok(i);
+        }
+        bail!(
+            "test task index {i} is out of range (the test set has {} tasks)",
+            split.test.len()
+        );
+    }
+    split
+        .test
+        .iter()
+        .position(|t| t.id == task)
+        .with_context(|| {
+            format!(
+                "no test task with id {task:?} (ids run from {:?} to {:?}; or give an index)",
+                split.test.first().map(|t| t.id.as_str()).unwrap_or(""),
+                split.test.last().map(|t| t.id.as_str()).unwrap_or("")
+            )
+        })
+}
+
+/// Runs test task `index` with `model` and writes the trace into `out`
+/// (created; it must not exist or be empty, so nothing is overwritten).
+pub fn trace_task(
+    model: &NtgModel,
+    obs: ObsKind,
+    failures: bool,
+    index: usize,
+    out: &Path,
+) -> anyhow::Result<Trace> {
+    prepare_out(out)?;
+    let split = env_blocks::standard_split()?;
+    let task = split
+        .test
+        .get(index)
+        .with_context(|| format!("test task index {index} is out of range"))?;
+    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+    let mut env_cfg = env_config(obs, failures);
+    env_cfg.render = true;
+    let mut env = BlocksEnv::stacking(task.clone(), env_cfg)?;
+    let (demo, policy) = crate::blocks::conditioned_policy(model, &mut env, task, index, obs)?;
+    let names = |ids: &[ActionId]| -> Vec<String> {
+        ids.iter()
+            .map(|&a| vocab.name(a).unwrap_or("?").to_owned())
+            .collect()
+    };
+
+    let exec: GraphExecutor = policy.executor();
+    let n = vocab.len();
+    let frames_dir = out.join("frames");
+    std::fs::create_dir_all(&frames_dir)
+        .with_context(|| format!("creating {}", frames_dir.display()))?;
+    let mut frames = Vec::new();
+    let mut steps = Vec::new();
+    let (mut observation, _) = env.reset(ROLLOUT_SEED_BASE + index as u64)?;
+    let (success, truncated) = loop {
+        let row = featurize(&observation, obs);
+        let mapped = policy.mapped(|o: &BlocksObservation| featurize(o, obs));
+        let (mut nodes, mut edges) = (&mapped, &mapped);
+        let dist = exec.action_distribution(&mut nodes, &mut edges, &observation)?;
+        let node_p = policy.node_probabilities(&row)?;
+        let edge_p = policy.edge_probabilities_for(policy.graph(), &row)?;
+        let node = dist.localized_node();
+        let action = dist.most_likely();
+        let frame = observation
+            .frame()
+            .context("the environment returned no frame with rendering on")?
+            .clone();
+        save_png(
+            &frame,
+            &frames_dir.join(format!("step_{:03}.png", steps.len())),
+        )?;
+        frames.push(frame);
+        let step = env.step(action)?;
+        steps.push(TraceStep {
+            step: steps.len(),
+            localized: top(&node_p, &vocab, 3),
+            edges_from_localized: top(&edge_p[node.index() * n..(node.index() + 1) * n], &vocab, n),
+            chosen: Scored {
+                name: vocab.name(action).unwrap_or("?").to_owned(),
+                p: dist.probability(action),
+            },
+            failure: step.info.failure.as_ref().map(|f| format!("{f:?}")),
+            success_after: step.info.success,
+        });
+        let done = step.is_done();
+        let truncated = step.truncated;
+        observation = step.observation;
+        if done {
+            break (env.is_success(), truncated);
+        }
+    };
+    if let Some(frame) = observation.frame() {
+        save_png(
+            frame,
+            &frames_dir.join(format!("step_{:03}.png", steps.len())),
+        )?;
+        frames.push(frame.clone());
+    }
+    let refs: Vec<&image::RgbImage> = frames.iter().collect();
+    let sheet = env_blocks::sheet::contact_sheet(&refs, 8, 2, 4);
+    save_png(&sheet, &out.join("contact-sheet.png"))?;
+
+    let dot = policy.graph().to_dot(&vocab)?;
+    write(&out.join("ctg.dot"), &dot)?;
+    write(&out.join("ctg.svg"), &crate::svg::dot_to_svg(&dot)?)?;
+    let trace = Trace {
+        index,
+        task: task.id.clone(),
+        demo_actions: names(demo.actions()),
+        transcription: names(policy.demo_actions()),
+        steps,
+        success,
+        truncated,
+    };
+    write(
+        &out.join("demo.txt"),
+        &format!(
+            "demo (expert):        {}\ntranscribed (NTG):    {}\n",
+            trace.demo_actions.join(" "),
+            trace.transcription.join(" ")
+        ),
+    )?;
+    write(&out.join("trace.txt"), &trace_table(&trace))?;
+    crate::run_dir::RunDir::write_json(&out.join("trace.json"), &trace)?;
+    Ok(trace)
+}
+
+/// The trace as a plain-text table (`trace.txt`).
+pub fn trace_table(trace: &Trace) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "task {} (test index {}): {}",
+        trace.task,
+        trace.index,
+        if trace.success {
+            "success"
+        } else if trace.truncated {
+            "failed (step limit)"
+        } else {
+            "failed"
+        }
+    );
+    let _ = writeln!(
+        s,
+        "{:>4}  {:<22} {:<22} {:<34} environment",
+        "step", "localised node", "chosen edge", "other successors"
+    );
+    for st in &trace.steps {
+        let node = st
+            .localized
+            .first()
+            .map(|n| format!("{} ({:.2})", n.name, n.p))
+            .unwrap_or_default();
+        let others: Vec<String> = st
+            .edges_from_localized
+            .iter()
+            .filter(|e| e.name != st.chosen.name)
+            .take(3)
+            .map(|e| format!("{} {:.2}", e.name, e.p))
+            .collect();
+        let _ = writeln!(
+            s,
+            "{:>4}  {:<22} {:<22} {:<34} {}",
+            st.step,
+            node,
+            format!("{} ({:.2})", st.chosen.name, st.chosen.p),
+            others.join(", "),
+            st.failure
+                .as_deref()
+                .unwrap_or(if st.success_after { "goal reached" } else { "" })
+        );
+    }
+    s
+}
+
+fn prepare_out(out: &Path) -> anyhow::Result<()> {
+    if out.exists() {
+        let mut entries = std::fs::read_dir(out)
+            .with_context(|| format!("{} exists and is not a readable folder", out.display()))?;
+        if entries.next().is_some() {
+            bail!(
+                "{} already exists and is not empty; choose another --out (nothing was overwritten)",
+                out.display()
+            );
+        }
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))
+}
+
+fn write(path: &PathBuf, text: &str) -> anyhow::Result<()> {
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
+
+fn save_png(image: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
+    image
+        .save(path)
+        .with_context(|| format!("writing {}", path.display()))
+}
