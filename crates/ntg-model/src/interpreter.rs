@@ -29,6 +29,34 @@ pub struct DemoInterpreterConfig {
     /// Most tokens greedy decoding emits before giving up on `<end>`.
     #[config(default = 64)]
     pub max_decode_len: usize,
+    /// Read the demo with a bidirectional GRU (`Some(true)`): each frame's
+    /// annotation then also summarises the frames after it (so the last
+    /// frame is recognisable as last). `None` (the default, and what older
+    /// checkpoints hold) means false.
+    pub bidirectional: Option<bool>,
+    /// Luong's input feeding (`Some(true)`): the decoder reads the previous
+    /// step's attentional state `h̃_{t−1}` besides the previous token, so it
+    /// knows where it looked last. `None` means false.
+    pub input_feeding: Option<bool>,
+    /// Location-aware attention (`Some(true)`, needs input feeding;
+    /// Chorowski et al. 2015): the score of frame `s` at step `t` also gets
+    /// `G Σ_j w_j α_{t−1}(s − j)` for shifts `j` in −1..=2 (learned `w`,
+    /// fixed gain `G` = [`LOCATION_GAIN`], `α_{−1}` on the first frame), so
+    /// the attention can learn to move on by one frame per token whatever
+    /// the demo's length. `None` means false.
+    pub location_attention: Option<bool>,
+    /// A decoder without memory (`Some(true)`, needs input feeding): each
+    /// step starts from a zero state and sees only the previous token and
+    /// the previous attentional state `h̃_{t−1}`, so it cannot count how
+    /// many actions it has written; what it writes, `<end>` included, has
+    /// to come from where it looks. `None` means false.
+    pub stateless_decoder: Option<bool>,
+    /// Local annotations (`Some(true)`, not with `bidirectional`): frame
+    /// `s` is annotated by `tanh(W_l [x_{s−1}; x_s; x_{s+1}])` over the
+    /// encoded frames `x` (zeros beyond the demo) instead of a GRU state,
+    /// so an annotation depends on its neighbours only, not on how long
+    /// the demo has run. `None` means false.
+    pub local_annotations: Option<bool>,
 }
 
 impl DemoInterpreterConfig {
@@ -40,6 +68,20 @@ impl DemoInterpreterConfig {
                 "demo interpreter: num_nodes must count <start>, <end> and at least one action, got {}",
                 self.num_nodes
             )));
+        }
+        if (self.location_attention == Some(true) || self.stateless_decoder == Some(true))
+            && self.input_feeding != Some(true)
+        {
+            return Err(ModelError::Config(
+                "demo interpreter: location-aware attention and a stateless decoder need input feeding"
+                    .into(),
+            ));
+        }
+        if self.local_annotations == Some(true) && self.bidirectional == Some(true) {
+            return Err(ModelError::Config(
+                "demo interpreter: local annotations replace the (bidirectional) GRU states; choose one"
+                    .into(),
+            ));
         }
         if self.hidden == 0 || self.token_embed == 0 || self.max_decode_len == 0 {
             return Err(ModelError::Config(
@@ -55,16 +97,44 @@ impl DemoInterpreterConfig {
         let encoder = self.encoder.init(seed, device)?;
         let mut init = Init::new(seed ^ 0x5eed_0001, device);
         let h = self.hidden;
+        let feeding = self.input_feeding.unwrap_or(false);
+        let dec_in = self.token_embed + if feeding { h } else { 0 };
+        let enc_gru = GruCell::init(&mut init, encoder.out_dim(), h);
+        let tokens = init.matrix(self.num_nodes, self.token_embed, 1.0);
+        let dec_gru = GruCell::init(&mut init, dec_in, h);
+        let attn = init.linear(h, h, false);
+        let combine = init.linear(2 * h, h, true);
+        let out = init.linear(h, self.num_nodes, true);
+        // The optional parts draw from their own generator, so the default
+        // configuration's weights do not depend on them.
+        let mut extra = Init::new(seed ^ 0x5eed_0b1d, device);
+        let encoder_dim = encoder.out_dim();
+        let (bwd_gru, merge) = if self.bidirectional.unwrap_or(false) {
+            (
+                Some(GruCell::init(&mut extra, encoder.out_dim(), h)),
+                Some(extra.linear(2 * h, h, true)),
+            )
+        } else {
+            (None, None)
+        };
         Ok(DemoInterpreter {
-            enc_gru: GruCell::init(&mut init, encoder.out_dim(), h),
+            enc_gru,
+            bwd_gru,
+            merge,
             encoder,
-            tokens: init.matrix(self.num_nodes, self.token_embed, 1.0),
-            dec_gru: GruCell::init(&mut init, self.token_embed, h),
-            attn: init.linear(h, h, false),
-            combine: init.linear(2 * h, h, true),
-            out: init.linear(h, self.num_nodes, true),
+            tokens,
+            dec_gru,
+            attn,
+            combine,
+            out,
             num_nodes: self.num_nodes,
             max_decode_len: self.max_decode_len,
+            input_feeding: feeding,
+            location: (self.location_attention == Some(true))
+                .then(|| extra.vector(LOCATION_SHIFTS.len(), 0.0)),
+            stateless: self.stateless_decoder == Some(true),
+            local: (self.local_annotations == Some(true))
+                .then(|| extra.linear(3 * encoder_dim, h, true)),
         })
     }
 }
@@ -83,12 +153,25 @@ impl DemoInterpreterConfig {
 ///
 /// Trained with teacher forcing on the demo's actions followed by `<end>`;
 /// decoded greedily at test time.
+///
+/// Two options of [`DemoInterpreterConfig`] (both off by default) change
+/// this: `bidirectional` replaces `h̄_s` by `tanh(W_m [h̄→_s; h̄←_s])`, with
+/// a second GRU read from the last frame back; `input_feeding` makes the
+/// decoder read `[E[y_{t−1}]; h̃_{t−1}]` (with `h̃_0 = 0`);
+/// `location_attention` (with input feeding) adds
+/// `G Σ_j w_j α_{t−1}(s − j)` to the scores; `stateless_decoder` (with
+/// input feeding) runs every decoder step from a zero state;
+/// `local_annotations` uses `h̄_s = tanh(W_l [x_{s−1}; x_s; x_{s+1}])`.
 #[derive(Module, Debug)]
 pub struct DemoInterpreter {
     /// `Enc(o)` for the demo frames.
     pub encoder: Encoder,
     /// Encoder GRU over the encoded frames.
     pub enc_gru: GruCell,
+    /// Backward encoder GRU (bidirectional configurations only).
+    pub bwd_gru: Option<GruCell>,
+    /// `W_m`: `[h̄→; h̄←]` → `h̄` (bidirectional configurations only).
+    pub merge: Option<Linear>,
     /// Token embeddings `E` `[N, token_embed]`.
     pub tokens: Param<Tensor<2>>,
     /// Decoder GRU.
@@ -103,6 +186,14 @@ pub struct DemoInterpreter {
     pub num_nodes: usize,
     /// Greedy decoding limit.
     pub max_decode_len: usize,
+    /// Whether the decoder reads the previous attentional state.
+    pub input_feeding: bool,
+    /// Location-aware attention weights `w` over [`LOCATION_SHIFTS`].
+    pub location: Option<Param<Tensor<1>>>,
+    /// Whether each decoder step starts from a zero state.
+    pub stateless: bool,
+    /// `W_l` of local annotations.
+    pub local: Option<Linear>,
 }
 
 /// The output of [`DemoInterpreter::forward`].
@@ -132,6 +223,70 @@ struct Encoded {
     last: Tensor<2>,
 }
 
+/// The shifts `j` of location-aware attention (see
+/// [`DemoInterpreterConfig::location_attention`]).
+pub const LOCATION_SHIFTS: [isize; 4] = [-1, 0, 1, 2];
+/// The fixed gain `G` of location-aware attention: the learned weights start
+/// at 0 and reach score-sized values in a few hundred Adam steps.
+pub const LOCATION_GAIN: f32 = 10.0;
+
+/// `[x_{s−1}; x_s; x_{s+1}]` `[B, T, 3E]` for encoded frames `x` `[B, T, E]`,
+/// with padding frames (mask 0) and the frames beyond the ends as zeros.
+fn local_windows(x: Tensor<3>, frame_mask: &Tensor<2>) -> Tensor<3> {
+    let [b, steps, e] = x.dims();
+    let x = x * frame_mask.clone().unsqueeze_dim::<3>(2);
+    let zero = Tensor::<3>::zeros([b, 1, e], &x.device());
+    let (prev, next) = if steps > 1 {
+        (
+            Tensor::cat(vec![zero.clone(), x.clone().narrow(1, 0, steps - 1)], 1),
+            Tensor::cat(vec![x.clone().narrow(1, 1, steps - 1), zero], 1),
+        )
+    } else {
+        (zero.clone(), zero)
+    };
+    Tensor::cat(vec![prev, x, next], 2)
+}
+
+/// The sequential decoder's state: GRU state, previous `h̃`, previous
+/// attention `[B, T]`.
+#[derive(Debug, Clone)]
+struct FedState {
+    h: Tensor<2>,
+    feed: Tensor<2>,
+    alpha: Tensor<2>,
+}
+
+/// Luong "general" attention of queries `[B, L, H]` over encoder states
+/// `[B, T, H]` with keys `W_a h̄` `[B, T, H]`, padding frames (`frame_mask`
+/// `[B, T]` below 0.5) masked out: returns `h̃ = tanh(W_c [c; query])`
+/// `[B, L, H]` and the weights `α` `[B, L, T]`. `bias` `[B, L, T]` is added
+/// to the scores (location-aware attention). Shared by the demo
+/// interpreter and the Flat Policy baseline.
+pub(crate) fn luong_attention(
+    combine: &Linear,
+    states: Tensor<3>,
+    keys: Tensor<3>,
+    frame_mask: &Tensor<2>,
+    queries: Tensor<3>,
+    bias: Option<Tensor<3>>,
+) -> (Tensor<3>, Tensor<3>) {
+    let [batch, len, _] = queries.dims();
+    let steps = states.dims()[1];
+    let mut scores = queries.clone().matmul(keys.swap_dims(1, 2)); // [B, L, T]
+    if let Some(bias) = bias {
+        scores = scores + bias;
+    }
+    let padding = frame_mask
+        .clone()
+        .lower_elem(0.5)
+        .unsqueeze_dim::<3>(1)
+        .expand([batch, len, steps]);
+    let alpha = softmax(scores.mask_fill(padding, MASKED_LOGIT), 2);
+    let context = alpha.clone().matmul(states); // [B, L, H]
+    let combined = tanh(combine.forward(Tensor::cat(vec![context, queries], 2)));
+    (combined, alpha)
+}
+
 impl DemoInterpreter {
     fn encode(&self, frames: Tensor<3>, frame_mask: Tensor<2>) -> Result<Encoded> {
         let [batch, steps, _] = frames.dims();
@@ -143,30 +298,116 @@ impl DemoInterpreter {
             ));
         }
         let x = self.encoder.forward_sequence(frames)?;
-        let (states, last) = self.enc_gru.forward_sequence(x, None, Some(frame_mask));
+        let (forward, last) =
+            self.enc_gru
+                .forward_sequence(x.clone(), None, Some(frame_mask.clone()));
+        let states = match (&self.local, &self.bwd_gru, &self.merge) {
+            (Some(local), _, _) => tanh(local.forward(local_windows(x, &frame_mask))),
+            (None, Some(bwd), Some(merge)) => {
+                // Padding comes first in the reversed sequence and leaves the
+                // zero state untouched, so each demo is read from its own
+                // last frame.
+                let (backward, _) =
+                    bwd.forward_sequence(x.flip([1]), None, Some(frame_mask.flip([1])));
+                tanh(merge.forward(Tensor::cat(vec![forward, backward.flip([1])], 2)))
+            }
+            _ => forward,
+        };
         let keys = self.attn.forward(states.clone());
         Ok(Encoded { states, keys, last })
     }
 
-    /// Luong attention of decoder states `[B, L, H]` over the encoder states.
+    /// Luong attention of decoder states `[B, L, H]` over the encoder
+    /// states: token logits `[B, L, N]`, weights `[B, L, T]` and the
+    /// attentional states `h̃` `[B, L, H]`.
     fn attend(
         &self,
         enc: &Encoded,
         frame_mask: &Tensor<2>,
         dec: Tensor<3>,
-    ) -> (Tensor<3>, Tensor<3>) {
-        let [batch, len, _] = dec.dims();
+        bias: Option<Tensor<3>>,
+    ) -> (Tensor<3>, Tensor<3>, Tensor<3>) {
+        let (combined, alpha) = luong_attention(
+            &self.combine,
+            enc.states.clone(),
+            enc.keys.clone(),
+            frame_mask,
+            dec,
+            bias,
+        );
+        (self.out.forward(combined.clone()), alpha, combined)
+    }
+
+    /// The state of the sequential (input-feeding) decoder before its
+    /// first step: `h̄_T`, `h̃ = 0`, and the previous attention on frame 0.
+    fn start_state(&self, enc: &Encoded) -> FedState {
+        let [b, hd] = enc.last.dims();
         let steps = enc.states.dims()[1];
-        let scores = dec.clone().matmul(enc.keys.clone().swap_dims(1, 2)); // [B, L, T]
-        let padding = frame_mask
-            .clone()
-            .lower_elem(0.5)
-            .unsqueeze_dim::<3>(1)
-            .expand([batch, len, steps]);
-        let alpha = softmax(scores.mask_fill(padding, MASKED_LOGIT), 2);
-        let context = alpha.clone().matmul(enc.states.clone()); // [B, L, H]
-        let combined = tanh(self.combine.forward(Tensor::cat(vec![context, dec], 2)));
-        (self.out.forward(combined), alpha)
+        let device = enc.last.device();
+        let first = Tensor::<2>::ones([b, 1], &device);
+        let alpha = if steps > 1 {
+            Tensor::cat(vec![first, Tensor::zeros([b, steps - 1], &device)], 1)
+        } else {
+            first
+        };
+        FedState {
+            h: enc.last.clone(),
+            feed: Tensor::zeros([b, hd], &device),
+            alpha,
+        }
+    }
+
+    /// `G Σ_j w_j α(s − j)` `[B, 1, T]` from the previous attention `[B, T]`.
+    fn location_bias(&self, alpha: &Tensor<2>) -> Option<Tensor<3>> {
+        let w = self.location.as_ref()?.val();
+        let [b, steps] = alpha.dims();
+        let device = alpha.device();
+        let mut bias = Tensor::<2>::zeros([b, steps], &device);
+        for (k, &j) in LOCATION_SHIFTS.iter().enumerate() {
+            let shift = j.unsigned_abs();
+            if shift >= steps {
+                continue;
+            }
+            let kept = steps - shift;
+            let pad = Tensor::<2>::zeros([b, shift], &device);
+            let shifted = if shift == 0 {
+                alpha.clone()
+            } else if j > 0 {
+                Tensor::cat(vec![pad, alpha.clone().narrow(1, 0, kept)], 1)
+            } else {
+                Tensor::cat(vec![alpha.clone().narrow(1, shift, kept), pad], 1)
+            };
+            bias = bias + shifted * w.clone().narrow(0, k, 1).unsqueeze_dim::<2>(0);
+        }
+        Some((bias * LOCATION_GAIN).unsqueeze_dim(1))
+    }
+
+    /// Decoder step with input feeding: `[B, E]` token embeddings and the
+    /// state → logits `[B, 1, N]`, weights `[B, 1, T]` and the next state.
+    fn fed_step(
+        &self,
+        enc: &Encoded,
+        frame_mask: &Tensor<2>,
+        x: Tensor<2>,
+        state: FedState,
+    ) -> (Tensor<3>, Tensor<3>, FedState) {
+        let [b, hd] = state.h.dims();
+        let bias = self.location_bias(&state.alpha);
+        let h0 = if self.stateless {
+            state.h.zeros_like()
+        } else {
+            state.h
+        };
+        let h = self.dec_gru.step(Tensor::cat(vec![x, state.feed], 1), h0);
+        let (logits, alpha, combined) =
+            self.attend(enc, frame_mask, h.clone().unsqueeze_dim(1), bias);
+        let steps = alpha.dims()[2];
+        let next = FedState {
+            h,
+            feed: combined.reshape([b, hd]),
+            alpha: alpha.clone().reshape([b, steps]),
+        };
+        (logits, alpha, next)
     }
 
     /// Teacher-forced forward pass.
@@ -223,10 +464,25 @@ impl DemoInterpreter {
             .val()
             .select(0, inputs.reshape([batch * len]))
             .reshape([batch, len, self.tokens.dims()[1]]);
+        if self.input_feeding {
+            let mut state = self.start_state(&enc);
+            let (mut logits, mut attention) = (Vec::new(), Vec::new());
+            for t in 0..len {
+                let x = embedded.clone().narrow(1, t, 1).reshape([batch as i32, -1]);
+                let (l, a, next) = self.fed_step(&enc, &frame_mask, x, state);
+                logits.push(l);
+                attention.push(a);
+                state = next;
+            }
+            return Ok(InterpreterOutput {
+                logits: Tensor::cat(logits, 1),
+                attention: Tensor::cat(attention, 1),
+            });
+        }
         let (dec, _) = self
             .dec_gru
             .forward_sequence(embedded, Some(enc.last.clone()), None);
-        let (logits, attention) = self.attend(&enc, &frame_mask, dec);
+        let (logits, attention, _) = self.attend(&enc, &frame_mask, dec, None);
         Ok(InterpreterOutput { logits, attention })
     }
 
@@ -279,6 +535,7 @@ impl DemoInterpreter {
         let b = demos.len();
         let enc = self.encode(batch.frames, batch.frame_mask.clone())?;
         let mut h = enc.last.clone();
+        let mut state = self.start_state(&enc);
         let mut tokens = vec![Vocabulary::START.index() as i64; b];
         let mut done = vec![false; b];
         let mut out = vec![Vec::new(); b];
@@ -290,8 +547,15 @@ impl DemoInterpreter {
         for _ in 0..self.max_decode_len {
             let ids = Tensor::<1, Int>::from_data(TensorData::new(tokens.clone(), [b]), &device);
             let x = self.tokens.val().select(0, ids);
-            h = self.dec_gru.step(x, h);
-            let (logits, _) = self.attend(&enc, &batch.frame_mask, h.clone().unsqueeze_dim(1));
+            let logits = if self.input_feeding {
+                let (logits, _, next) = self.fed_step(&enc, &batch.frame_mask, x, state.clone());
+                state = next;
+                logits
+            } else {
+                h = self.dec_gru.step(x, h);
+                self.attend(&enc, &batch.frame_mask, h.clone().unsqueeze_dim(1), None)
+                    .0
+            };
             let logits = logits.reshape([b, self.num_nodes]) + forbid.clone();
             let next = to_vec_int(logits.argmax(1).reshape([b]))?;
             for i in 0..b {

@@ -12,6 +12,9 @@
 //! - [`NodeLocalizer`]: ℓ(n|o) ∝ exp(Enc(o)ᵀ NE_loc(n));
 //! - [`EdgeClassifier`]: ε(a|n,o) ∝ exp((W[Enc(o), NE_gcn(n)])ᵀ NE_loc(n_a)),
 //!   masked to the CTG successors of n;
+//! - [`FlatPolicy`]: the Flat Policy baseline (Duan et al. 2017), attention
+//!   over the encoded demo with the current observation as the query, then
+//!   an MLP to the next action;
 //! - [`NtgModel`] (the four together, with [`NtgConfig`], ablation switches
 //!   and checkpoints) and [`NtgPolicy`], which turns one demonstration into
 //!   `ctg_graph`'s [`NodeScorer`](ctg_graph::NodeScorer) and
@@ -33,6 +36,7 @@ mod batch;
 mod edge;
 mod encoder;
 mod error;
+mod flat_policy;
 mod gcn;
 mod interpreter;
 mod localizer;
@@ -48,6 +52,9 @@ pub use encoder::{
     KinematicsEncoderConfig, StateEncoder, StateEncoderConfig,
 };
 pub use error::{ModelError, Result};
+pub use flat_policy::{
+    ConditionedFlatPolicy, FlatBatch, FlatExample, FlatOutput, FlatPolicy, FlatPolicyConfig,
+};
 pub use gcn::{EdgeCounts, GcnOutput, GraphCompletionConfig, GraphCompletionNet, PairMlp};
 pub use interpreter::{DemoInterpreter, DemoInterpreterConfig, InterpreterOutput, LossOutput};
 pub use localizer::{NodeLocalizer, NodeLocalizerConfig};

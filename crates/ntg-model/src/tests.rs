@@ -1,7 +1,7 @@
 //! Unit tests of shapes, masks, attention, the GCN fixed point, the policy
 //! and checkpoints.
 
-use burn::module::Param;
+use burn::module::{Module, Param};
 use burn::tensor::activation::softmax;
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use ctg_graph::symbolic::{SequenceObservation, SequenceTask};
@@ -248,10 +248,90 @@ fn pairwise_state_encoder_reads_relative_positions() {
 
 #[test]
 fn interpreter_shapes_and_attention() {
+    // The default interpreter; bidirectional GRU annotations with input
+    // feeding, location-aware attention and a stateless decoder; the same
+    // with local annotations instead of the GRUs.
+    for (options, local) in [(None, None), (Some(true), None), (Some(true), Some(true))] {
+        let mut config = small_config(1);
+        config.interpreter.bidirectional = if local.is_some() { None } else { options };
+        config.interpreter.input_feeding = options;
+        config.interpreter.location_attention = options;
+        config.interpreter.stateless_decoder = options;
+        config.interpreter.local_annotations = local;
+        let model = NtgModel::new(config, &device()).unwrap();
+        assert_eq!(model.interpreter.local.is_some(), local.is_some());
+        check_interpreter(&model.interpreter);
+    }
+    // Local annotations replace the GRU states: not both.
+    let mut both = small_config(1).interpreter;
+    both.bidirectional = Some(true);
+    both.local_annotations = Some(true);
+    assert!(matches!(
+        both.init(0, &device()),
+        Err(ModelError::Config(_))
+    ));
+}
+
+/// An older configuration without the interpreter options still loads,
+/// with both off; the options do not change the default weights.
+#[test]
+fn interpreter_options_default_to_off() {
+    let json = serde_json::to_value(small_config(2).interpreter).unwrap();
+    let mut old = json.as_object().unwrap().clone();
+    old.remove("bidirectional");
+    old.remove("input_feeding");
+    old.remove("location_attention");
+    old.remove("stateless_decoder");
+    old.remove("local_annotations");
+    let back: DemoInterpreterConfig = serde_json::from_value(old.into()).unwrap();
+    assert_eq!(
+        (
+            back.bidirectional,
+            back.input_feeding,
+            back.location_attention,
+            back.stateless_decoder
+        ),
+        (None, None, None, None)
+    );
+    let dev = device();
+    let plain = back.init(3, &dev).unwrap();
+    let both = back
+        .clone()
+        .with_bidirectional(Some(true))
+        .with_input_feeding(Some(true))
+        .with_location_attention(Some(true))
+        .with_stateless_decoder(Some(true))
+        .init(3, &dev)
+        .unwrap();
+    assert!(plain.bwd_gru.is_none() && both.bwd_gru.is_some());
+    assert!(
+        !plain.input_feeding && both.input_feeding && both.stateless && both.location.is_some()
+    );
+    // `Some(false)` is the same network as `None`, weight for weight.
+    let off = back
+        .clone()
+        .with_bidirectional(Some(false))
+        .with_input_feeding(Some(false))
+        .with_location_attention(Some(false))
+        .with_stateless_decoder(Some(false))
+        .init(3, &dev)
+        .unwrap();
+    let w = |i: &DemoInterpreter| {
+        [
+            i.out.weight.val(),
+            i.attn.weight.val(),
+            i.dec_gru.input.weight.val(),
+        ]
+        .map(|t| to_vec(t).unwrap())
+    };
+    assert_eq!(w(&plain), w(&off));
+    assert!(off.bwd_gru.is_none() && !off.input_feeding);
+    assert!(off.location.is_none() && !off.stateless);
+}
+
+fn check_interpreter(interp: &DemoInterpreter) {
     let dev = device();
     let mut rng = ChaCha8Rng::seed_from_u64(1);
-    let model = NtgModel::new(small_config(1), &dev).unwrap();
-    let interp = &model.interpreter;
     let (batch, short_obs, short_actions) = demo_batch(&dev, &mut rng);
     assert_eq!(batch.frames.dims(), [2, 6, D]);
     assert_eq!(batch.targets.dims(), [2, 6]); // 5 actions + <end>
@@ -743,4 +823,99 @@ fn model_and_policy_can_go_to_other_threads() {
     let policy = NtgPolicy::from_actions(&model, &ids(&[2, 3])).unwrap();
     let handle = std::thread::spawn(move || policy.action_distribution(&one_hot_row(0)).is_ok());
     assert!(handle.join().unwrap());
+}
+
+/// With the content score switched off (`W_a = 0`) and the location
+/// weights on "one frame further", the attention steps through the demo
+/// one frame per token, starting at frame 1, whatever the demo's length.
+#[test]
+fn location_attention_steps_one_frame_per_token() {
+    let dev = device();
+    let mut config = small_config(4).interpreter;
+    config.bidirectional = Some(true);
+    config.input_feeding = Some(true);
+    config.location_attention = Some(true);
+    let mut interp = config.init(4, &dev).unwrap();
+    let h = interp.attn.weight.dims()[0];
+    interp.attn.weight = Param::from_data(TensorData::new(vec![0.0f32; h * h], [h, h]), &dev);
+    let w = [0.0f32, 0.0, 1.0, 0.0]; // shifts -1, 0, +1, +2
+    interp.location = Some(Param::from_data(TensorData::new(w.to_vec(), [4]), &dev));
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for frames in [4usize, 9] {
+        let obs = random_rows(&mut rng, frames, D);
+        let actions: Vec<ActionId> = (0..frames - 1).map(|i| ActionId::new(2 + i % 5)).collect();
+        let batch = DemoBatch::new(&[(&obs[..], &actions[..])], D, N, &dev).unwrap();
+        let att = to_vec(interp.attention(&batch).unwrap()).unwrap();
+        for (t, row) in att.chunks(frames).enumerate().take(frames - 1) {
+            let best = (0..frames)
+                .max_by(|&a, &b| row[a].total_cmp(&row[b]))
+                .unwrap();
+            assert_eq!(best, t + 1, "token {t} of a {frames}-frame demo: {row:?}");
+        }
+    }
+    // Without input feeding the option is refused.
+    let mut bad = small_config(4).interpreter;
+    bad.location_attention = Some(true);
+    assert!(matches!(bad.init(0, &dev), Err(ModelError::Config(_))));
+}
+
+/// Frames that show the last action (one-hot over the `N` nodes, `<start>`
+/// first) and random actions: frame `k + 1` reveals action `k`.
+fn revealing_demo(rng: &mut ChaCha8Rng, len: usize) -> (Vec<Vec<f32>>, Vec<ActionId>) {
+    let actions: Vec<ActionId> = (0..len)
+        .map(|_| ActionId::new(rng.random_range(2..N)))
+        .collect();
+    let frame = |id: usize| {
+        let mut row = vec![0.0f32; D];
+        row[id] = 1.0;
+        row
+    };
+    let mut frames = vec![frame(Vocabulary::START.index())];
+    frames.extend(actions.iter().map(|a| frame(a.index())));
+    (frames, actions)
+}
+
+/// The length-independent interpreter (local annotations, input feeding,
+/// location-aware attention, stateless decoder), trained on demos of 1 to
+/// 5 actions only, transcribes demos of 9 actions.
+#[test]
+fn stepping_interpreter_learns_and_carries_over_to_longer_demos() {
+    use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+    let dev = device().autodiff();
+    let mut config = small_config(8).interpreter;
+    config.input_feeding = Some(true);
+    config.location_attention = Some(true);
+    config.stateless_decoder = Some(true);
+    config.local_annotations = Some(true);
+    let mut interp = config.init(8, &dev).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let long: Vec<_> = (0..20).map(|_| revealing_demo(&mut rng, 9)).collect();
+    let exact = |model: &DemoInterpreter| {
+        long.iter()
+            .filter(|(frames, actions)| model.decode(frames).unwrap() == *actions)
+            .count()
+    };
+    let before = exact(&interp.valid());
+    let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
+    for _ in 0..300 {
+        let demos: Vec<_> = (0..16)
+            .map(|_| {
+                let len = rng.random_range(1..=5);
+                revealing_demo(&mut rng, len)
+            })
+            .collect();
+        let pairs: Vec<(&[Vec<f32>], &[ActionId])> =
+            demos.iter().map(|(f, a)| (&f[..], &a[..])).collect();
+        let batch = DemoBatch::new(&pairs, D, N, &dev).unwrap();
+        let loss = interp.loss(&batch).unwrap();
+        let grads = GradientsParams::from_grads(loss.loss.backward(), &interp);
+        interp = optimizer.step(3e-3, interp, grads);
+    }
+    let after = exact(&interp.valid());
+    eprintln!("exact transcriptions of 9-action demos: {before}/20 -> {after}/20");
+    assert!(before < 2, "untrained: {before}/20");
+    assert!(
+        after >= 18,
+        "only {after}/20 demos of 9 actions transcribed exactly"
+    );
 }

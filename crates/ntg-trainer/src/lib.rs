@@ -16,6 +16,7 @@
 
 pub mod blocks;
 pub mod cli;
+pub mod collect;
 pub mod dataset;
 pub mod figure;
 pub mod jigsaws;

@@ -4,6 +4,8 @@
 //! Built so far: fig. "ntp_exp" (block stacking, success on unseen tasks vs
 //! number of training tasks, (a) state and (b) video) for NTG. Baselines
 //! (NTP, NTP Flat, NTP Detector) are legend entries waiting for their issue.
+//! Fig. "thor_all" (b) (object collection, NTG and the Flat Policy, success
+//! vs number of objects) runs through [`crate::collect::thor_all`].
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -182,6 +184,8 @@ pub struct Results {
     pub ntp_exp: Vec<NtpExpPoint>,
     /// Fig. "jigsaws": cross-task NLL on Needle Passing (issue 7).
     pub jigsaws: crate::jigsaws::JigsawsResult,
+    /// Fig. "thor_all" (b), NTG and the Flat Policy.
+    pub thor_all: crate::collect::ThorAllResult,
     /// Figures not reproduced yet, with the reason.
     pub not_yet: Vec<(String, String)>,
 }
@@ -287,10 +291,12 @@ pub fn reproduce(
             });
         }
     }
+    let thor_all = crate::collect::thor_all(profile, runs)?;
     let results = Results {
         profile,
         ntp_exp: points,
         jigsaws,
+        thor_all,
         not_yet: vec![
             (
                 "ntp_exp baselines (NTP, NTP Flat, NTP Detector)".into(),
@@ -300,14 +306,11 @@ pub fn reproduce(
                 "ablation".into(),
                 "ablation configs not wired into reproduce yet (ntg eval --variant exists)".into(),
             ),
-            (
-                "thor_all".into(),
-                "object-collection training and the Flat Policy are not built".into(),
-            ),
         ],
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     write_ntp_exp_figure(&results, &out.join("ntp_exp"))?;
+    crate::collect::write_thor_all_figure(&results.thor_all, &out.join("thor_all"))?;
     RunDir::write_json(&out.join("results.json"), &results)?;
     std::fs::write(
         out.join("REPORT.md"),
@@ -434,6 +437,7 @@ fn report(results: &Results, seconds: f64) -> String {
         "\nThe paper trains with 100 demos per task; the reduced profiles use far fewer demos and optimisation steps, so lower values are expected there. Every point gets at least the profile's minimum number of steps (small training sets get more epochs). \"Goals met\" is the mean fraction of a task's `on_top` constraints that hold at the end: partial progress where whole tasks rarely succeed.\n"
     );
     let _ = writeln!(s, "{}", crate::jigsaws::report_section(&results.jigsaws));
+    s.push_str(&crate::collect::report_section(&results.thor_all));
     let _ = writeln!(s, "## Not reproduced yet\n");
     for (what, why) in &results.not_yet {
         let _ = writeln!(s, "- {what}: {why}");

@@ -5,15 +5,23 @@
 //!   writing `DIR/demo.json`, `DIR/frame_NNN.png` and `DIR/contact_sheet.png`.
 //! - `ntg collect tasks --objects N --count K --split test`: lists distinct
 //!   tasks of one side of the fixed train/test split.
+//!
+//! `ntg train --domain collect …` and `ntg eval --run DIR` on a collect run
+//! are implemented here ([`train`], [`eval`]) and dispatched from
+//! [`super::train`].
 
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use env_collect::{CollectConfig, Split, TaskSplitter, export};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+
+use crate::collect::{self, CollectRunConfig};
+use crate::run_dir::RunDir;
+use crate::train::OptimConfig;
 
 /// Subcommands of `ntg collect`.
 #[derive(Debug, Subcommand)]
@@ -24,6 +32,50 @@ pub enum CollectCommand {
     /// List distinct tasks with N objects from one side of the train/test
     /// split.
     Tasks(TasksArgs),
+    /// Run fig. "thor_all" (b) alone, as `ntg reproduce` does: train NTG
+    /// and the Flat Policy on N = 2 and 4, evaluate on N = 1..5, write the
+    /// figure and print the report section.
+    Figure(FigureArgs),
+}
+
+/// The `ntg train` options that only `--domain collect` reads.
+#[derive(Debug, Args)]
+#[command(next_help_heading = "Object collection (--domain collect)")]
+pub struct CollectTrainArgs {
+    /// Which model to train.
+    #[arg(long, value_enum, default_value_t = collect::Method::Ntg)]
+    pub method: collect::Method,
+    /// Numbers of target objects of the training tasks.
+    #[arg(long, value_delimiter = ',', default_values_t = [2, 4])]
+    pub objects: Vec<usize>,
+    /// NTG: train the demo interpreter on whole demos alone, without
+    /// random stretches of them.
+    #[arg(long)]
+    pub no_segments: bool,
+    /// Also train the final `<end>` decision, which the last frame cannot
+    /// support (without it, episodes end at the step limit).
+    #[arg(long)]
+    pub learn_end: bool,
+    /// NTG: which demo interpreter.
+    #[arg(long, value_enum, default_value_t = collect::InterpreterKind::Stepping)]
+    pub interpreter: collect::InterpreterKind,
+    /// Learning-rate schedule.
+    #[arg(long, value_enum, default_value_t = collect::LrSchedule::Cosine)]
+    pub lr_schedule: collect::LrSchedule,
+}
+
+/// Arguments of `ntg collect figure`.
+#[derive(Debug, Args)]
+pub struct FigureArgs {
+    /// Experiment scale.
+    #[arg(long, value_enum, default_value_t = crate::reproduce::Profile::Quick)]
+    pub profile: crate::reproduce::Profile,
+    /// Where run folders go (finished runs are reused).
+    #[arg(long, default_value = "runs/figures")]
+    pub runs: PathBuf,
+    /// Where `thor_all.svg` and `thor_all.png` go.
+    #[arg(long, default_value = "docs/figures")]
+    pub out: PathBuf,
 }
 
 /// Which side of the fixed train/test split to draw tasks from.
@@ -93,6 +145,7 @@ pub fn run(command: CollectCommand) -> anyhow::Result<()> {
     match command {
         CollectCommand::Demo(args) => demo(&args, &mut out),
         CollectCommand::Tasks(args) => tasks(&args, &mut out),
+        CollectCommand::Figure(args) => figure(&args, &mut out),
     }
 }
 
@@ -128,6 +181,121 @@ pub fn demo(args: &DemoArgs, out: &mut impl Write) -> anyhow::Result<()> {
     if let Some(sheet) = &written.contact_sheet {
         writeln!(out, "wrote {}", sheet.display())?;
     }
+    Ok(())
+}
+
+/// `ntg train --domain collect`: trains NTG or the Flat Policy on tasks
+/// with `--objects` targets (`--train-tasks` distinct tasks per N).
+pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
+    let c = &args.collect;
+    let config = CollectRunConfig {
+        domain: "collect".into(),
+        method: c.method,
+        obs: args.obs,
+        train_objects: c.objects.clone(),
+        tasks_per_n: args.train_tasks,
+        demos_per_task: args.demos_per_task,
+        segments: !c.no_segments,
+        learn_end: c.learn_end,
+        interpreter: c.interpreter,
+        lr_schedule: c.lr_schedule,
+        model_seed: args.seed,
+        optim: OptimConfig {
+            epochs: args.epochs,
+            batch_size: args.batch_size,
+            learning_rate: args.lr,
+            seed: args.seed,
+            token_dropout: 0.0,
+            cosine_decay: false,
+        },
+    };
+    config.validate()?;
+    let run = if args.resume {
+        let run = RunDir::open(&args.out)?;
+        let saved: CollectRunConfig = RunDir::read_json(&run.config_path())?;
+        if saved != config {
+            bail!(
+                "{} was started with a different configuration; resume it with the same arguments as the original run (saved: {})",
+                run.config_path().display(),
+                serde_json::to_string(&saved)?
+            );
+        }
+        run
+    } else {
+        let run = RunDir::create(&args.out)?;
+        RunDir::write_json(&run.config_path(), &config)?;
+        run
+    };
+    eprintln!(
+        "training {} ({:?} observations) on N = {:?}, {} tasks per N x {} demos, {} epochs -> {}",
+        config.method.name(),
+        config.obs,
+        config.train_objects,
+        config.tasks_per_n,
+        config.demos_per_task,
+        config.optim.epochs,
+        run.root().display()
+    );
+    let device = ntg_model::cpu_device().autodiff();
+    collect::train_run(&run, &config, &device, |p| eprintln!("{}", p.line()))?;
+    eprintln!("done: weights in {}", run.checkpoint_dir().display());
+    Ok(())
+}
+
+/// `ntg eval` on a collect run: success per N = 1..5 on `--test-tasks`
+/// unseen test episodes each; writes `eval/collect-<K>.json`.
+pub fn eval(
+    run: &RunDir,
+    config: &CollectRunConfig,
+    args: &super::train::EvalArgs,
+) -> anyhow::Result<()> {
+    let model = collect::load_model(run, config)?;
+    let result = collect::evaluate(
+        &model,
+        config.method,
+        config.obs,
+        &collect::EVAL_OBJECTS,
+        args.test_tasks,
+    )?;
+    std::fs::create_dir_all(run.eval_dir())?;
+    let path = run
+        .eval_dir()
+        .join(format!("collect-{}.json", args.test_tasks));
+    RunDir::write_json(&path, &result)?;
+    for p in &result.points {
+        let s = p.success;
+        println!(
+            "{} N = {}: success {}/{} = {:.3} (95% CI {:.3}-{:.3})",
+            config.method.name(),
+            p.objects,
+            s.successes,
+            s.trials,
+            s.rate,
+            s.ci_low,
+            s.ci_high
+        );
+    }
+    println!("records in {}", path.display());
+    Ok(())
+}
+
+/// `ntg collect figure`: runs the panel, writes the figure, prints the
+/// report section and the wall time.
+pub fn figure(args: &FigureArgs, out: &mut impl Write) -> anyhow::Result<()> {
+    let started = std::time::Instant::now();
+    let profile = serde_json::to_value(args.profile)?;
+    let runs = args.runs.join(profile.as_str().unwrap_or("profile"));
+    let result = collect::thor_all(args.profile, &runs)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    collect::write_thor_all_figure(&result, &args.out.join("thor_all"))?;
+    write!(out, "{}", collect::report_section(&result))?;
+    writeln!(
+        out,
+        "wrote {} in {:.0} s",
+        args.out.join("thor_all.png").display(),
+        started.elapsed().as_secs_f64()
+    )?;
     Ok(())
 }
 

@@ -15,6 +15,8 @@ use crate::train::OptimConfig;
 pub enum Domain {
     /// Block stacking (the paper's main experiment).
     Blocks,
+    /// Object collection (fig. "thor_all"): NTG or the Flat Policy.
+    Collect,
 }
 
 /// Arguments of `ntg train`.
@@ -26,9 +28,13 @@ pub struct TrainArgs {
     /// Observation kind.
     #[arg(long, value_enum, default_value_t = ObsKind::State)]
     pub obs: ObsKind,
-    /// Training tasks (a prefix of the standard 1000-task pool).
+    /// Training tasks (blocks: a prefix of the standard 1000-task pool;
+    /// collect: distinct training tasks per number of objects).
     #[arg(long, default_value_t = 100)]
     pub train_tasks: usize,
+    /// Options only `--domain collect` reads.
+    #[command(flatten)]
+    pub collect: super::collect::CollectTrainArgs,
     /// Expert demonstrations per training task.
     #[arg(long, default_value_t = 20)]
     pub demos_per_task: usize,
@@ -100,6 +106,9 @@ impl TrainArgs {
 
 /// Runs `ntg train`.
 pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
+    if args.domain == Domain::Collect {
+        return super::collect::train(args);
+    }
     let config = args.config();
     let run = if args.resume {
         let run = RunDir::open(&args.out)?;
@@ -157,7 +166,8 @@ pub struct EvalArgs {
     /// Run folder written by `ntg train`.
     #[arg(long)]
     pub run: PathBuf,
-    /// Number of unseen test tasks (from the start of the standard test set).
+    /// Number of unseen test tasks (blocks: from the start of the standard
+    /// test set; collect: test episodes per number of objects).
     #[arg(long, default_value_t = 100)]
     pub test_tasks: usize,
     /// Which policy to evaluate.
@@ -191,6 +201,9 @@ pub fn load_trained(
 /// `eval/<variant>-<K>.json` in the run folder.
 pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     let run = RunDir::open(&args.run)?;
+    if let Ok(config) = RunDir::read_json::<crate::collect::CollectRunConfig>(&run.config_path()) {
+        return super::collect::eval(&run, &config, args);
+    }
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     let device = ntg_model::cpu_device();
     let model = load_trained(&run, args.edge_threshold, &device)?;
