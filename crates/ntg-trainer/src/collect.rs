@@ -1084,6 +1084,7 @@ pub fn thor_all(profile: Profile, runs: &Path) -> anyhow::Result<ThorAllResult> 
                 seed: 0,
                 token_dropout: 0.0,
                 cosine_decay: false,
+                gcn_from_other_demo: false,
             },
         };
         let dir = runs.join(format!("thor_all-{}", method.name()));
@@ -1304,6 +1305,7 @@ mod tests {
                 seed: 1,
                 token_dropout: 0.0,
                 cosine_decay: false,
+                gcn_from_other_demo: false,
             },
         }
     }

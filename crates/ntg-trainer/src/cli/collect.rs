@@ -207,6 +207,7 @@ pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
             seed: args.seed,
             token_dropout: 0.0,
             cosine_decay: false,
+            gcn_from_other_demo: false,
         },
     };
     config.validate()?;
