@@ -38,7 +38,7 @@ pub use render::{FRAME_SIZE, Renderer};
 pub use sorting::{SortTask, generate_sort_tasks, standard_sort_tasks};
 pub use task::{
     Goal, StackTask, StandardSplit, TaskStats, generate_stack_tasks, parse_ntp_tasks,
-    read_ntp_tasks, standard_split, standard_tasks, write_ntp_tasks,
+    read_ntp_tasks, standard_split, standard_tasks, validation_tasks, write_ntp_tasks,
 };
 pub use world::{Failure, FailureConfig, Outcome, Primitive, Support, Target, World};
 

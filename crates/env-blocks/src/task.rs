@@ -612,9 +612,60 @@ pub fn standard_split() -> Result<StandardSplit, BlocksError> {
     })
 }
 
+/// The seed of the validation tasks (see [`validation_tasks`]).
+pub const VALIDATION_SEED: u64 = 20_190_617;
+
+/// `count` validation tasks, ids `val_0`..: drawn like the standard set
+/// (same distribution, from [`VALIDATION_SEED`]) but with end
+/// configurations that occur nowhere in the standard set, so a trainer can
+/// select among checkpoints on them without touching training or test
+/// tasks.
+pub fn validation_tasks(count: usize) -> Result<Vec<StackTask>, BlocksError> {
+    let standard: HashSet<_> = standard_tasks()?
+        .iter()
+        .map(StackTask::configuration_key)
+        .collect();
+    // Distinct configurations are plentiful (8 cubes), so a few extra draws
+    // cover the ones the standard set already holds.
+    let drawn = generate_stack_tasks(VALIDATION_SEED, 2 * count + 64)?;
+    let tasks: Vec<StackTask> = drawn
+        .into_iter()
+        .filter(|t| !standard.contains(&t.configuration_key()))
+        .take(count)
+        .enumerate()
+        .map(|(i, t)| StackTask::new(format!("val_{i}"), t.goals).map_err(BlocksError::Generator))
+        .collect::<Result<_, _>>()?;
+    if tasks.len() < count {
+        return Err(BlocksError::Generator(format!(
+            "found only {} validation tasks outside the standard set, asked for {count}",
+            tasks.len()
+        )));
+    }
+    Ok(tasks)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn validation_tasks_are_disjoint_from_the_standard_set() {
+        let standard: HashSet<_> = standard_tasks()
+            .unwrap()
+            .iter()
+            .map(StackTask::configuration_key)
+            .collect();
+        let val = validation_tasks(200).unwrap();
+        assert_eq!(val.len(), 200);
+        assert_eq!(val[7].id, "val_7");
+        let mut keys = HashSet::new();
+        for t in &val {
+            assert!(!standard.contains(&t.configuration_key()), "{}", t.id);
+            assert!(keys.insert(t.configuration_key()), "duplicate {}", t.id);
+        }
+        assert_eq!(val, validation_tasks(200).unwrap(), "deterministic");
+        assert_eq!(val[..50], validation_tasks(50).unwrap()[..], "nested");
+    }
 
     #[test]
     fn joint_has_ntp_marginals() {

@@ -4,7 +4,9 @@
 //! Seeds: training demo `j` of pool task `i` is recorded with seed
 //! `TRAIN_SEED_BASE + 1000 i + j`; for test task `i`, the conditioning demo
 //! uses `DEMO_SEED_BASE + i` and the rollout `ROLLOUT_SEED_BASE + i`, so the
-//! policy acts in a scene it has not seen in the demo.
+//! policy acts in a scene it has not seen in the demo. Validation task `i`
+//! (see `env_blocks::validation_tasks`) uses `VALIDATION_DEMO_SEED_BASE + i`
+//! and `VALIDATION_ROLLOUT_SEED_BASE + i` in the same way.
 
 use anyhow::{Context, bail};
 use burn::module::Module;
@@ -19,7 +21,7 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
 use crate::run_dir::RunDir;
 use crate::stats::SuccessRate;
-use crate::train::{EpochMetrics, OptimConfig, train};
+use crate::train::{EpochMetrics, OptimConfig, ValidationScore, train_with_validation};
 
 /// Seed base of training demonstrations.
 pub const TRAIN_SEED_BASE: u64 = 10_000_000;
@@ -27,6 +29,10 @@ pub const TRAIN_SEED_BASE: u64 = 10_000_000;
 pub const DEMO_SEED_BASE: u64 = 20_000_000;
 /// Seed base of the rollout scene of each test task.
 pub const ROLLOUT_SEED_BASE: u64 = 30_000_000;
+/// Seed base of the conditioning demonstration of each validation task.
+pub const VALIDATION_DEMO_SEED_BASE: u64 = 40_000_000;
+/// Seed base of the rollout scene of each validation task.
+pub const VALIDATION_ROLLOUT_SEED_BASE: u64 = 50_000_000;
 
 /// What the networks see.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
@@ -124,6 +130,12 @@ pub struct BlocksRunConfig {
     /// `StateEncoderConfig::pairwise_objects`).
     #[serde(default)]
     pub pairwise: bool,
+    /// Held-out validation tasks (`env_blocks::validation_tasks`, disjoint
+    /// from the training pool and the test set) scored after every epoch;
+    /// the best epoch's weights are the run's result. 0 = keep the last
+    /// epoch.
+    #[serde(default)]
+    pub validation_tasks: usize,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -160,6 +172,28 @@ pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::R
     )
 }
 
+/// The untrained model of a block-stacking run (seeded by
+/// `config.model_seed`).
+pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<NtgModel> {
+    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+    let mut model_config = NtgConfig::for_domain(vocab.len(), config.obs.encoder(1, false));
+    // The localizer and edge classifier judge a single observation, so
+    // relations between cubes (is something on the cube under the
+    // gripper?) must come from their encoders. The demo interpreter has its
+    // GRU on top of its encoder and keeps the plain one-layer MLP: with the
+    // relational input it fit its training demos as well but transcribed
+    // unseen ones worse (held-out token accuracy 0.73 against 0.98 at 1000
+    // tasks x 20 demos).
+    model_config.localizer.encoder = config
+        .obs
+        .encoder(config.state_hidden_layers, config.pairwise);
+    model_config.edge.encoder = config
+        .obs
+        .encoder(config.state_hidden_layers, config.pairwise);
+    model_config.seed = config.model_seed;
+    Ok(NtgModel::new(model_config, device)?)
+}
+
 /// Trains (or resumes) a block-stacking run in `run`, returning the model.
 pub fn train_run(
     run: &RunDir,
@@ -177,24 +211,71 @@ pub fn train_run(
         dataset.save(&dataset_dir)?;
         dataset
     };
-    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
-    let mut model_config = NtgConfig::for_domain(vocab.len(), config.obs.encoder(1, false));
-    // The localizer and edge classifier judge a single observation, so
-    // relations between cubes (is something on the cube under the
-    // gripper?) must come from their encoders. The demo interpreter has its
-    // GRU on top of its encoder and keeps the plain one-layer MLP: with the
-    // relational input it fit its training demos as well but transcribed
-    // unseen ones worse (held-out token accuracy 0.73 against 0.98 at 1000
-    // tasks x 20 demos).
-    model_config.localizer.encoder = config
-        .obs
-        .encoder(config.state_hidden_layers, config.pairwise);
-    model_config.edge.encoder = config
-        .obs
-        .encoder(config.state_hidden_layers, config.pairwise);
-    model_config.seed = config.model_seed;
-    let model = NtgModel::new(model_config, device)?;
-    train(model, &dataset, &config.optim, run, device, &mut on_epoch)
+    let model = new_model(config, device)?;
+    if config.validation_tasks == 0 {
+        return train_with_validation(
+            model,
+            &dataset,
+            &config.optim,
+            run,
+            device,
+            &mut on_epoch,
+            None,
+        );
+    }
+    let validation = env_blocks::validation_tasks(config.validation_tasks)?;
+    let mut validator = |model: &NtgModel| -> anyhow::Result<ValidationScore> {
+        let result = evaluate_tasks(
+            model,
+            config.obs,
+            config.failures,
+            &validation,
+            Seeds::VALIDATION,
+            Variant::Full,
+        )?;
+        eprintln!(
+            "  validation ({} tasks): success {:.3}, goals met {:.3}",
+            validation.len(),
+            result.success.rate,
+            result.mean_goal_fraction
+        );
+        Ok(ValidationScore {
+            success: result.success.rate,
+            goal_fraction: result.mean_goal_fraction,
+        })
+    };
+    train_with_validation(
+        model,
+        &dataset,
+        &config.optim,
+        run,
+        device,
+        &mut on_epoch,
+        Some(&mut validator),
+    )
+}
+
+/// Seed bases of an evaluation: the conditioning demo of task `i` is
+/// recorded with `demo + i`, its rollout scene drawn with `rollout + i`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Seeds {
+    /// Seed base of the conditioning demos.
+    pub demo: u64,
+    /// Seed base of the rollout scenes.
+    pub rollout: u64,
+}
+
+impl Seeds {
+    /// The test tasks' seeds.
+    pub const TEST: Seeds = Seeds {
+        demo: DEMO_SEED_BASE,
+        rollout: ROLLOUT_SEED_BASE,
+    };
+    /// The validation tasks' seeds.
+    pub const VALIDATION: Seeds = Seeds {
+        demo: VALIDATION_DEMO_SEED_BASE,
+        rollout: VALIDATION_ROLLOUT_SEED_BASE,
+    };
 }
 
 /// One evaluated test task.
@@ -288,8 +369,18 @@ pub fn conditioned_policy(
     index: usize,
     obs: ObsKind,
 ) -> anyhow::Result<(ctg_graph::Demonstration<BlocksObservation>, NtgPolicy)> {
-    let demo = record_demonstration(env, &mut BlocksExpert::new(), DEMO_SEED_BASE + index as u64)
-        .with_context(|| format!("demo of test task {}", task.id))?;
+    policy_from_demo_seed(model, env, task, DEMO_SEED_BASE + index as u64, obs)
+}
+
+fn policy_from_demo_seed(
+    model: &NtgModel,
+    env: &mut BlocksEnv,
+    task: &StackTask,
+    seed: u64,
+    obs: ObsKind,
+) -> anyhow::Result<(ctg_graph::Demonstration<BlocksObservation>, NtgPolicy)> {
+    let demo = record_demonstration(env, &mut BlocksExpert::new(), seed)
+        .with_context(|| format!("demo of task {}", task.id))?;
     let rows: Vec<Vec<f32>> = demo
         .observations()
         .iter()
@@ -316,33 +407,48 @@ pub fn evaluate(
             split.test.len()
         );
     }
+    evaluate_tasks(
+        model,
+        obs,
+        failures,
+        &split.test[..test_tasks],
+        Seeds::TEST,
+        variant,
+    )
+}
+
+/// Evaluates `model` on `tasks` with the given seeds (see [`evaluate`]).
+pub fn evaluate_tasks(
+    model: &NtgModel,
+    obs: ObsKind,
+    failures: bool,
+    tasks: &[StackTask],
+    seeds: Seeds,
+    variant: Variant,
+) -> anyhow::Result<EvalResult> {
     let mut model = model.valid();
     model.config.ablation = variant.ablation();
     let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
     let env_cfg = env_config(obs, failures);
-    let bar = progress_bar(test_tasks as u64, "rollouts");
+    let bar = progress_bar(tasks.len() as u64, "rollouts");
     let names = |ids: &[ActionId]| -> Vec<String> {
         ids.iter()
             .map(|&a| vocab.name(a).unwrap_or("?").to_owned())
             .collect()
     };
-    let records: Vec<TaskRecord> = split.test[..test_tasks]
+    let records: Vec<TaskRecord> = tasks
         .par_iter()
         .enumerate()
         .map(|(i, task)| {
             let mut env = BlocksEnv::stacking(task.clone(), env_cfg)?;
-            let (demo, policy) = conditioned_policy(&model, &mut env, task, i, obs)?;
+            let (demo, policy) =
+                policy_from_demo_seed(&model, &mut env, task, seeds.demo + i as u64, obs)?;
             let mapped = policy.mapped(|o: &BlocksObservation| featurize(o, obs));
             let (mut nodes, mut edges) = (&mapped, &mapped);
             let rollout = policy
                 .executor()
-                .run(
-                    &mut env,
-                    &mut nodes,
-                    &mut edges,
-                    ROLLOUT_SEED_BASE + i as u64,
-                )
-                .with_context(|| format!("rollout of test task {}", task.id))?;
+                .run(&mut env, &mut nodes, &mut edges, seeds.rollout + i as u64)
+                .with_context(|| format!("rollout of task {}", task.id))?;
             bar.inc(1);
             let goals_met = task
                 .goals

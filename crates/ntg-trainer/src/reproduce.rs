@@ -80,6 +80,15 @@ pub fn cosine_decay(profile: Profile) -> bool {
     profile == Profile::Paper
 }
 
+/// Validation tasks of reproduced runs at `profile`: every epoch is scored
+/// on them and the best is kept (see `train::train_with_validation`).
+pub fn validation_tasks(profile: Profile) -> usize {
+    match profile {
+        Profile::Smoke => 0,
+        Profile::Quick | Profile::Paper => 100,
+    }
+}
+
 /// The scales of both panels under `profile`.
 pub fn ntp_exp_scale(profile: Profile) -> [(ObsKind, PanelScale); 2] {
     let tasks = |v: &[usize]| v.to_vec();
@@ -221,6 +230,7 @@ pub fn reproduce(
                 model_seed: 0,
                 state_hidden_layers: STATE_HIDDEN_LAYERS,
                 pairwise: PAIRWISE,
+                validation_tasks: validation_tasks(profile),
                 optim: OptimConfig {
                     epochs,
                     batch_size: BATCH_SIZE,

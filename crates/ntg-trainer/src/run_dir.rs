@@ -7,6 +7,9 @@
 //!   dataset/         the demonstration cache (see `dataset`)
 //!   metrics.jsonl    one JSON object per line, appended as training goes
 //!   checkpoint/      latest weights, optimiser state and progress
+//!   validation.jsonl per epoch, the score on the validation tasks (if any)
+//!   best/            the weights of the epoch that scored best on them,
+//!                    and `selection.json` saying which epoch that was
 //!   eval/            evaluation results
 //! ```
 //!
@@ -84,6 +87,16 @@ impl RunDir {
         self.root.join("checkpoint")
     }
 
+    /// The folder of the checkpoint selected on validation tasks.
+    pub fn best_dir(&self) -> PathBuf {
+        self.root.join("best")
+    }
+
+    /// `validation.jsonl`.
+    pub fn validation_path(&self) -> PathBuf {
+        self.root.join("validation.jsonl")
+    }
+
     /// The evaluation folder.
     pub fn eval_dir(&self) -> PathBuf {
         self.root.join("eval")
@@ -112,11 +125,15 @@ impl RunDir {
 
     /// Appends one line to `metrics.jsonl`.
     pub fn append_metrics(&self, record: &impl Serialize) -> anyhow::Result<()> {
-        let path = self.metrics_path();
+        Self::append_jsonl(&self.metrics_path(), record)
+    }
+
+    /// Appends `record` as one JSON line to `path`.
+    pub fn append_jsonl(path: &Path, record: &impl Serialize) -> anyhow::Result<()> {
         let mut file = OpenOptions::new()
             .create(true)
             .append(true)
-            .open(&path)
+            .open(path)
             .with_context(|| format!("opening {}", path.display()))?;
         let mut line = serde_json::to_vec(record)?;
         line.push(b'\n');

@@ -13,6 +13,13 @@
 //! Determinism and resuming: epoch `e` shuffles with a generator seeded by
 //! `(seed, e)` alone, so a run resumed from the checkpoint of epoch `e - 1`
 //! takes exactly the same steps as an uninterrupted one.
+//!
+//! Model selection: [`train_with_validation`] scores the model after every
+//! epoch on held-out tasks (a caller-supplied [`Validator`]) and keeps the
+//! best epoch's weights in the run's `best/` folder. How well the demo
+//! interpreter transcribes unseen demos swings from epoch to epoch (at 1000
+//! block-stacking tasks, 20 and 28 epochs of the same run scored 0.996 and
+//! 0.923 held-out token accuracy), so the last epoch is not a safe choice.
 
 use std::collections::BTreeMap;
 
@@ -102,6 +109,57 @@ pub struct EpochMetrics {
     pub seconds: f32,
 }
 
+/// A model's score on held-out validation tasks; higher is better, compared
+/// by success rate, then by the fraction of goals met.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ValidationScore {
+    /// Fraction of validation tasks completed.
+    pub success: f64,
+    /// Mean fraction of each validation task's goals met at the end.
+    pub goal_fraction: f64,
+}
+
+impl ValidationScore {
+    /// Whether `self` is strictly better than `other`.
+    pub fn beats(&self, other: &ValidationScore) -> bool {
+        (self.success, self.goal_fraction) > (other.success, other.goal_fraction)
+    }
+}
+
+/// One line of `validation.jsonl`, and the contents of `best/selection.json`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ValidationRecord {
+    /// Epoch index (from 0).
+    pub epoch: usize,
+    /// The score after that epoch.
+    #[serde(flatten)]
+    pub score: ValidationScore,
+}
+
+/// Scores a model (on the training device) on held-out tasks after each
+/// epoch. It must be deterministic: a resumed run re-scores nothing, it
+/// reads earlier scores back from the run folder.
+pub trait Validator {
+    /// The score of `model`.
+    fn validate(&mut self, model: &NtgModel) -> anyhow::Result<ValidationScore>;
+}
+
+impl<F: FnMut(&NtgModel) -> anyhow::Result<ValidationScore>> Validator for F {
+    fn validate(&mut self, model: &NtgModel) -> anyhow::Result<ValidationScore> {
+        self(model)
+    }
+}
+
+/// The epoch `run`'s `best/` folder holds, if validation selected one.
+pub fn selected_epoch(run: &RunDir) -> anyhow::Result<Option<ValidationRecord>> {
+    let path = run.best_dir().join("selection.json");
+    if path.is_file() {
+        Ok(Some(RunDir::read_json(&path)?))
+    } else {
+        Ok(None)
+    }
+}
+
 /// Progress saved with each checkpoint.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct Progress {
@@ -130,12 +188,27 @@ fn scalar(t: Tensor<1>) -> anyhow::Result<f32> {
 /// checkpointing into `run` after each and appending metrics. Returns the
 /// trained model.
 pub fn train(
+    model: NtgModel,
+    dataset: &DemoDataset,
+    optim: &OptimConfig,
+    run: &RunDir,
+    device: &Device,
+    on_epoch: impl FnMut(&EpochMetrics),
+) -> anyhow::Result<NtgModel> {
+    train_with_validation(model, dataset, optim, run, device, on_epoch, None)
+}
+
+/// [`train`], and with a `validator` also scores every epoch, logs the
+/// score to `validation.jsonl`, keeps the best epoch's weights in `best/`
+/// (ties keep the earlier epoch) and returns those instead of the last.
+pub fn train_with_validation(
     mut model: NtgModel,
     dataset: &DemoDataset,
     optim: &OptimConfig,
     run: &RunDir,
     device: &Device,
     mut on_epoch: impl FnMut(&EpochMetrics),
+    mut validator: Option<&mut dyn Validator>,
 ) -> anyhow::Result<NtgModel> {
     if dataset.demos().is_empty() {
         bail!("the dataset has no demonstrations");
@@ -246,6 +319,24 @@ pub fn train(
         if !metrics.loss.is_finite() {
             bail!("training diverged at epoch {epoch} (loss {})", metrics.loss);
         }
+        // Select before checkpointing: a run killed in between redoes this
+        // epoch and finds `best/` either untouched or holding this very
+        // epoch (which it then overwrites with identical weights).
+        let mut validation = None;
+        if let Some(validator) = validator.as_deref_mut() {
+            let score = validator.validate(&model)?;
+            let record = ValidationRecord { epoch, score };
+            let improves = match selected_epoch(run)? {
+                None => true,
+                Some(best) => best.epoch >= epoch || score.beats(&best.score),
+            };
+            if improves {
+                let best = run.best_dir();
+                model.save(&best)?;
+                RunDir::write_json(&best.join("selection.json"), &record)?;
+            }
+            validation = Some(record);
+        }
         model.save(&ckpt)?;
         save_optimizer(&optimizer, ckpt.join("optimizer.bpk"))?;
         RunDir::write_json(
@@ -255,7 +346,20 @@ pub fn train(
             },
         )?;
         run.append_metrics(&metrics)?;
+        if let Some(record) = validation {
+            RunDir::append_jsonl(&run.validation_path(), &record)?;
+        }
         on_epoch(&metrics);
+    }
+    if validator.is_some()
+        && let Some(best) = selected_epoch(run)?
+    {
+        return NtgModel::load(run.best_dir(), device).with_context(|| {
+            format!(
+                "loading the weights of epoch {} selected on validation tasks",
+                best.epoch
+            )
+        });
     }
     Ok(model)
 }

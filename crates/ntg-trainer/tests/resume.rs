@@ -18,6 +18,7 @@ fn config() -> BlocksRunConfig {
         model_seed: 7,
         state_hidden_layers: 1,
         pairwise: false,
+        validation_tasks: 5,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,
@@ -69,22 +70,36 @@ fn killed_and_resumed_run_matches_uninterrupted_run() {
         metrics_without_time(&killed),
         metrics_without_time(&straight)
     );
-    // Compare the final weights parameter by parameter (the checkpoint file
-    // itself may carry per-save metadata).
-    let weights = |run: &RunDir| -> Vec<Vec<f32>> {
-        let model = NtgModel::load(run.checkpoint_dir(), &ntg_model::cpu_device()).unwrap();
+    // Every epoch was scored on the validation tasks, once, and both runs
+    // selected the same epoch.
+    let validation = |run: &RunDir| std::fs::read_to_string(run.validation_path()).unwrap();
+    assert_eq!(validation(&straight).lines().count(), 3);
+    assert_eq!(validation(&killed), validation(&straight));
+    let selected = |run: &RunDir| ntg_trainer::train::selected_epoch(run).unwrap().unwrap();
+    assert_eq!(selected(&killed), selected(&straight));
+    // Compare the final and the selected weights parameter by parameter
+    // (the checkpoint file itself may carry per-save metadata).
+    let weights = |dir: std::path::PathBuf| -> Vec<Vec<f32>> {
+        let model = NtgModel::load(dir, &ntg_model::cpu_device()).unwrap();
         let mut collector = ParamCollector(Vec::new());
         model.visit(&mut collector);
         collector.0
     };
-    let (a, b) = (weights(&killed), weights(&straight));
-    assert!(!a.is_empty());
-    assert_eq!(a.len(), b.len());
-    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
-        assert!(
-            x == y,
-            "parameter {i} differs between the resumed and the uninterrupted run"
-        );
+    for (a, b) in [
+        (
+            weights(killed.checkpoint_dir()),
+            weights(straight.checkpoint_dir()),
+        ),
+        (weights(killed.best_dir()), weights(straight.best_dir())),
+    ] {
+        assert!(!a.is_empty());
+        assert_eq!(a.len(), b.len());
+        for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+            assert!(
+                x == y,
+                "parameter {i} differs between the resumed and the uninterrupted run"
+            );
+        }
     }
 }
 

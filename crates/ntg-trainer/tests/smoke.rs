@@ -24,6 +24,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         model_seed: 0,
         state_hidden_layers: 1,
         pairwise: false,
+        validation_tasks: 0,
         optim: OptimConfig {
             epochs: 25,
             batch_size: 32,

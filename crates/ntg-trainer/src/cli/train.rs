@@ -69,6 +69,10 @@ pub struct TrainArgs {
     /// MLPs (state observations only; the demo interpreter keeps one).
     #[arg(long, default_value_t = 1)]
     pub state_hidden_layers: usize,
+    /// Held-out validation tasks scored after every epoch; the epoch that
+    /// scores best is the run's result (`best/`). 0 = keep the last epoch.
+    #[arg(long, default_value_t = 100)]
+    pub validation_tasks: usize,
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
@@ -91,6 +95,7 @@ impl TrainArgs {
             model_seed: self.seed,
             state_hidden_layers: self.state_hidden_layers,
             pairwise: self.pairwise,
+            validation_tasks: self.validation_tasks,
             optim: OptimConfig {
                 epochs: self.epochs,
                 batch_size: self.batch_size,
@@ -156,7 +161,16 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
             m.seconds
         );
     })?;
-    eprintln!("done: weights in {}", run.checkpoint_dir().display());
+    match crate::train::selected_epoch(&run)? {
+        Some(best) => eprintln!(
+            "done: epoch {} scored best on the validation tasks (success {:.3}, goals met {:.3}); its weights are in {}",
+            best.epoch,
+            best.score.success,
+            best.score.goal_fraction,
+            run.best_dir().display()
+        ),
+        None => eprintln!("done: weights in {}", run.checkpoint_dir().display()),
+    }
     Ok(())
 }
 
@@ -179,14 +193,20 @@ pub struct EvalArgs {
     pub edge_threshold: Option<f32>,
 }
 
-/// Loads the trained model of `run`, with its edge threshold overridden
-/// when `edge_threshold` is given (checked to lie in [0, 1]).
+/// Loads the trained model of `run` (the epoch selected on validation
+/// tasks if there is one, else the last checkpoint), with its edge
+/// threshold overridden when `edge_threshold` is given (checked to lie in
+/// [0, 1]).
 pub fn load_trained(
     run: &RunDir,
     edge_threshold: Option<f32>,
     device: &burn::tensor::Device,
 ) -> anyhow::Result<NtgModel> {
-    let mut model = NtgModel::load(run.checkpoint_dir(), device)
+    let dir = match crate::train::selected_epoch(run)? {
+        Some(_) => run.best_dir(),
+        None => run.checkpoint_dir(),
+    };
+    let mut model = NtgModel::load(dir, device)
         .with_context(|| format!("loading the trained model of {}", run.root().display()))?;
     if let Some(t) = edge_threshold {
         if !(0.0..=1.0).contains(&t) {

@@ -1,0 +1,123 @@
+//! Model selection on validation tasks: the epoch a validator scores best is
+//! kept in `best/`, returned by training and loaded by evaluation.
+
+use burn::module::Module;
+use ntg_model::NtgModel;
+use ntg_trainer::blocks::{BlocksRunConfig, ObsKind, build_dataset, new_model};
+use ntg_trainer::run_dir::RunDir;
+use ntg_trainer::train::{
+    OptimConfig, ValidationRecord, ValidationScore, selected_epoch, train_with_validation,
+};
+
+fn config() -> BlocksRunConfig {
+    BlocksRunConfig {
+        obs: ObsKind::State,
+        train_tasks: 3,
+        demos_per_task: 2,
+        failures: false,
+        model_seed: 3,
+        state_hidden_layers: 1,
+        pairwise: false,
+        validation_tasks: 0,
+        optim: OptimConfig {
+            epochs: 4,
+            batch_size: 2,
+            learning_rate: 1e-2,
+            seed: 5,
+            token_dropout: 0.0,
+            cosine_decay: false,
+            gcn_from_other_demo: false,
+        },
+    }
+}
+
+fn params(model: &NtgModel) -> Vec<Vec<f32>> {
+    struct Collect(Vec<Vec<f32>>);
+    impl burn::module::ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(
+            &mut self,
+            param: &burn::module::Param<burn::tensor::Tensor<D>>,
+        ) {
+            self.0
+                .push(param.val().into_data().try_to_vec::<f32>().unwrap());
+        }
+    }
+    let mut c = Collect(Vec::new());
+    model.visit(&mut c);
+    c.0
+}
+
+#[test]
+fn the_best_scored_epoch_is_kept_and_returned() {
+    let tmp = tempfile::tempdir().unwrap();
+    let device = ntg_model::cpu_device().autodiff();
+    let config = config();
+    let split = env_blocks::standard_split().unwrap();
+    let dataset = build_dataset(&config, split.train(config.train_tasks).unwrap()).unwrap();
+    let run = RunDir::create(&tmp.path().join("run")).unwrap();
+
+    // Scores by epoch: epoch 1 is best; epoch 3 ties it on success but
+    // meets fewer goals.
+    let scores = [(0.1, 0.5), (0.4, 0.6), (0.2, 0.9), (0.4, 0.3)];
+    let mut seen = Vec::new();
+    let mut validator = |model: &NtgModel| -> anyhow::Result<ValidationScore> {
+        seen.push(params(model));
+        let (success, goal_fraction) = scores[seen.len() - 1];
+        Ok(ValidationScore {
+            success,
+            goal_fraction,
+        })
+    };
+    let returned = train_with_validation(
+        new_model(&config, &device).unwrap(),
+        &dataset,
+        &config.optim,
+        &run,
+        &device,
+        |_| {},
+        Some(&mut validator),
+    )
+    .unwrap();
+    assert_eq!(seen.len(), 4, "every epoch is validated once");
+    assert_eq!(
+        selected_epoch(&run).unwrap(),
+        Some(ValidationRecord {
+            epoch: 1,
+            score: ValidationScore {
+                success: 0.4,
+                goal_fraction: 0.6
+            }
+        })
+    );
+    assert_eq!(params(&returned), seen[1], "training returns epoch 1");
+    assert_ne!(seen[1], seen[3], "the last epoch differs from the best");
+    let loaded = NtgModel::load(run.best_dir(), &ntg_model::cpu_device()).unwrap();
+    assert_eq!(params(&loaded), seen[1], "best/ holds epoch 1");
+    let last = NtgModel::load(run.checkpoint_dir(), &ntg_model::cpu_device()).unwrap();
+    assert_eq!(params(&last), seen[3], "checkpoint/ holds the last epoch");
+    let lines = std::fs::read_to_string(run.validation_path()).unwrap();
+    assert_eq!(lines.lines().count(), 4);
+}
+
+#[test]
+fn without_a_validator_nothing_is_selected() {
+    let tmp = tempfile::tempdir().unwrap();
+    let device = ntg_model::cpu_device().autodiff();
+    let mut config = config();
+    config.optim.epochs = 1;
+    let split = env_blocks::standard_split().unwrap();
+    let dataset = build_dataset(&config, split.train(config.train_tasks).unwrap()).unwrap();
+    let run = RunDir::create(&tmp.path().join("run")).unwrap();
+    train_with_validation(
+        new_model(&config, &device).unwrap(),
+        &dataset,
+        &config.optim,
+        &run,
+        &device,
+        |_| {},
+        None,
+    )
+    .unwrap();
+    assert_eq!(selected_epoch(&run).unwrap(), None);
+    assert!(!run.validation_path().exists());
+}
