@@ -21,7 +21,9 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
 use crate::run_dir::RunDir;
 use crate::stats::SuccessRate;
-use crate::train::{EpochMetrics, OptimConfig, ValidationScore, train_with_validation};
+use crate::train::{
+    EpochMetrics, ObjectSymmetry, OptimConfig, TrainExtras, ValidationScore, train_with,
+};
 
 /// Seed base of training demonstrations.
 pub const TRAIN_SEED_BASE: u64 = 10_000_000;
@@ -136,6 +138,11 @@ pub struct BlocksRunConfig {
     /// epoch.
     #[serde(default)]
     pub validation_tasks: usize,
+    /// Train on demos whose cubes are renamed by a random permutation per
+    /// demo and step (state observations only; see [`object_symmetry`]).
+    /// Not in the paper.
+    #[serde(default)]
+    pub permute_objects: bool,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -212,17 +219,13 @@ pub fn train_run(
         dataset
     };
     let model = new_model(config, device)?;
-    if config.validation_tasks == 0 {
-        return train_with_validation(
-            model,
-            &dataset,
-            &config.optim,
-            run,
-            device,
-            &mut on_epoch,
-            None,
-        );
-    }
+    let symmetry = match (config.permute_objects, config.obs) {
+        (false, _) => None,
+        (true, ObsKind::State) => Some(object_symmetry()),
+        (true, ObsKind::Vid) => {
+            bail!("renaming cubes (permute_objects) works on state observations only")
+        }
+    };
     let validation = env_blocks::validation_tasks(config.validation_tasks)?;
     let mut validator = |model: &NtgModel| -> anyhow::Result<ValidationScore> {
         let result = evaluate_tasks(
@@ -244,15 +247,48 @@ pub fn train_run(
             goal_fraction: result.mean_goal_fraction,
         })
     };
-    train_with_validation(
+    let extras = TrainExtras {
+        validator: if validation.is_empty() {
+            None
+        } else {
+            Some(&mut validator)
+        },
+        permute_objects: symmetry.as_ref(),
+    };
+    train_with(
         model,
         &dataset,
         &config.optim,
         run,
         device,
         &mut on_epoch,
-        Some(&mut validator),
+        extras,
     )
+}
+
+/// Block stacking's symmetry under renaming cubes, for state observations:
+/// cube `i`'s position is state columns `3i..3i+3`, and `pick(·)` and
+/// `place(·)` name cubes. The dynamics, the expert and the task
+/// distribution treat all cubes alike, so a demo with its cubes renamed is
+/// a demo of the renamed task.
+pub fn object_symmetry() -> ObjectSymmetry {
+    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+    let family = |verb: &str| -> Vec<ActionId> {
+        (0..env_blocks::world::NUM_OBJECTS)
+            .map(|i| {
+                let name = format!("{verb}({})", char::from(b'A' + i as u8));
+                vocab
+                    .id(&name)
+                    .unwrap_or_else(|| unreachable!("{name} is in the stacking vocabulary"))
+            })
+            .collect()
+    };
+    ObjectSymmetry {
+        num_objects: env_blocks::world::NUM_OBJECTS,
+        obs_offset: 0,
+        obs_stride: 3,
+        action_families: vec![family("pick"), family("place")],
+    }
 }
 
 /// Seed bases of an evaluation: the conditioning demo of task `i` is
@@ -480,4 +516,56 @@ pub fn evaluate_tasks(
             / records.len().max(1) as f64,
         tasks: records,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ctg_graph::Ctg;
+
+    #[test]
+    fn renaming_cubes_moves_columns_actions_and_graph_edges_together() {
+        let sym = object_symmetry();
+        let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+        let n = vocab.len();
+        sym.validate(n, env_blocks::STATE_DIM).unwrap();
+        // A -> C, B -> A, C -> B, the rest fixed.
+        let mut perm: Vec<usize> = (0..env_blocks::world::NUM_OBJECTS).collect();
+        perm[..3].copy_from_slice(&[2, 0, 1]);
+        let r = sym.relabeling(perm, n);
+        let id = |name: &str| vocab.id(name).unwrap();
+        assert_eq!(r.action(id("pick(A)")), id("pick(C)"));
+        assert_eq!(r.action(id("place(B)")), id("place(A)"));
+        assert_eq!(r.action(id("pick(H)")), id("pick(H)"));
+        assert_eq!(
+            r.action(ctg_graph::Vocabulary::END),
+            ctg_graph::Vocabulary::END
+        );
+
+        let row: Vec<f32> = (0..env_blocks::STATE_DIM).map(|i| i as f32).collect();
+        let renamed = sym.apply_to_row(&r, &row);
+        assert_eq!(
+            &renamed[6..9],
+            &row[0..3],
+            "cube A's position is now cube C's"
+        );
+        assert_eq!(
+            &renamed[0..3],
+            &row[3..6],
+            "cube B's position is now cube A's"
+        );
+        assert_eq!(&renamed[9..], &row[9..], "other cubes and the gripper stay");
+
+        let path = vocab
+            .parse_sequence("pick(A) place(B) pick(C) place(A)")
+            .unwrap();
+        let graph = Ctg::from_path(n, &path).unwrap();
+        let renamed_graph = r.graph(&graph).unwrap();
+        let expected = Ctg::from_path(n, &r.sequence(&path)).unwrap();
+        assert_eq!(renamed_graph, expected);
+        assert_eq!(
+            vocab.format_sequence(&r.sequence(&path)),
+            "pick(C) place(A) pick(B) place(C)"
+        );
+    }
 }

@@ -231,6 +231,7 @@ pub fn reproduce(
                 state_hidden_layers: STATE_HIDDEN_LAYERS,
                 pairwise: PAIRWISE,
                 validation_tasks: validation_tasks(profile),
+                permute_objects: false,
                 optim: OptimConfig {
                     epochs,
                     batch_size: BATCH_SIZE,

@@ -160,6 +160,122 @@ pub fn selected_epoch(run: &RunDir) -> anyhow::Result<Option<ValidationRecord>> 
     }
 }
 
+/// How a domain's observations and actions change when its objects are
+/// renamed: object `i`'s observation columns are
+/// `obs_offset + obs_stride * i ..` (`obs_stride` of them), and each action
+/// family (say `pick(·)`) lists its action id for every object. Columns and
+/// actions outside these are left alone.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ObjectSymmetry {
+    /// Number of interchangeable objects.
+    pub num_objects: usize,
+    /// First observation column of object 0.
+    pub obs_offset: usize,
+    /// Observation columns per object.
+    pub obs_stride: usize,
+    /// Per family, the action id of each object (`num_objects` each).
+    pub action_families: Vec<Vec<ActionId>>,
+}
+
+/// One renaming of the objects: object `i` becomes `perm[i]`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Relabeling {
+    perm: Vec<usize>,
+    /// Action id -> renamed action id, over the whole vocabulary.
+    actions: Vec<ActionId>,
+}
+
+impl ObjectSymmetry {
+    /// Checks the description against a vocabulary of `num_actions` and
+    /// rows of `obs_dim` values.
+    pub fn validate(&self, num_actions: usize, obs_dim: usize) -> anyhow::Result<()> {
+        if self.obs_offset + self.obs_stride * self.num_objects > obs_dim {
+            bail!(
+                "the object symmetry covers columns up to {}, rows have {obs_dim}",
+                self.obs_offset + self.obs_stride * self.num_objects
+            );
+        }
+        for family in &self.action_families {
+            if family.len() != self.num_objects {
+                bail!(
+                    "an action family of the object symmetry lists {} actions for {} objects",
+                    family.len(),
+                    self.num_objects
+                );
+            }
+            if let Some(a) = family.iter().find(|a| a.index() >= num_actions) {
+                bail!("the object symmetry names action {a:?}; the vocabulary has {num_actions}");
+            }
+        }
+        Ok(())
+    }
+
+    /// A uniformly random renaming.
+    pub fn random(&self, num_actions: usize, rng: &mut impl Rng) -> Relabeling {
+        let mut perm: Vec<usize> = (0..self.num_objects).collect();
+        perm.shuffle(rng);
+        self.relabeling(perm, num_actions)
+    }
+
+    /// The renaming `perm` (object `i` becomes `perm[i]`).
+    pub fn relabeling(&self, perm: Vec<usize>, num_actions: usize) -> Relabeling {
+        let mut actions: Vec<ActionId> = (0..num_actions).map(ActionId::new).collect();
+        for family in &self.action_families {
+            for (i, &a) in family.iter().enumerate() {
+                actions[a.index()] = family[perm[i]];
+            }
+        }
+        Relabeling { perm, actions }
+    }
+
+    /// `row` with object `i`'s columns moved to object `perm[i]`'s place.
+    pub fn apply_to_row(&self, relabeling: &Relabeling, row: &[f32]) -> Vec<f32> {
+        let mut out = row.to_vec();
+        let w = self.obs_stride;
+        for (i, &j) in relabeling.perm.iter().enumerate() {
+            let from = self.obs_offset + w * i;
+            let to = self.obs_offset + w * j;
+            out[to..to + w].copy_from_slice(&row[from..from + w]);
+        }
+        out
+    }
+}
+
+impl Relabeling {
+    /// The renamed action.
+    pub fn action(&self, a: ActionId) -> ActionId {
+        self.actions[a.index()]
+    }
+
+    /// The renamed action sequence.
+    pub fn sequence(&self, actions: &[ActionId]) -> Vec<ActionId> {
+        actions.iter().map(|&a| self.action(a)).collect()
+    }
+
+    /// The graph with its nodes renamed.
+    pub fn graph(&self, graph: &Ctg) -> anyhow::Result<Ctg> {
+        let mut out = Ctg::empty(graph.num_nodes());
+        for e in graph.edges() {
+            out.set_weight(self.action(e.from), self.action(e.to), e.weight)?;
+        }
+        Ok(out)
+    }
+}
+
+/// Optional parts of training beyond the four losses.
+#[derive(Default)]
+pub struct TrainExtras<'a> {
+    /// Scores every epoch and selects the best (see [`train_with`]).
+    pub validator: Option<&'a mut dyn Validator>,
+    /// Rename the objects of every training demo by a fresh random
+    /// permutation (seeded by the run seed, epoch and step) through this
+    /// symmetry: observation columns, actions and task graph consistently.
+    /// For domains whose dynamics do not depend on object identity (block
+    /// stacking), this shows the networks many more task configurations
+    /// than were demonstrated. Not in the paper.
+    pub permute_objects: Option<&'a ObjectSymmetry>,
+}
+
 /// Progress saved with each checkpoint.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct Progress {
@@ -195,21 +311,37 @@ pub fn train(
     device: &Device,
     on_epoch: impl FnMut(&EpochMetrics),
 ) -> anyhow::Result<NtgModel> {
-    train_with_validation(model, dataset, optim, run, device, on_epoch, None)
+    train_with(
+        model,
+        dataset,
+        optim,
+        run,
+        device,
+        on_epoch,
+        TrainExtras::default(),
+    )
 }
 
-/// [`train`], and with a `validator` also scores every epoch, logs the
-/// score to `validation.jsonl`, keeps the best epoch's weights in `best/`
-/// (ties keep the earlier epoch) and returns those instead of the last.
-pub fn train_with_validation(
+/// [`train`] with extras. With a validator it also scores every epoch, logs
+/// the score to `validation.jsonl`, keeps the best epoch's weights in
+/// `best/` (ties keep the earlier epoch) and returns those instead of the
+/// last.
+pub fn train_with(
     mut model: NtgModel,
     dataset: &DemoDataset,
     optim: &OptimConfig,
     run: &RunDir,
     device: &Device,
     mut on_epoch: impl FnMut(&EpochMetrics),
-    mut validator: Option<&mut dyn Validator>,
+    extras: TrainExtras<'_>,
 ) -> anyhow::Result<NtgModel> {
+    let TrainExtras {
+        mut validator,
+        permute_objects: symmetry,
+    } = extras;
+    if let Some(s) = symmetry {
+        s.validate(dataset.vocabulary().len(), dataset.obs_dim())?;
+    }
     if dataset.demos().is_empty() {
         bail!("the dataset has no demonstrations");
     }
@@ -280,12 +412,21 @@ pub fn train_with_validation(
             } else {
                 chunk.to_vec()
             };
+            // The renaming of each demo's objects (see
+            // `TrainExtras::permute_objects`).
+            let relabelings: Option<(&ObjectSymmetry, Vec<Relabeling>)> = symmetry.map(|s| {
+                let mut rng = ChaCha8Rng::seed_from_u64(dropout.seed ^ 0x0B1E_C75E_ED00);
+                (s, chunk.iter().map(|_| s.random(n, &mut rng)).collect())
+            });
             let out = step(
                 &model,
                 dataset,
                 &graphs,
-                chunk,
-                &gcn_sources,
+                Batch {
+                    chunk,
+                    gcn_sources: &gcn_sources,
+                    relabelings: relabelings.as_ref().map(|(s, r)| (*s, r.as_slice())),
+                },
                 &dropout,
                 device,
             )?;
@@ -392,28 +533,60 @@ impl TokenDropout {
     }
 }
 
+/// The demos of one step.
+struct Batch<'a> {
+    /// Dataset indices of the demos imitated.
+    chunk: &'a [usize],
+    /// Per demo, the dataset index of the demo the GCN reads.
+    gcn_sources: &'a [usize],
+    /// Per demo, the renaming of its objects, if any.
+    relabelings: Option<(&'a ObjectSymmetry, &'a [Relabeling])>,
+}
+
 fn step(
     model: &NtgModel,
     dataset: &DemoDataset,
     graphs: &BTreeMap<usize, Ctg>,
-    chunk: &[usize],
-    gcn_sources: &[usize],
+    batch_demos: Batch<'_>,
     dropout: &TokenDropout,
     device: &Device,
 ) -> anyhow::Result<StepOutput> {
+    let Batch {
+        chunk,
+        gcn_sources,
+        relabelings,
+    } = batch_demos;
     let n = model.num_nodes();
     let dim = dataset.obs_dim();
     let entries: Vec<_> = chunk.iter().map(|&i| &dataset.demos()[i]).collect();
+    let relabel = |b: usize| relabelings.map(|(s, r)| (s, &r[b]));
     let demo_rows: Vec<Vec<Vec<f32>>> = entries
         .iter()
-        .map(|e| e.rows().map(|r| dataset.row(r)).collect())
+        .enumerate()
+        .map(|(b, e)| {
+            e.rows()
+                .map(|r| match relabel(b) {
+                    Some((s, r_b)) => s.apply_to_row(r_b, &dataset.row(r)),
+                    None => dataset.row(r),
+                })
+                .collect()
+        })
+        .collect();
+    let sequence = |b: usize, actions: &[ActionId]| match relabel(b) {
+        Some((_, r_b)) => r_b.sequence(actions),
+        None => actions.to_vec(),
+    };
+    let demo_actions: Vec<Vec<ActionId>> = entries
+        .iter()
+        .enumerate()
+        .map(|(b, e)| sequence(b, &e.actions))
         .collect();
 
     // Demo interpreter.
-    let pairs: Vec<(&[Vec<f32>], &[ActionId])> = entries
+    let pairs: Vec<(&[Vec<f32>], &[ActionId])> = demo_rows
         .iter()
-        .zip(&demo_rows)
-        .map(|(e, rows)| (rows.as_slice(), e.actions.as_slice()))
+        .zip(&demo_actions)
+        .map(|(rows, actions)| (rows.as_slice(), actions.as_slice()))
         .collect();
     let batch = DemoBatch::new(&pairs, dim, n, device)?;
     let interp = model
@@ -424,9 +597,18 @@ fn step(
     // -> the task's graph.
     let paths: Vec<Ctg> = gcn_sources
         .iter()
-        .map(|&i| Ctg::from_path(n, &dataset.demos()[i].actions))
+        .enumerate()
+        .map(|(b, &i)| Ctg::from_path(n, &sequence(b, &dataset.demos()[i].actions)))
         .collect::<Result<_, _>>()?;
-    let targets: Vec<&Ctg> = entries.iter().map(|e| &graphs[&e.task]).collect();
+    let owned_targets: Vec<Ctg> = entries
+        .iter()
+        .enumerate()
+        .map(|(b, e)| match relabel(b) {
+            Some((_, r_b)) => r_b.graph(&graphs[&e.task]),
+            None => Ok(graphs[&e.task].clone()),
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let targets: Vec<&Ctg> = owned_targets.iter().collect();
     let path_refs: Vec<&Ctg> = paths.iter().collect();
     let adjacency = ntg_model::adjacency_tensor(&path_refs, n, device)?;
     let target_adj = ntg_model::adjacency_tensor(&targets, n, device)?;
@@ -450,10 +632,9 @@ fn step(
     let mut next = Vec::new();
     let mut demo_index = Vec::new();
     let mut row_graphs = Vec::new();
-    for (b, (e, obs)) in entries.iter().zip(&demo_rows).enumerate() {
-        let labels = std::iter::once(ctg_graph::Vocabulary::START).chain(e.actions.iter().copied());
-        let nexts = e
-            .actions
+    for (b, (actions, obs)) in demo_actions.iter().zip(&demo_rows).enumerate() {
+        let labels = std::iter::once(ctg_graph::Vocabulary::START).chain(actions.iter().copied());
+        let nexts = actions
             .iter()
             .copied()
             .chain(std::iter::once(ctg_graph::Vocabulary::END));

@@ -19,6 +19,7 @@ fn config() -> BlocksRunConfig {
         state_hidden_layers: 1,
         pairwise: false,
         validation_tasks: 5,
+        permute_objects: true,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,

@@ -6,7 +6,7 @@ use ntg_model::NtgModel;
 use ntg_trainer::blocks::{BlocksRunConfig, ObsKind, build_dataset, new_model};
 use ntg_trainer::run_dir::RunDir;
 use ntg_trainer::train::{
-    OptimConfig, ValidationRecord, ValidationScore, selected_epoch, train_with_validation,
+    OptimConfig, TrainExtras, ValidationRecord, ValidationScore, selected_epoch, train_with,
 };
 
 fn config() -> BlocksRunConfig {
@@ -19,6 +19,7 @@ fn config() -> BlocksRunConfig {
         state_hidden_layers: 1,
         pairwise: false,
         validation_tasks: 0,
+        permute_objects: false,
         optim: OptimConfig {
             epochs: 4,
             batch_size: 2,
@@ -68,14 +69,17 @@ fn the_best_scored_epoch_is_kept_and_returned() {
             goal_fraction,
         })
     };
-    let returned = train_with_validation(
+    let returned = train_with(
         new_model(&config, &device).unwrap(),
         &dataset,
         &config.optim,
         &run,
         &device,
         |_| {},
-        Some(&mut validator),
+        TrainExtras {
+            validator: Some(&mut validator),
+            permute_objects: None,
+        },
     )
     .unwrap();
     assert_eq!(seen.len(), 4, "every epoch is validated once");
@@ -108,14 +112,14 @@ fn without_a_validator_nothing_is_selected() {
     let split = env_blocks::standard_split().unwrap();
     let dataset = build_dataset(&config, split.train(config.train_tasks).unwrap()).unwrap();
     let run = RunDir::create(&tmp.path().join("run")).unwrap();
-    train_with_validation(
+    train_with(
         new_model(&config, &device).unwrap(),
         &dataset,
         &config.optim,
         &run,
         &device,
         |_| {},
-        None,
+        TrainExtras::default(),
     )
     .unwrap();
     assert_eq!(selected_epoch(&run).unwrap(), None);

@@ -73,6 +73,10 @@ pub struct TrainArgs {
     /// scores best is the run's result (`best/`). 0 = keep the last epoch.
     #[arg(long, default_value_t = 100)]
     pub validation_tasks: usize,
+    /// Train on demos whose cubes are renamed by a random permutation per
+    /// demo and step (block stacking, state observations; not in the paper).
+    #[arg(long)]
+    pub permute_objects: bool,
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
@@ -96,6 +100,7 @@ impl TrainArgs {
             state_hidden_layers: self.state_hidden_layers,
             pairwise: self.pairwise,
             validation_tasks: self.validation_tasks,
+            permute_objects: self.permute_objects,
             optim: OptimConfig {
                 epochs: self.epochs,
                 batch_size: self.batch_size,
