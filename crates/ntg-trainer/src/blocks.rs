@@ -138,6 +138,10 @@ pub struct BlocksRunConfig {
     /// epoch.
     #[serde(default)]
     pub validation_tasks: usize,
+    /// Validate after every this many epochs (and after the last); 0 or 1 =
+    /// every epoch.
+    #[serde(default)]
+    pub validate_every: usize,
     /// Train on demos whose cubes are renamed by a random permutation per
     /// demo and step (state observations only; see [`object_symmetry`]).
     /// Not in the paper.
@@ -254,6 +258,7 @@ pub fn train_run(
             Some(&mut validator)
         },
         permute_objects: symmetry.as_ref(),
+        validate_every: config.validate_every,
     };
     train_with(
         model,

@@ -274,6 +274,9 @@ pub struct TrainExtras<'a> {
     /// stacking), this shows the networks many more task configurations
     /// than were demonstrated. Not in the paper.
     pub permute_objects: Option<&'a ObjectSymmetry>,
+    /// Validate after every this many epochs (and after the last); 0 and 1
+    /// mean every epoch.
+    pub validate_every: usize,
 }
 
 /// Progress saved with each checkpoint.
@@ -338,7 +341,9 @@ pub fn train_with(
     let TrainExtras {
         mut validator,
         permute_objects: symmetry,
+        validate_every,
     } = extras;
+    let validate_every = validate_every.max(1);
     if let Some(s) = symmetry {
         s.validate(dataset.vocabulary().len(), dataset.obs_dim())?;
     }
@@ -464,7 +469,8 @@ pub fn train_with(
         // epoch and finds `best/` either untouched or holding this very
         // epoch (which it then overwrites with identical weights).
         let mut validation = None;
-        if let Some(validator) = validator.as_deref_mut() {
+        let validate_now = (epoch + 1) % validate_every == 0 || epoch + 1 == optim.epochs;
+        if let Some(validator) = validator.as_deref_mut().filter(|_| validate_now) {
             let score = validator.validate(&model)?;
             let record = ValidationRecord { epoch, score };
             let improves = match selected_epoch(run)? {

@@ -19,6 +19,7 @@ fn config() -> BlocksRunConfig {
         state_hidden_layers: 1,
         pairwise: false,
         validation_tasks: 5,
+        validate_every: 0,
         permute_objects: true,
         optim: OptimConfig {
             epochs: 3,

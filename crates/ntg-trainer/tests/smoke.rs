@@ -25,6 +25,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         state_hidden_layers: 1,
         pairwise: false,
         validation_tasks: 0,
+        validate_every: 0,
         permute_objects: false,
         optim: OptimConfig {
             epochs: 25,

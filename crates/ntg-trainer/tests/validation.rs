@@ -19,6 +19,7 @@ fn config() -> BlocksRunConfig {
         state_hidden_layers: 1,
         pairwise: false,
         validation_tasks: 0,
+        validate_every: 0,
         permute_objects: false,
         optim: OptimConfig {
             epochs: 4,
@@ -79,6 +80,7 @@ fn the_best_scored_epoch_is_kept_and_returned() {
         TrainExtras {
             validator: Some(&mut validator),
             permute_objects: None,
+            validate_every: 1,
         },
     )
     .unwrap();
@@ -124,4 +126,45 @@ fn without_a_validator_nothing_is_selected() {
     .unwrap();
     assert_eq!(selected_epoch(&run).unwrap(), None);
     assert!(!run.validation_path().exists());
+}
+
+#[test]
+fn validate_every_skips_epochs_but_always_scores_the_last() {
+    let tmp = tempfile::tempdir().unwrap();
+    let device = ntg_model::cpu_device().autodiff();
+    let mut config = config();
+    config.optim.epochs = 5;
+    let split = env_blocks::standard_split().unwrap();
+    let dataset = build_dataset(&config, split.train(config.train_tasks).unwrap()).unwrap();
+    let run = RunDir::create(&tmp.path().join("run")).unwrap();
+    let mut calls = 0;
+    let mut validator = |_: &NtgModel| -> anyhow::Result<ValidationScore> {
+        calls += 1;
+        Ok(ValidationScore {
+            success: 0.0,
+            goal_fraction: 0.0,
+        })
+    };
+    train_with(
+        new_model(&config, &device).unwrap(),
+        &dataset,
+        &config.optim,
+        &run,
+        &device,
+        |_| {},
+        TrainExtras {
+            validator: Some(&mut validator),
+            permute_objects: None,
+            validate_every: 2,
+        },
+    )
+    .unwrap();
+    assert_eq!(calls, 3);
+    let epochs: Vec<usize> = std::fs::read_to_string(run.validation_path())
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<ValidationRecord>(l).unwrap().epoch)
+        .collect();
+    assert_eq!(epochs, [1, 3, 4]);
+    assert_eq!(selected_epoch(&run).unwrap().unwrap().epoch, 1);
 }

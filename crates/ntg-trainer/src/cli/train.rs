@@ -73,6 +73,10 @@ pub struct TrainArgs {
     /// scores best is the run's result (`best/`). 0 = keep the last epoch.
     #[arg(long, default_value_t = 100)]
     pub validation_tasks: usize,
+    /// Score the validation tasks after every this many epochs (and after
+    /// the last).
+    #[arg(long, default_value_t = 1)]
+    pub validate_every: usize,
     /// Train on demos whose cubes are renamed by a random permutation per
     /// demo and step (block stacking, state observations; not in the paper).
     #[arg(long)]
@@ -100,6 +104,7 @@ impl TrainArgs {
             state_hidden_layers: self.state_hidden_layers,
             pairwise: self.pairwise,
             validation_tasks: self.validation_tasks,
+            validate_every: self.validate_every,
             permute_objects: self.permute_objects,
             optim: OptimConfig {
                 epochs: self.epochs,
