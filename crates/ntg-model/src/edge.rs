@@ -10,6 +10,32 @@ use crate::interpreter::LossOutput;
 use crate::nn::{Init, mask_logits, masked_accuracy, masked_cross_entropy};
 use crate::{ModelError, Result};
 
+/// The execution memory of a task graph: `1` for every action node of
+/// `graph` (a node with an edge, `<start>` and `<end>` excluded) that is not
+/// among `executed`, the actions the agent has taken so far; `0` elsewhere
+/// (`graph.num_nodes()` values). Executing a task graph, the agent knows
+/// which of its nodes it has already run; what is still pending is what a
+/// single observation cannot show (e.g. whether every object has been
+/// delivered).
+pub fn pending_nodes(graph: &ctg_graph::Ctg, executed: &[ctg_graph::ActionId]) -> Vec<f32> {
+    use ctg_graph::{ActionId, Vocabulary};
+    let n = graph.num_nodes();
+    let mut pending: Vec<f32> = (0..n)
+        .map(|i| {
+            let a = ActionId::new(i);
+            let in_graph = !Vocabulary::is_reserved(a)
+                && (!graph.successors(a).is_empty() || !graph.predecessors(a).is_empty());
+            if in_graph { 1.0 } else { 0.0 }
+        })
+        .collect();
+    for a in executed {
+        if let Some(p) = pending.get_mut(a.index()) {
+            *p = 0.0;
+        }
+    }
+    pending
+}
+
 /// Configuration of an [`EdgeClassifier`].
 #[derive(Config, Debug)]
 pub struct EdgeClassifierConfig {
@@ -21,6 +47,11 @@ pub struct EdgeClassifierConfig {
     pub gcn_dim: usize,
     /// Size of the localizer node embeddings `NE_loc`.
     pub loc_dim: usize,
+    /// Size of an optional execution-memory vector `m` that `W` also reads
+    /// (`W [Enc(o); NE_gcn(n); m]`), e.g. which task-graph nodes the agent
+    /// has not executed yet. `None` (or 0) means no memory: the paper's
+    /// reactive ε(a|n,o).
+    pub memory_dim: Option<usize>,
 }
 
 impl EdgeClassifierConfig {
@@ -42,10 +73,15 @@ impl EdgeClassifierConfig {
         let encoder = self.encoder.init(seed, device)?;
         let mut init = Init::new(seed ^ 0x5eed_0003, device);
         Ok(EdgeClassifier {
-            w: init.linear(encoder.out_dim() + self.gcn_dim, self.loc_dim, true),
+            w: init.linear(
+                encoder.out_dim() + self.gcn_dim + self.memory_dim.unwrap_or(0),
+                self.loc_dim,
+                true,
+            ),
             encoder,
             num_nodes: self.num_nodes,
             gcn_dim: self.gcn_dim,
+            memory_dim: self.memory_dim.unwrap_or(0),
         })
     }
 }
@@ -68,6 +104,8 @@ pub struct EdgeClassifier {
     pub num_nodes: usize,
     /// Size of `NE_gcn`.
     pub gcn_dim: usize,
+    /// Size of the execution memory `m` (0: none).
+    pub memory_dim: usize,
 }
 
 impl EdgeClassifier {
@@ -86,6 +124,21 @@ impl EdgeClassifier {
         ne_loc: Tensor<2>,
         successors: Tensor<2, Bool>,
     ) -> Result<Tensor<2>> {
+        self.forward_with_memory(obs, nodes, ne_gcn, ne_loc, successors, None)
+    }
+
+    /// [`EdgeClassifier::forward`] with each row's execution memory `[B, M]`
+    /// (required when the classifier was built with a memory, refused
+    /// otherwise).
+    pub fn forward_with_memory(
+        &self,
+        obs: Tensor<2>,
+        nodes: Tensor<1, Int>,
+        ne_gcn: Tensor<3>,
+        ne_loc: Tensor<2>,
+        successors: Tensor<2, Bool>,
+        memory: Option<Tensor<2>>,
+    ) -> Result<Tensor<2>> {
         let [b, n, h] = ne_gcn.dims();
         if nodes.dims() != [b] || n != self.num_nodes || h != self.gcn_dim {
             return Err(ModelError::shape(
@@ -97,7 +150,7 @@ impl EdgeClassifier {
         let index = nodes.reshape([b, 1, 1]).expand([b, 1, h]);
         let rows = ne_gcn.gather(1, index).reshape([b, h]);
         let encoded = self.encoder.forward(obs)?;
-        self.forward_rows(encoded, rows, ne_loc, successors)
+        self.forward_rows_with_memory(encoded, rows, ne_loc, successors, memory)
     }
 
     /// Masked edge logits from encoded observations `[B, H_enc]`, the
@@ -110,7 +163,21 @@ impl EdgeClassifier {
         ne_loc: Tensor<2>,
         successors: Tensor<2, Bool>,
     ) -> Result<Tensor<2>> {
+        self.forward_rows_with_memory(encoded, node_gcn, ne_loc, successors, None)
+    }
+
+    /// [`EdgeClassifier::forward_rows`] with each row's execution memory
+    /// `[B, M]` (see [`EdgeClassifier::forward_with_memory`]).
+    pub fn forward_rows_with_memory(
+        &self,
+        encoded: Tensor<2>,
+        node_gcn: Tensor<2>,
+        ne_loc: Tensor<2>,
+        successors: Tensor<2, Bool>,
+        memory: Option<Tensor<2>>,
+    ) -> Result<Tensor<2>> {
         let [b, _] = encoded.dims();
+        self.check_memory(b, memory.as_ref())?;
         let loc_dim = self.w.weight.dims()[1];
         if node_gcn.dims() != [b, self.gcn_dim]
             || ne_loc.dims() != [self.num_nodes, loc_dim]
@@ -125,18 +192,40 @@ impl EdgeClassifier {
                 (node_gcn.dims(), ne_loc.dims(), successors.dims()),
             ));
         }
-        let logits = self.unmasked_logits(encoded, node_gcn, ne_loc);
+        let logits = self.unmasked_logits(encoded, node_gcn, ne_loc, memory);
         Ok(mask_logits(logits, successors))
     }
 
-    /// `(W [Enc(o); NE_gcn(n)])ᵀ NE_loc(a)` for every `a`, unmasked, `[B, N]`.
+    /// Errors unless `memory` is `[b, M]` for a classifier with a memory of
+    /// size `M`, or absent for one without.
+    pub(crate) fn check_memory(&self, b: usize, memory: Option<&Tensor<2>>) -> Result<()> {
+        match (memory, self.memory_dim) {
+            (None, 0) => Ok(()),
+            (Some(m), dim) if dim > 0 && m.dims() == [b, dim] => Ok(()),
+            (m, dim) => Err(ModelError::shape(
+                "execution memory",
+                if dim == 0 {
+                    "none (the classifier has no memory)".to_owned()
+                } else {
+                    format!("[{b}, {dim}]")
+                },
+                m.map(|m| m.dims().to_vec()).unwrap_or_default(),
+            )),
+        }
+    }
+
+    /// `(W [Enc(o); NE_gcn(n); m])ᵀ NE_loc(a)` for every `a`, unmasked,
+    /// `[B, N]` (`m` only with a memory; shapes checked by the caller).
     pub(crate) fn unmasked_logits(
         &self,
         encoded: Tensor<2>,
         node_gcn: Tensor<2>,
         ne_loc: Tensor<2>,
+        memory: Option<Tensor<2>>,
     ) -> Tensor<2> {
-        let query = self.w.forward(Tensor::cat(vec![encoded, node_gcn], 1));
+        let mut parts = vec![encoded, node_gcn];
+        parts.extend(memory);
+        let query = self.w.forward(Tensor::cat(parts, 1));
         query.matmul(ne_loc.transpose())
     }
 

@@ -26,6 +26,19 @@ use crate::model::{CONFIG_FILE, WEIGHTS_FILE};
 use crate::nn::{GruCell, Init, MASKED_LOGIT, masked_accuracy, masked_cross_entropy, to_vec};
 use crate::{ModelError, Result};
 
+/// The Flat Policy's execution memory: `1` for every action among
+/// `executed` (the actions the agent has taken so far), `0` elsewhere
+/// (`num_nodes` values).
+pub fn executed_actions(num_nodes: usize, executed: &[ActionId]) -> Vec<f32> {
+    let mut m = vec![0.0; num_nodes];
+    for a in executed {
+        if let Some(v) = m.get_mut(a.index()) {
+            *v = 1.0;
+        }
+    }
+    m
+}
+
 /// Configuration of a [`FlatPolicy`]; saved beside its weights as JSON.
 #[derive(Config, Debug)]
 pub struct FlatPolicyConfig {
@@ -43,6 +56,11 @@ pub struct FlatPolicyConfig {
     /// Seed of the initial weights.
     #[config(default = 0)]
     pub seed: u64,
+    /// Size of an optional execution-memory vector `m` (e.g. which actions
+    /// the agent has taken so far) added to the query: `q = tanh(W_q Enc(o)
+    /// + W_m m)`, so both the attention over the demo and the action MLP
+    /// read it. `None` (or 0): no memory, Duan et al.'s reactive policy.
+    pub memory_dim: Option<usize>,
 }
 
 impl FlatPolicyConfig {
@@ -72,6 +90,10 @@ impl FlatPolicyConfig {
         Ok(FlatPolicy {
             enc_gru: GruCell::init(&mut init, encoder.out_dim(), h),
             query: init.linear(encoder.out_dim(), h, true),
+            memory: match self.memory_dim {
+                Some(m) if m > 0 => Some(init.linear(m, h, false)),
+                _ => None,
+            },
             attn: init.linear(h, h, false),
             combine: init.linear(2 * h, h, true),
             mlp: init.linear(h, self.mlp_hidden, true),
@@ -103,6 +125,8 @@ pub struct FlatPolicy {
     pub enc_gru: GruCell,
     /// `W_q`: `Enc(o)` → query.
     pub query: Linear,
+    /// `W_m`: execution memory → query (only with a memory).
+    pub memory: Option<Linear>,
     /// `W_a` of the general attention score (no bias).
     pub attn: Linear,
     /// `W_c`: `[c; q]` → `h̃`.
@@ -130,6 +154,9 @@ pub struct FlatBatch {
     pub targets: Tensor<2, Int>,
     /// `[B, Q]`: 1 for a real query, 0 for padding.
     pub query_mask: Tensor<2>,
+    /// Execution memory at each query `[B, Q, M]` (zeros at padding), for
+    /// a policy with a memory ([`FlatBatch::with_memory`]).
+    pub memory: Option<Tensor<3>>,
 }
 
 /// One example of a [`FlatBatch`]: the conditioning demo's observation
@@ -197,7 +224,49 @@ impl FlatBatch {
             queries: Tensor::from_data(TensorData::new(queries, [b, q, obs_dim]), device),
             targets: Tensor::from_data(TensorData::new(targets, [b, q]), device),
             query_mask: Tensor::from_data(TensorData::new(mask, [b, q]), device),
+            memory: None,
         })
+    }
+
+    /// Adds the execution memory of every query: `memory[i][t]` (`dim`
+    /// values) for query row `t` of example `i`, in the order of
+    /// [`FlatBatch::new`]'s examples.
+    pub fn with_memory(mut self, memory: &[Vec<Vec<f32>>], dim: usize) -> Result<Self> {
+        let [b, q] = self.query_mask.dims();
+        if memory.len() != b || dim == 0 {
+            return Err(ModelError::shape(
+                "flat-policy memory",
+                format!("{b} examples of positive size"),
+                (memory.len(), dim),
+            ));
+        }
+        let mut values = vec![0.0f32; b * q * dim];
+        for (i, rows) in memory.iter().enumerate() {
+            if rows.len() > q {
+                return Err(ModelError::shape(
+                    "flat-policy memory",
+                    format!("at most {q} rows"),
+                    rows.len(),
+                ));
+            }
+            for (t, row) in rows.iter().enumerate() {
+                if row.len() != dim {
+                    return Err(ModelError::shape(
+                        "flat-policy memory row",
+                        format!("{dim} values"),
+                        row.len(),
+                    ));
+                }
+                let k = i * q + t;
+                values[k * dim..(k + 1) * dim].copy_from_slice(row);
+            }
+        }
+        let device = self.query_mask.device();
+        self.memory = Some(Tensor::from_data(
+            TensorData::new(values, [b, q, dim]),
+            &device,
+        ));
+        Ok(self)
     }
 }
 
@@ -254,7 +323,12 @@ impl FlatPolicy {
         })
     }
 
-    fn act(&self, demo: &EncodedDemo, queries: Tensor<3>) -> Result<FlatOutput> {
+    fn act(
+        &self,
+        demo: &EncodedDemo,
+        queries: Tensor<3>,
+        memory: Option<Tensor<3>>,
+    ) -> Result<FlatOutput> {
         let [batch, len, _] = queries.dims();
         if demo.states.dims()[0] != batch {
             return Err(ModelError::shape(
@@ -264,7 +338,32 @@ impl FlatPolicy {
             ));
         }
         let encoded = self.encoder.forward_sequence(queries)?;
-        let q = tanh(self.query.forward(encoded));
+        let mut q = self.query.forward(encoded);
+        match (&self.memory, memory) {
+            (None, None) => {}
+            (Some(w), Some(m)) => {
+                let dim = w.weight.dims()[0];
+                if m.dims() != [batch, len, dim] {
+                    return Err(ModelError::shape(
+                        "flat-policy memory",
+                        format!("[{batch}, {len}, {dim}]"),
+                        m.dims(),
+                    ));
+                }
+                q = q + w.forward(m);
+            }
+            (Some(_), None) => {
+                return Err(ModelError::Input(
+                    "this flat policy reads an execution memory; none was given".into(),
+                ));
+            }
+            (None, Some(_)) => {
+                return Err(ModelError::Input(
+                    "this flat policy has no execution memory; one was given".into(),
+                ));
+            }
+        }
+        let q = tanh(q);
         let (combined, attention) = luong_attention(
             &self.combine,
             demo.states.clone(),
@@ -295,16 +394,34 @@ impl FlatPolicy {
         frame_mask: Tensor<2>,
         queries: Tensor<3>,
     ) -> Result<FlatOutput> {
+        self.forward_with_memory(frames, frame_mask, queries, None)
+    }
+
+    /// [`FlatPolicy::forward`] with the execution memory `[B, Q, M]` of
+    /// every query (required with a memory, refused without).
+    pub fn forward_with_memory(
+        &self,
+        frames: Tensor<3>,
+        frame_mask: Tensor<2>,
+        queries: Tensor<3>,
+        memory: Option<Tensor<3>>,
+    ) -> Result<FlatOutput> {
         let demo = self.encode_demo(frames, frame_mask)?;
-        self.act(&demo, queries)
+        self.act(&demo, queries, memory)
+    }
+
+    /// Size of the execution memory (0: none).
+    pub fn memory_dim(&self) -> usize {
+        self.memory.as_ref().map_or(0, |w| w.weight.dims()[0])
     }
 
     /// Masked mean cross-entropy against the next actions, and accuracy.
     pub fn loss(&self, batch: &FlatBatch) -> Result<LossOutput> {
-        let out = self.forward(
+        let out = self.forward_with_memory(
             batch.frames.clone(),
             batch.frame_mask.clone(),
             batch.queries.clone(),
+            batch.memory.clone(),
         )?;
         let [b, q, n] = out.logits.dims();
         let logits = out.logits.reshape([b * q, n]);
@@ -381,16 +498,41 @@ pub struct ConditionedFlatPolicy {
 impl ConditionedFlatPolicy {
     /// π(·|d, o) over all `N` actions (0 for `<start>`).
     pub fn action_probabilities(&self, observation: &[f32]) -> Result<Vec<f32>> {
+        self.action_probabilities_with_memory(observation, None)
+    }
+
+    /// π(·|d, o, m) for a policy with an execution memory `m`.
+    pub fn action_probabilities_with_memory(
+        &self,
+        observation: &[f32],
+        memory: Option<&[f32]>,
+    ) -> Result<Vec<f32>> {
         let device = self.model.device();
         let row = rows_tensor(&[observation], self.model.obs_dim(), &device)?;
-        let out = self.model.act(&self.encoded, row.unsqueeze_dim(0))?;
+        let memory = match memory {
+            Some(m) => Some(rows_tensor(&[m], m.len(), &device)?.unsqueeze_dim(0)),
+            None => None,
+        };
+        let out = self
+            .model
+            .act(&self.encoded, row.unsqueeze_dim(0), memory)?;
         let n = self.model.num_nodes();
         to_vec(softmax(out.logits.reshape([1, n]), 1))
     }
 
     /// The most likely next action (lowest id on ties).
     pub fn next_action(&self, observation: &[f32]) -> Result<ActionId> {
-        let p = self.action_probabilities(observation)?;
+        self.next_action_with_memory(observation, None)
+    }
+
+    /// The most likely next action given the execution memory `m` (for a
+    /// policy with a memory).
+    pub fn next_action_with_memory(
+        &self,
+        observation: &[f32],
+        memory: Option<&[f32]>,
+    ) -> Result<ActionId> {
+        let p = self.action_probabilities_with_memory(observation, memory)?;
         let mut best = Vocabulary::END.index();
         for (i, &v) in p.iter().enumerate() {
             if i != Vocabulary::START.index() && v > p[best] {
@@ -621,5 +763,45 @@ mod tests {
         // only reading the demo gets near 1.
         assert!(before < 0.6, "untrained accuracy {before}");
         assert!(after > 0.9, "accuracy on unseen tasks {before} -> {after}");
+    }
+
+    #[test]
+    fn the_memory_enters_the_query_and_must_match_the_policy() {
+        let dev = device();
+        let policy = config(1).with_memory_dim(Some(N)).init(&dev).unwrap();
+        let plain = config(1).init(&dev).unwrap();
+        assert_eq!((policy.memory_dim(), plain.memory_dim()), (N, 0));
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let (demo, q) = (rows(&mut rng, 4), rows(&mut rng, 2));
+        let t = ids(&[2, 1]);
+        let batch = FlatBatch::new(&[(&demo[..], &q[..], &t[..])], D, N, &dev).unwrap();
+        // Without a memory the memory policy refuses; the plain one too with.
+        assert!(policy.loss(&batch).is_err());
+        let memory = vec![vec![executed_actions(N, &[]), executed_actions(N, &t[..1])]];
+        let with = batch.clone().with_memory(&memory, N).unwrap();
+        assert!(policy.loss(&with).is_ok());
+        assert!(plain.loss(&with).is_err());
+        assert!(plain.loss(&batch).is_ok());
+        assert!(batch.clone().with_memory(&memory, 3).is_err());
+        // Conditioned: the memory changes the action distribution.
+        let cond = policy.condition(&demo).unwrap();
+        let a = cond
+            .action_probabilities_with_memory(&q[0], Some(&executed_actions(N, &[])))
+            .unwrap();
+        let b = cond
+            .action_probabilities_with_memory(&q[0], Some(&executed_actions(N, &ids(&[2, 3]))))
+            .unwrap();
+        assert!(a.iter().zip(&b).any(|(x, y)| (x - y).abs() > 1e-6));
+        assert!(cond.next_action(&q[0]).is_err());
+        // The memory's weights are saved and loaded.
+        let dir = tempfile::tempdir().unwrap();
+        policy.save(dir.path()).unwrap();
+        let loaded = FlatPolicy::load(dir.path(), &dev).unwrap();
+        let c = loaded
+            .condition(&demo)
+            .unwrap()
+            .action_probabilities_with_memory(&q[0], Some(&executed_actions(N, &ids(&[2, 3]))))
+            .unwrap();
+        assert_eq!(b, c);
     }
 }

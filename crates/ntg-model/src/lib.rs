@@ -46,7 +46,7 @@ mod policy;
 
 pub use backend::{BackendKind, cpu_device};
 pub use batch::{DemoBatch, adjacency_tensor, ids_tensor, rows_tensor, successor_mask};
-pub use edge::{EdgeClassifier, EdgeClassifierConfig};
+pub use edge::{EdgeClassifier, EdgeClassifierConfig, pending_nodes};
 pub use encoder::{
     Encoder, EncoderConfig, FrameEncoder, FrameEncoderConfig, KinematicsEncoder,
     KinematicsEncoderConfig, StateEncoder, StateEncoderConfig,
@@ -54,6 +54,7 @@ pub use encoder::{
 pub use error::{ModelError, Result};
 pub use flat_policy::{
     ConditionedFlatPolicy, FlatBatch, FlatExample, FlatOutput, FlatPolicy, FlatPolicyConfig,
+    executed_actions,
 };
 pub use gcn::{EdgeCounts, GcnOutput, GraphCompletionConfig, GraphCompletionNet, PairMlp};
 pub use interpreter::{DemoInterpreter, DemoInterpreterConfig, InterpreterOutput, LossOutput};

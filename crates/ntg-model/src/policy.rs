@@ -20,6 +20,7 @@ use crate::{ModelError, Result};
 #[derive(Debug, Clone)]
 struct Scores {
     observation: Vec<f32>,
+    memory: Option<Vec<f32>>,
     /// Localizer logits `[N]` (`None` when the localizer is ablated).
     node_logits: Option<Vec<f32>>,
     /// Edge logits `[N × N]`, row = current node (`None` when ablated).
@@ -49,6 +50,7 @@ pub struct NtgPolicy {
     probabilities: Ctg,
     graph: Ctg,
     ne_gcn: Tensor<2>,
+    memory: RefCell<Option<Vec<f32>>>,
     cache: RefCell<Option<Scores>>,
 }
 
@@ -88,6 +90,7 @@ impl NtgPolicy {
             probabilities: completed.probabilities,
             graph: completed.graph,
             ne_gcn: completed.embeddings,
+            memory: RefCell::new(None),
             cache: RefCell::new(None),
         })
     }
@@ -115,6 +118,22 @@ impl NtgPolicy {
     /// An executor over [`NtgPolicy::graph`] with the configured node selection.
     pub fn executor(&self) -> GraphExecutor {
         GraphExecutor::new(self.graph.clone()).with_node_selection(self.model.config.node_selection)
+    }
+
+    /// Whether the edge classifier reads an execution memory (then
+    /// [`NtgPolicy::set_executed`] must be called before scoring).
+    pub fn has_memory(&self) -> bool {
+        self.model.edges.memory_dim > 0
+    }
+
+    /// Tells a policy with an execution memory which actions the agent has
+    /// taken so far in this episode; its edge classifier then reads
+    /// [`crate::pending_nodes`] of the initial graph (the demo's path). A
+    /// no-op for a policy without memory.
+    pub fn set_executed(&self, executed: &[ActionId]) {
+        if self.has_memory() {
+            *self.memory.borrow_mut() = Some(crate::pending_nodes(&self.initial, executed));
+        }
     }
 
     /// The model (in inference mode) behind this policy.
@@ -220,8 +239,10 @@ impl NtgPolicy {
 
     /// Runs (or reuses) the networks on one observation.
     fn scores(&self, observation: &[f32]) -> Result<Scores> {
+        let memory = self.memory.borrow().clone();
         if let Some(cached) = self.cache.borrow().as_ref()
             && cached.observation == observation
+            && cached.memory == memory
         {
             return Ok(cached.clone());
         }
@@ -239,10 +260,24 @@ impl NtgPolicy {
             let encoded = model.edges.encoder.forward(obs)?; // [1, H]
             let h = encoded.dims()[1];
             let encoded = encoded.expand([n, h]);
+            let memory = match (&memory, model.edges.memory_dim) {
+                (_, 0) => None,
+                (Some(m), dim) => {
+                    Some(rows_tensor(&[m.as_slice()], dim, &device)?.expand([n, dim]))
+                }
+                (None, _) => {
+                    return Err(ModelError::Config(
+                        "the edge classifier reads an execution memory: call set_executed first"
+                            .into(),
+                    ));
+                }
+            };
+            model.edges.check_memory(n, memory.as_ref())?;
             let logits = model.edges.unmasked_logits(
                 encoded,
                 self.ne_gcn.clone(),
                 model.localizer.node_embeddings(),
+                memory,
             );
             Some(to_vec(logits)?)
         } else {
@@ -250,6 +285,7 @@ impl NtgPolicy {
         };
         let scores = Scores {
             observation: observation.to_vec(),
+            memory,
             node_logits,
             edge_logits,
         };

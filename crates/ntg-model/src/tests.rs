@@ -919,3 +919,81 @@ fn stepping_interpreter_learns_and_carries_over_to_longer_demos() {
         "only {after}/20 demos of 9 actions transcribed exactly"
     );
 }
+
+#[test]
+fn pending_nodes_are_the_graph_actions_not_yet_executed() {
+    let path = ids(&[2, 3, 2, 4]);
+    let graph = Ctg::from_path(N, &path).unwrap();
+    // <start> and <end> have edges but are never pending; 5 and 6 are not
+    // in the graph.
+    assert_eq!(
+        pending_nodes(&graph, &[]),
+        vec![0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0]
+    );
+    assert_eq!(
+        pending_nodes(&graph, &ids(&[2, 6, 2])),
+        vec![0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0]
+    );
+    assert!(pending_nodes(&graph, &path).iter().all(|&p| p == 0.0));
+    assert_eq!(
+        executed_actions(N, &ids(&[3, 3, 1])),
+        vec![0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+    );
+}
+
+#[test]
+fn the_edge_classifier_reads_its_memory_and_refuses_a_missing_one() {
+    let dev = device();
+    let vocab = Vocabulary::new(["a", "b", "c", "d", "e"]).unwrap();
+    let mut config = small_config(3);
+    config.edge.memory_dim = Some(N);
+    let model = NtgModel::new(config, &dev).unwrap();
+    let plain = NtgModel::new(small_config(3), &dev).unwrap();
+    let b = 2;
+    let obs = rows_tensor(&[one_hot_row(0), one_hot_row(1)], D, &dev).unwrap();
+    let nodes = ids_tensor(&ids(&[0, 2]), N, &dev).unwrap();
+    let ne_gcn = model.gcn.initial_embeddings(b);
+    let all = Tensor::<2, Bool>::from_data(TensorData::new(vec![true; b * N], [b, N]), &dev);
+    let forward = |m: &NtgModel, memory: Option<Vec<Vec<f32>>>| {
+        m.edges.forward_with_memory(
+            obs.clone(),
+            nodes.clone(),
+            ne_gcn.clone(),
+            m.localizer.node_embeddings(),
+            all.clone(),
+            memory.map(|rows| rows_tensor(&rows, rows[0].len(), &dev).unwrap()),
+        )
+    };
+    let none = vec![vec![0.0; N]; b];
+    let some = vec![vec![1.0; N]; b];
+    let a = to_vec(forward(&model, Some(none.clone())).unwrap()).unwrap();
+    let c = to_vec(forward(&model, Some(some)).unwrap()).unwrap();
+    assert!(!close(&a, &c, 1e-4), "the memory changes the logits");
+    assert!(forward(&model, None).is_err());
+    assert!(forward(&model, Some(vec![vec![0.0; 3]; b])).is_err());
+    assert!(forward(&plain, Some(none)).is_err());
+    assert!(forward(&plain, None).is_ok());
+
+    // The policy asks for the executed actions before scoring, and they
+    // change its distribution.
+    let demo: Vec<Vec<f32>> = (0..4).map(one_hot_row).collect();
+    let policy = NtgPolicy::from_demo(&model, &demo, &vocab).unwrap();
+    assert!(policy.has_memory());
+    let o = one_hot_row(2);
+    assert!(policy.action_distribution(&o).is_err());
+    policy.set_executed(&[]);
+    let fresh = policy.edge_probabilities_for(policy.graph(), &o).unwrap();
+    policy.set_executed(policy.demo_actions());
+    let done = policy.edge_probabilities_for(policy.graph(), &o).unwrap();
+    assert!(!close(&fresh, &done, 1e-6));
+    // Saved and loaded, the memory size survives.
+    let dir = tempfile::tempdir().unwrap();
+    model.save(dir.path()).unwrap();
+    let loaded = NtgModel::load(dir.path(), &dev).unwrap();
+    assert_eq!(loaded.edges.memory_dim, N);
+    assert!(
+        !NtgPolicy::from_demo(&plain, &demo, &vocab)
+            .unwrap()
+            .has_memory()
+    );
+}

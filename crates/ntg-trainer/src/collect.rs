@@ -31,8 +31,8 @@ use env_collect::{CollectConfig, CollectEnv, CollectExpert, CollectObservation, 
 use ntg_model::nn::to_vec;
 use ntg_model::{
     DemoBatch, EdgeCounts, EncoderConfig, FlatBatch, FlatExample, FlatPolicy, FlatPolicyConfig,
-    NtgConfig, NtgModel, NtgPolicy, adjacency_tensor, ids_tensor, load_optimizer, rows_tensor,
-    save_optimizer, successor_mask,
+    NtgConfig, NtgModel, NtgPolicy, adjacency_tensor, executed_actions, ids_tensor, load_optimizer,
+    pending_nodes, rows_tensor, save_optimizer, successor_mask,
 };
 use rand::seq::{IndexedRandom, SliceRandom};
 use rand::{Rng, SeedableRng};
@@ -122,16 +122,6 @@ impl Method {
     }
 }
 
-/// How the learning rate moves over the epochs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum LrSchedule {
-    /// The configured rate throughout.
-    Constant,
-    /// A half cosine from the configured rate down towards 0 ([`cosine_rate`]).
-    Cosine,
-}
-
 /// Which demo interpreter NTG uses (see [`ntg_model::DemoInterpreterConfig`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
 #[serde(rename_all = "kebab-case")]
@@ -192,13 +182,23 @@ pub struct CollectRunConfig {
     /// never choose `<end>` and episodes end at the step limit, where
     /// success is judged the same way.
     pub learn_end: bool,
+    /// Give both policies an execution memory, the agent's record of the
+    /// actions it has taken so far in the episode (what a single
+    /// observation cannot show: e.g. how many objects are delivered). The
+    /// Flat Policy adds the set of actions taken to its attention query
+    /// ([`ntg_model::executed_actions`]); NTG's edge classifier reads the
+    /// nodes of its task graph not yet executed
+    /// ([`ntg_model::pending_nodes`]). Absent in configurations saved
+    /// before it: false.
+    #[serde(default)]
+    pub memory: bool,
     /// NTG only: the demo interpreter.
     pub interpreter: InterpreterKind,
-    /// Learning-rate schedule.
-    pub lr_schedule: LrSchedule,
     /// Seed of the initial weights.
     pub model_seed: u64,
-    /// Optimisation.
+    /// Optimisation; the learning rate follows
+    /// [`OptimConfig::learning_rate_at`] (constant, or with `cosine_decay`
+    /// a half cosine per step down to a tenth), as in block stacking.
     pub optim: OptimConfig,
 }
 
@@ -350,6 +350,7 @@ pub fn train_run(
             let mut model_config = NtgConfig::for_domain(n, encoder(config.obs));
             model_config.seed = config.model_seed;
             config.interpreter.apply(&mut model_config.interpreter);
+            model_config.edge.memory_dim = config.memory.then_some(n);
             let model = NtgModel::new(model_config, device)?;
             let model = train_ntg(model, &dataset, config, run, device, |m| {
                 on_epoch(Progress::Ntg(m))
@@ -359,6 +360,7 @@ pub fn train_run(
         Method::Flat => {
             let policy = FlatPolicyConfig::new(n, encoder(config.obs))
                 .with_seed(config.model_seed)
+                .with_memory_dim(config.memory.then_some(n))
                 .init(device)?;
             let policy = train_flat(policy, &dataset, config, run, device, |m| {
                 on_epoch(Progress::Flat(m))
@@ -383,7 +385,8 @@ struct StepReport {
 
 /// The epoch loop shared by both methods: epoch `e` shuffles the examples
 /// (and draws anything else it needs) with a generator seeded by
-/// `(seed, e)` alone and uses the `schedule`'s learning rate for `e`; after
+/// `(seed, e)` alone, step `k` of the run uses
+/// [`OptimConfig::learning_rate_at`]`(k, total)`; after
 /// each epoch the model, the optimizer state and the progress are saved
 /// into `run`'s checkpoint, so a resumed run takes exactly the steps of an
 /// uninterrupted one. `finish` gets the epoch, the
@@ -393,7 +396,6 @@ fn fit<M: Module>(
     mut model: M,
     num_examples: usize,
     optim: &OptimConfig,
-    schedule: LrSchedule,
     run: &RunDir,
     load: impl Fn(&Path) -> anyhow::Result<M>,
     save: impl Fn(&M, &Path) -> anyhow::Result<()>,
@@ -417,6 +419,8 @@ fn fit<M: Module>(
             .with_context(|| format!("resuming from {}", ckpt.display()))?;
         start = progress.epochs_done;
     }
+    let steps_per_epoch = num_examples.div_ceil(optim.batch_size);
+    let total_steps = steps_per_epoch * optim.epochs;
     for epoch in start..optim.epochs {
         let started = Instant::now();
         let mut rng = ChaCha8Rng::seed_from_u64(
@@ -427,10 +431,6 @@ fn fit<M: Module>(
         let mut sums: Vec<f32> = Vec::new();
         let mut edges = EdgeCounts::default();
         let mut steps = 0usize;
-        let rate = match schedule {
-            LrSchedule::Constant => optim.learning_rate,
-            LrSchedule::Cosine => cosine_rate(optim, epoch),
-        };
         for chunk in order.chunks(optim.batch_size) {
             let report = step(&model, chunk, &mut rng)?;
             if sums.is_empty() {
@@ -444,6 +444,7 @@ fn fit<M: Module>(
             edges.false_negatives += report.edges.false_negatives;
             steps += 1;
             let grads = GradientsParams::from_grads(report.loss.backward(), &model);
+            let rate = optim.learning_rate_at(epoch * steps_per_epoch + steps - 1, total_steps);
             model = optimizer.step(rate, model, grads);
         }
         let means: Vec<f32> = sums.iter().map(|s| s / steps as f32).collect();
@@ -462,15 +463,6 @@ fn fit<M: Module>(
         finish(epoch, &means, &edges, started.elapsed().as_secs_f32())?;
     }
     Ok(model)
-}
-
-/// The learning rate of epoch `epoch`: a half cosine from
-/// `optim.learning_rate` (epoch 0) down towards 0 (after the last epoch).
-/// Adam at a constant rate sometimes blows a converged interpreter up late
-/// in training (a loss spike from near 0); the decay removes that.
-pub fn cosine_rate(optim: &OptimConfig, epoch: usize) -> f64 {
-    let progress = epoch as f64 / optim.epochs.max(1) as f64;
-    optim.learning_rate * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos())
 }
 
 fn scalar(t: Tensor<1>) -> anyhow::Result<f32> {
@@ -514,7 +506,7 @@ fn demo_rows(dataset: &DemoDataset, i: usize) -> Vec<Vec<f32>> {
 /// done, checkpointing into `run` after each. Each example imitates one
 /// demonstration conditioned on another demonstration of the same task
 /// (drawn with the epoch's generator), as in Duan et al. Reads `config`'s
-/// `optim`, `lr_schedule` and `learn_end`.
+/// `optim`, `learn_end` and `memory`.
 pub fn train_flat(
     policy: FlatPolicy,
     dataset: &DemoDataset,
@@ -532,12 +524,11 @@ pub fn train_flat(
     }
     let by_task = demos_by_task(dataset)?;
     let dim = dataset.obs_dim();
-    let learn_end = config.learn_end;
+    let (learn_end, memory) = (config.learn_end, config.memory);
     fit(
         policy,
         dataset.demos().len(),
         &config.optim,
-        config.lr_schedule,
         run,
         |dir| Ok(FlatPolicy::load(dir, device)?),
         |p, dir| Ok(p.save(dir)?),
@@ -561,7 +552,16 @@ pub fn train_flat(
                 .iter()
                 .map(|(d, q, t)| (&d[..], &q[..], &t[..]))
                 .collect();
-            let out = policy.loss(&FlatBatch::new(&examples, dim, n, device)?)?;
+            let mut batch = FlatBatch::new(&examples, dim, n, device)?;
+            if memory {
+                // Before query `t` the agent has taken the first `t` actions.
+                let memories: Vec<Vec<Vec<f32>>> = owned
+                    .iter()
+                    .map(|(_, q, t)| (0..q.len()).map(|k| executed_actions(n, &t[..k])).collect())
+                    .collect();
+                batch = batch.with_memory(&memories, n)?;
+            }
+            let out = policy.loss(&batch)?;
             Ok(StepReport {
                 values: vec![scalar(out.loss.clone())?, out.accuracy],
                 loss: out.loss,
@@ -599,7 +599,8 @@ pub fn train_flat(
 ///
 /// Also reads `config`'s `segments` (the interpreter also learns from a
 /// random stretch of each demo), `learn_end` (whether the edge classifier
-/// learns the final `<end>`), `optim` and `lr_schedule`.
+/// learns the final `<end>`), `memory` (whether it reads the task-graph
+/// nodes not yet executed) and `optim`.
 pub fn train_ntg(
     model: NtgModel,
     dataset: &DemoDataset,
@@ -617,12 +618,11 @@ pub fn train_ntg(
     }
     let graphs = task_graphs(dataset)?;
     let by_task = demos_by_task(dataset)?;
-    let (segments, learn_end) = (config.segments, config.learn_end);
+    let (segments, learn_end, memory) = (config.segments, config.learn_end, config.memory);
     fit(
         model,
         dataset.demos().len(),
         &config.optim,
-        config.lr_schedule,
         run,
         |dir| Ok(NtgModel::load(dir, device)?),
         |m, dir| Ok(m.save(dir)?),
@@ -644,7 +644,8 @@ pub fn train_ntg(
                 Vec::new()
             };
             let draw = StepDraw { partners, segments };
-            ntg_step(model, dataset, &graphs, chunk, &draw, learn_end, device)
+            let labels = Labels { learn_end, memory };
+            ntg_step(model, dataset, &graphs, chunk, &draw, labels, device)
         },
         |epoch, m, edges, seconds| {
             let metrics = EpochMetrics {
@@ -675,6 +676,14 @@ struct StepDraw {
     segments: Vec<(usize, usize)>,
 }
 
+/// What an NTG step trains besides the paper's targets: the final `<end>`
+/// decision, and the edge classifier's execution memory.
+#[derive(Debug, Clone, Copy)]
+struct Labels {
+    learn_end: bool,
+    memory: bool,
+}
+
 /// One NTG step: demo `chunk[b]` trains the interpreter, the localizer and
 /// the edge classifier; the GCN completes the path of demo `partners[b]`
 /// (same task) into the task graph and gives the edge classifier `NE_gcn`.
@@ -684,9 +693,10 @@ fn ntg_step(
     graphs: &BTreeMap<usize, Ctg>,
     chunk: &[usize],
     draw: &StepDraw,
-    learn_end: bool,
+    labels: Labels,
     device: &Device,
 ) -> anyhow::Result<StepReport> {
+    let Labels { learn_end, memory } = labels;
     let (partners, segments) = (&draw.partners, &draw.segments);
     let n = model.num_nodes();
     let dim = dataset.obs_dim();
@@ -729,13 +739,18 @@ fn ntg_step(
 
     // Localizer: every frame. Edge classifier: every frame with a next
     // action, the final `<end>` decision only if `learn_end`.
+    // With a memory, the edge classifier also reads which nodes of the
+    // task graph the agent has not executed yet: the graph is the partner
+    // demo's path (what the conditioning demo shows at test time), the
+    // executed actions those before the frame.
     let (mut obs, mut nodes) = (Vec::new(), Vec::new());
     let (mut e_obs, mut e_nodes, mut e_next, mut e_demo, mut e_graphs) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut e_memory: Vec<Vec<f32>> = Vec::new();
     for (b, (e, r)) in entries.iter().zip(&rows).enumerate() {
         let labels = std::iter::once(Vocabulary::START).chain(e.actions.iter().copied());
         let nexts = e.actions.iter().copied().chain([Vocabulary::END]);
-        for ((o, node), nx) in r.iter().zip(labels).zip(nexts) {
+        for (t, ((o, node), nx)) in r.iter().zip(labels).zip(nexts).enumerate() {
             obs.push(o);
             nodes.push(node);
             if learn_end || nx != Vocabulary::END {
@@ -744,6 +759,9 @@ fn ntg_step(
                 e_next.push(nx);
                 e_demo.push(b as i64);
                 e_graphs.push(targets[b]);
+                if memory {
+                    e_memory.push(pending_nodes(&paths[b], &e.actions[..t]));
+                }
             }
         }
     }
@@ -753,12 +771,18 @@ fn ntg_step(
     )?;
     let index = Tensor::<1, Int>::from_data(TensorData::new(e_demo, [e_obs.len()]), device);
     let mask = successor_mask(&e_graphs, &e_nodes, Some(&e_next), n, device)?;
-    let edge_logits = model.edges.forward(
+    let e_memory = if memory {
+        Some(rows_tensor(&e_memory, n, device)?)
+    } else {
+        None
+    };
+    let edge_logits = model.edges.forward_with_memory(
         rows_tensor(&e_obs, dim, device)?,
         ids_tensor(&e_nodes, n, device)?,
         ne_gcn.select(0, index),
         model.localizer.node_embeddings(),
         mask,
+        e_memory,
     )?;
     let edge = model
         .edges
@@ -827,6 +851,10 @@ pub struct NPoint {
     pub objects: usize,
     /// Success rate over the test episodes, with its 95% Wilson interval.
     pub success: SuccessRate,
+    /// Episodes that ended by the policy choosing `<end>` (the others ran
+    /// to the step limit). Absent in evaluations saved before it: 0.
+    #[serde(default)]
+    pub ended: usize,
 }
 
 /// The evaluation of one model on unseen tasks.
@@ -884,22 +912,39 @@ fn run_episode(
         .collect();
     let (trace, transcription, success) = match model {
         CollectModel::Ntg(model) => {
+            // The executor's greedy rollout (`GraphExecutor::run`), telling
+            // the policy before each step which actions it has taken (a
+            // no-op without a memory).
             let policy = NtgPolicy::from_demo(model, &rows, env_collect::vocabulary())?;
             let mapped = policy.mapped(|o: &CollectObservation| featurize(o, obs));
-            let (mut nodes, mut edges) = (&mapped, &mapped);
-            let rollout = policy
-                .executor()
-                .run(&mut env, &mut nodes, &mut edges, *rollout_seed)
-                .with_context(|| format!("rollout of test task {task}"))?;
-            let trace: Vec<ActionId> = rollout.steps.iter().map(|s| s.action).collect();
-            (trace, names(policy.demo_actions()), rollout.success)
+            let executor = policy.executor();
+            let (mut o, _) = env.reset(*rollout_seed)?;
+            let mut trace = Vec::new();
+            loop {
+                policy.set_executed(&trace);
+                let action = executor
+                    .action_distribution(&mut &mapped, &mut &mapped, &o)
+                    .with_context(|| format!("rollout of test task {task}"))?
+                    .most_likely();
+                trace.push(action);
+                let step = env.step(action)?;
+                let done = step.is_done();
+                o = step.observation;
+                if done {
+                    break;
+                }
+            }
+            (trace, names(policy.demo_actions()), env.is_success())
         }
         CollectModel::Flat(policy) => {
+            let memory = policy.memory_dim() > 0;
+            let n = policy.num_nodes();
             let policy = policy.condition(&rows)?;
             let (mut o, _) = env.reset(*rollout_seed)?;
             let mut trace = Vec::new();
             loop {
-                let action = policy.next_action(&featurize(&o, obs))?;
+                let m = memory.then(|| executed_actions(n, &trace));
+                let action = policy.next_action_with_memory(&featurize(&o, obs), m.as_deref())?;
                 trace.push(action);
                 let step = env.step(action)?;
                 let done = step.is_done();
@@ -959,6 +1004,10 @@ pub fn evaluate(
             success: SuccessRate::from_outcomes(
                 records.iter().filter(|r| r.objects == n).map(|r| r.success),
             ),
+            ended: records
+                .iter()
+                .filter(|r| r.objects == n && r.trace.last().map(String::as_str) == Some("<end>"))
+                .count(),
         })
         .collect();
     Ok(CollectEval {
@@ -977,8 +1026,18 @@ pub struct ThorAllScale {
     pub tasks_per_n: usize,
     /// Demonstrations per training task.
     pub demos_per_task: usize,
-    /// NTG's training epochs (learning rate on a half cosine: at a
-    /// constant rate Adam blew the converged interpreter up late in training).
+    /// Whether both methods learn the final `<end>` decision (the paper's
+    /// protocol: an episode ends when the policy says so, or at the step
+    /// limit); otherwise episodes always run to the step limit.
+    #[serde(default)]
+    pub learn_end: bool,
+    /// Whether both methods have the execution memory
+    /// ([`CollectRunConfig::memory`]).
+    #[serde(default)]
+    pub memory: bool,
+    /// NTG's training epochs (learning rate on a half cosine per step down
+    /// to a tenth, [`OptimConfig::cosine_decay`]: at a constant rate Adam
+    /// blew the converged interpreter up late in training).
     pub ntg_epochs: usize,
     /// The Flat Policy's training epochs (constant learning rate: with the
     /// cosine decay its attention never learned to retrieve the receptacle).
@@ -996,6 +1055,8 @@ pub fn thor_all_scale(profile: Profile) -> ThorAllScale {
     match profile {
         Profile::Smoke => ThorAllScale {
             obs: ObsKind::State,
+            learn_end: true,
+            memory: true,
             tasks_per_n: 4,
             demos_per_task: 2,
             ntg_epochs: 1,
@@ -1006,6 +1067,8 @@ pub fn thor_all_scale(profile: Profile) -> ThorAllScale {
         },
         Profile::Quick => ThorAllScale {
             obs: ObsKind::State,
+            learn_end: true,
+            memory: true,
             tasks_per_n: 200,
             demos_per_task: 3,
             ntg_epochs: 30,
@@ -1016,6 +1079,8 @@ pub fn thor_all_scale(profile: Profile) -> ThorAllScale {
         },
         Profile::Paper => ThorAllScale {
             obs: ObsKind::Vid,
+            learn_end: true,
+            memory: true,
             tasks_per_n: 400,
             demos_per_task: 20,
             ntg_epochs: 30,
@@ -1067,12 +1132,9 @@ pub fn thor_all(profile: Profile, runs: &Path) -> anyhow::Result<ThorAllResult> 
             tasks_per_n: scale.tasks_per_n,
             demos_per_task: scale.demos_per_task,
             segments: true,
-            learn_end: false,
+            learn_end: scale.learn_end,
+            memory: scale.memory,
             interpreter: InterpreterKind::Stepping,
-            lr_schedule: match method {
-                Method::Ntg => LrSchedule::Cosine,
-                Method::Flat => LrSchedule::Constant,
-            },
             model_seed: 0,
             optim: OptimConfig {
                 epochs: match method {
@@ -1083,7 +1145,7 @@ pub fn thor_all(profile: Profile, runs: &Path) -> anyhow::Result<ThorAllResult> 
                 learning_rate: scale.learning_rate,
                 seed: 0,
                 token_dropout: 0.0,
-                cosine_decay: false,
+                cosine_decay: method == Method::Ntg,
                 gcn_from_other_demo: false,
             },
         };
@@ -1196,6 +1258,7 @@ pub fn write_thor_all_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Res
         x_label: "number of target objects N".into(),
         y_label: "success on unseen tasks".into(),
         x_log: false,
+        x_ticks_at_points: true,
         y_range: (0.0, 1.0),
         series: result
             .lines
@@ -1225,6 +1288,22 @@ fn obs_name(obs: ObsKind) -> &'static str {
     }
 }
 
+/// The protocol sentence of the report: how episodes end and what the
+/// policies remember.
+fn protocol(sc: &ThorAllScale) -> &'static str {
+    match (sc.learn_end, sc.memory) {
+        (true, true) => {
+            "the final `<end>` is a learned action, as in the paper (an episode ends when the policy chooses `<end>`, or at the step limit of twice the expert's worst case; success is judged then); since a single observation cannot show whether every target has been delivered, both policies have an execution memory, the actions they have taken so far in the episode (the Flat Policy adds them to its attention query, NTG's edge classifier reads the nodes of its task graph it has not executed yet; without it, both end episodes too early: see the README);"
+        }
+        (true, false) => {
+            "the final `<end>` is a learned action, as in the paper (an episode ends when the policy chooses `<end>`, or at the step limit); both policies are reactive (no memory), so they cannot see from the last frame whether every target has been delivered;"
+        }
+        (false, _) => {
+            "the final `<end>` decision is not trained (the last frame cannot show whether every target has been delivered), so episodes end at the step limit, where success is judged;"
+        }
+    }
+}
+
 /// The report section of fig. "thor_all" (Markdown).
 pub fn report_section(result: &ThorAllResult) -> String {
     use std::fmt::Write as _;
@@ -1236,7 +1315,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
     );
     let _ = writeln!(
         s,
-        "Input: **the {}**{}. Trained on N = {:?} only: {} training-side tasks per N × {} demos, batch {}, Adam at {} (NTG: {} epochs, the rate decaying along a half cosine; Flat Policy: {} epochs at a constant rate; each the setting under which it trained well), seed 0. Tested on {} episodes per N (tasks from the held-out side of the split; the conditioning demo and the rollout are different scenes).\n\nProtocol (both methods, see `ntg_trainer::collect`): each training demo is imitated while conditioned on *another* demo of its task (the Flat Policy attends over it; NTG's GCN completes its path, whose `NE_gcn` the edge classifier reads), as at test time; NTG's demo interpreter is the paper's seq2seq with Luong attention made length-independent (local annotations, input feeding, location-aware attention, a decoder without memory; `--interpreter luong` trains the paper's) and also learns from one random contiguous stretch of each demo; the final `<end>` decision is not trained (the last frame cannot show whether every target has been delivered), so episodes end at the step limit, where success is judged.\n",
+        "Input: **the {}**{}. Trained on N = {:?} only: {} training-side tasks per N × {} demos, batch {}, Adam at {} (NTG: {} epochs, the rate decaying per step along a half cosine to a tenth; Flat Policy: {} epochs at a constant rate; each the setting under which it trained well), seed 0. Tested on {} episodes per N (tasks from the held-out side of the split; the conditioning demo and the rollout are different scenes).\n\nProtocol (both methods, see `ntg_trainer::collect`): {} each training demo is imitated while conditioned on *another* demo of its task (the Flat Policy attends over it; NTG's GCN completes its path, whose `NE_gcn` the edge classifier reads), as at test time; NTG's demo interpreter is the paper's seq2seq with Luong attention made length-independent (local annotations, input feeding, location-aware attention, a decoder without memory; `--interpreter luong` trains the paper's) and also learns from one random contiguous stretch of each demo.\n",
         obs_name(sc.obs),
         if sc.obs == ObsKind::State {
             ", not the 64×64 frames: the frame encoders are too slow to train on 2 CPU cores within this profile's budget (`ntg train --domain collect --obs vid` trains on frames)"
@@ -1250,7 +1329,8 @@ pub fn report_section(result: &ThorAllResult) -> String {
         sc.learning_rate,
         sc.ntg_epochs,
         sc.flat_epochs,
-        sc.test_episodes
+        sc.test_episodes,
+        protocol(sc),
     );
     let _ = write!(s, "| method | training time |");
     for n in EVAL_OBJECTS {
@@ -1268,8 +1348,15 @@ pub fn report_section(result: &ThorAllResult) -> String {
         for p in &line.points {
             let _ = write!(
                 s,
-                " {:.2} ({:.2}–{:.2}) |",
-                p.success.rate, p.success.ci_low, p.success.ci_high
+                " {:.2} ({:.2}–{:.2}){} |",
+                p.success.rate,
+                p.success.ci_low,
+                p.success.ci_high,
+                if sc.learn_end {
+                    format!(", {}/{} by `<end>`", p.ended, p.success.trials)
+                } else {
+                    String::new()
+                }
             );
         }
         let _ = writeln!(s);
@@ -1294,9 +1381,9 @@ mod tests {
             tasks_per_n: 3,
             demos_per_task: 2,
             segments: true,
-            learn_end: false,
+            learn_end: true,
+            memory: true,
             interpreter: InterpreterKind::Stepping,
-            lr_schedule: LrSchedule::Cosine,
             model_seed: 0,
             optim: OptimConfig {
                 epochs,
@@ -1304,6 +1391,8 @@ mod tests {
                 learning_rate: 3e-3,
                 seed: 1,
                 token_dropout: 0.0,
+                // A per-step decay depends on the total epochs, which the
+                // resume test changes between the two calls.
                 cosine_decay: false,
                 gcn_from_other_demo: false,
             },
@@ -1412,12 +1501,28 @@ mod tests {
     }
 
     #[test]
-    fn learning_rate_decays_from_the_configured_rate() {
-        let optim = config(Method::Ntg, 10).optim;
-        let rates: Vec<f64> = (0..10).map(|e| cosine_rate(&optim, e)).collect();
-        assert_eq!(rates[0], optim.learning_rate);
-        assert!(rates.windows(2).all(|w| w[1] < w[0]), "{rates:?}");
-        assert!(rates[9] > 0.0 && rates[9] < 0.05 * optim.learning_rate);
+    fn runs_without_memory_or_end_still_train_and_evaluate() {
+        let dir = tempfile::tempdir().unwrap();
+        let device = ntg_model::cpu_device().autodiff();
+        for method in [Method::Ntg, Method::Flat] {
+            let config = CollectRunConfig {
+                learn_end: false,
+                memory: false,
+                ..config(method, 1)
+            };
+            let run = open_or_create(&dir.path().join(method.name()), &config).unwrap();
+            let model = train_run(&run, &config, &device, |_| {}).unwrap();
+            let eval = evaluate(&model, method, ObsKind::State, &[2], 2).unwrap();
+            assert_eq!(eval.episodes.len(), 2);
+        }
+    }
+
+    #[test]
+    fn configurations_saved_before_the_memory_load_without_it() {
+        let mut json = serde_json::to_value(config(Method::Ntg, 1)).unwrap();
+        json.as_object_mut().unwrap().remove("memory");
+        let old: CollectRunConfig = serde_json::from_value(json).unwrap();
+        assert!(!old.memory);
     }
 
     #[test]

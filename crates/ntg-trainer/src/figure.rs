@@ -57,6 +57,12 @@ pub struct Panel {
     pub y_label: String,
     /// Logarithmic x axis.
     pub x_log: bool,
+    /// Ticks on a linear x axis only at the measured x values (e.g. a
+    /// count such as the number of objects, which has no fractional
+    /// values); a log axis always has them. Absent in panels saved before
+    /// it: false.
+    #[serde(default)]
+    pub x_ticks_at_points: bool,
     /// y range.
     pub y_range: (f64, f64),
     /// The lines.
@@ -91,6 +97,34 @@ fn x_bounds(panel: &Panel) -> (f64, f64) {
     }
 }
 
+/// How many x labels to ask plotters for: at most one per measured value
+/// on a count axis ([`Panel::x_ticks_at_points`]), which puts a linear
+/// axis's labels on whole steps over evenly spaced counts (plotters'
+/// default of 10 over 1..5 gives halves); 10 otherwise.
+fn x_label_count(panel: &Panel) -> usize {
+    if panel.x_ticks_at_points && !panel.x_log {
+        let mut xs: Vec<f64> = panel
+            .series
+            .iter()
+            .flat_map(|s| s.points.iter().map(|p| p.x))
+            .collect();
+        xs.sort_by(f64::total_cmp);
+        xs.dedup();
+        xs.len().max(2)
+    } else {
+        10
+    }
+}
+
+/// The label of x tick `x` (none for a fraction on a count axis).
+fn x_label(panel: &Panel, x: f64) -> String {
+    if panel.x_ticks_at_points && x.fract() != 0.0 {
+        String::new()
+    } else {
+        format!("{x}")
+    }
+}
+
 fn draw_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     panel: &Panel,
@@ -99,6 +133,7 @@ where
     DB::ErrorType: 'static,
 {
     let (x0, x1) = x_bounds(panel);
+    let x_labels = x_label_count(panel);
     let (y0, y1) = panel.y_range;
     let mut builder = ChartBuilder::on(area);
     builder
@@ -114,7 +149,8 @@ where
                 .x_desc(panel.x_label.as_str())
                 .y_desc(panel.y_label.as_str())
                 .label_style(("sans-serif", 13))
-                .x_label_formatter(&|x| format!("{x}"))
+                .x_labels(x_labels)
+                .x_label_formatter(&|x| x_label(panel, *x))
                 .light_line_style(WHITE)
                 .draw()
                 .map_err(|e| anyhow!("drawing the axes: {e}"))?;
@@ -155,16 +191,16 @@ where
                 .map_err(|e| anyhow!("drawing the legend: {e}"))?;
         }};
     }
+    // Ticks exactly at the measured x values: a log axis's own ticks
+    // crowd into unreadable labels over a short range.
+    let mut ticks: Vec<f64> = panel
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter().map(|p| p.x))
+        .collect();
+    ticks.sort_by(f64::total_cmp);
+    ticks.dedup();
     if panel.x_log {
-        // Ticks exactly at the measured x values: a log axis's own ticks
-        // crowd into unreadable labels over a short range.
-        let mut ticks: Vec<f64> = panel
-            .series
-            .iter()
-            .flat_map(|s| s.points.iter().map(|p| p.x))
-            .collect();
-        ticks.sort_by(f64::total_cmp);
-        ticks.dedup();
         body!(
             builder
                 .build_cartesian_2d((x0..x1).log_scale().with_key_points(ticks), y0..y1)
@@ -329,6 +365,54 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_count_axis_has_ticks_only_at_the_counts() {
+        let dir = tempfile::tempdir().unwrap();
+        let points = |y: f64| {
+            (1..=5)
+                .map(|n| Point {
+                    x: n as f64,
+                    y,
+                    lo: y - 0.1,
+                    hi: y + 0.1,
+                })
+                .collect()
+        };
+        let mut panel = Panel {
+            title: "counts".into(),
+            x_label: "N".into(),
+            y_label: "success".into(),
+            x_log: false,
+            x_ticks_at_points: true,
+            y_range: (0.0, 1.0),
+            series: vec![Series {
+                name: "a".into(),
+                points: points(0.5),
+            }],
+        };
+        // plotters' ticks over the panel's x range, with the label count
+        // the panel asks for, are the counts 1..5 and nothing between.
+        use plotters::coord::ranged1d::Ranged;
+        let ticks = |panel: &Panel| {
+            let (x0, x1) = x_bounds(panel);
+            let coord: plotters::coord::types::RangedCoordf64 = (x0..x1).into();
+            coord.key_points(x_label_count(panel))
+        };
+        let at_counts = ticks(&panel);
+        assert_eq!(at_counts, vec![1.0, 2.0, 3.0, 4.0, 5.0]);
+        assert!(
+            at_counts
+                .iter()
+                .all(|&x| x_label(&panel, x) == format!("{x}"))
+        );
+        assert_eq!(x_label(&panel, 2.5), "");
+        write_figure(&[panel.clone()], &dir.path().join("counts")).unwrap();
+        // Other axes label fractions.
+        panel.x_ticks_at_points = false;
+        assert_eq!(x_label(&panel, 2.5), "2.5");
+        assert_eq!(x_label_count(&panel), 10);
+    }
+
+    #[test]
     fn writes_svg_and_png() {
         let dir = tempfile::tempdir().unwrap();
         let panel = Panel {
@@ -336,6 +420,7 @@ mod tests {
             x_label: "training tasks".into(),
             y_label: "success rate".into(),
             x_log: true,
+            x_ticks_at_points: false,
             y_range: (0.0, 1.0),
             series: vec![Series {
                 name: "NTG".into(),

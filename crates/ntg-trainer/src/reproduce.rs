@@ -389,6 +389,7 @@ fn write_ntp_exp_figure(results: &Results, stem: &Path) -> anyhow::Result<()> {
         x_label: "seen training tasks".into(),
         y_label: "unseen tasks: success, goals met".into(),
         x_log: true,
+        x_ticks_at_points: false,
         y_range: (0.0, 1.0),
         series: vec![
             Series {

@@ -56,12 +56,14 @@ pub struct CollectTrainArgs {
     /// support (without it, episodes end at the step limit).
     #[arg(long)]
     pub learn_end: bool,
+    /// Give both policies an execution memory: the actions the agent has
+    /// taken so far (the Flat Policy reads them in its attention query,
+    /// NTG's edge classifier reads the task-graph nodes not yet executed).
+    #[arg(long)]
+    pub memory: bool,
     /// NTG: which demo interpreter.
     #[arg(long, value_enum, default_value_t = collect::InterpreterKind::Stepping)]
     pub interpreter: collect::InterpreterKind,
-    /// Learning-rate schedule.
-    #[arg(long, value_enum, default_value_t = collect::LrSchedule::Cosine)]
-    pub lr_schedule: collect::LrSchedule,
 }
 
 /// Arguments of `ntg collect figure`.
@@ -197,8 +199,8 @@ pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
         demos_per_task: args.demos_per_task,
         segments: !c.no_segments,
         learn_end: c.learn_end,
+        memory: c.memory,
         interpreter: c.interpreter,
-        lr_schedule: c.lr_schedule,
         model_seed: args.seed,
         optim: OptimConfig {
             epochs: args.epochs,
@@ -206,7 +208,7 @@ pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
             learning_rate: args.lr,
             seed: args.seed,
             token_dropout: 0.0,
-            cosine_decay: false,
+            cosine_decay: args.cosine_decay,
             gcn_from_other_demo: false,
         },
     };
