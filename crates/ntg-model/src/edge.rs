@@ -52,6 +52,13 @@ pub struct EdgeClassifierConfig {
     /// has not executed yet. `None` (or 0) means no memory: the paper's
     /// reactive ε(a|n,o).
     pub memory_dim: Option<usize>,
+    /// Hidden width of an optional fusion layer: `W` becomes
+    /// `W₂ relu(W₁ [Enc(o); NE_gcn(n)] + b₁)`. The paper's linear `W` makes
+    /// each logit a sum of an observation term and a node term, so it
+    /// cannot express "at this node, check this relation in the scene"
+    /// (e.g. at `place(G)`, whether the cube just dropped sits on G); the
+    /// fusion layer can. `None` (or 0) = the paper's linear `W`.
+    pub fusion_hidden: Option<usize>,
 }
 
 impl EdgeClassifierConfig {
@@ -72,12 +79,17 @@ impl EdgeClassifierConfig {
         self.validate()?;
         let encoder = self.encoder.init(seed, device)?;
         let mut init = Init::new(seed ^ 0x5eed_0003, device);
-        Ok(EdgeClassifier {
-            w: init.linear(
-                encoder.out_dim() + self.gcn_dim + self.memory_dim.unwrap_or(0),
-                self.loc_dim,
-                true,
+        let input = encoder.out_dim() + self.gcn_dim + self.memory_dim.unwrap_or(0);
+        let (fusion, w) = match self.fusion_hidden.filter(|&h| h > 0) {
+            Some(hidden) => (
+                Some(init.linear(input, hidden, true)),
+                init.linear(hidden, self.loc_dim, true),
             ),
+            None => (None, init.linear(input, self.loc_dim, true)),
+        };
+        Ok(EdgeClassifier {
+            fusion,
+            w,
             encoder,
             num_nodes: self.num_nodes,
             gcn_dim: self.gcn_dim,
@@ -98,7 +110,11 @@ impl EdgeClassifierConfig {
 pub struct EdgeClassifier {
     /// `Enc(o)`.
     pub encoder: Encoder,
-    /// `W`: `[Enc(o); NE_gcn(n)]` → query in `NE_loc` space.
+    /// The optional fusion layer `W₁` (see
+    /// [`EdgeClassifierConfig::fusion_hidden`]).
+    pub fusion: Option<Linear>,
+    /// `W` (or `W₂` after the fusion layer): `[Enc(o); NE_gcn(n)]` → query
+    /// in `NE_loc` space.
     pub w: Linear,
     /// Number of CTG nodes `N`.
     pub num_nodes: usize,
@@ -225,7 +241,11 @@ impl EdgeClassifier {
     ) -> Tensor<2> {
         let mut parts = vec![encoded, node_gcn];
         parts.extend(memory);
-        let query = self.w.forward(Tensor::cat(parts, 1));
+        let mut joint = Tensor::cat(parts, 1);
+        if let Some(fusion) = &self.fusion {
+            joint = burn::tensor::activation::relu(fusion.forward(joint));
+        }
+        let query = self.w.forward(joint);
         query.matmul(ne_loc.transpose())
     }
 

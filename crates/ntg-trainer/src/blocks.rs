@@ -147,6 +147,10 @@ pub struct BlocksRunConfig {
     /// Not in the paper.
     #[serde(default)]
     pub permute_objects: bool,
+    /// Hidden width of the edge classifier's fusion layer (see
+    /// `EdgeClassifierConfig::fusion_hidden`); 0 = the paper's linear `W`.
+    #[serde(default)]
+    pub edge_fusion_hidden: usize,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -201,6 +205,9 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     model_config.edge.encoder = config
         .obs
         .encoder(config.state_hidden_layers, config.pairwise);
+    if config.edge_fusion_hidden > 0 {
+        model_config.edge.fusion_hidden = Some(config.edge_fusion_hidden);
+    }
     model_config.seed = config.model_seed;
     Ok(NtgModel::new(model_config, device)?)
 }

@@ -252,6 +252,7 @@ pub fn reproduce(
                 validation_tasks: validation_tasks(profile),
                 validate_every: epochs.div_ceil(VALIDATIONS_PER_RUN),
                 permute_objects: permute_objects(obs),
+                edge_fusion_hidden: 0,
                 optim: OptimConfig {
                     epochs,
                     batch_size: BATCH_SIZE,

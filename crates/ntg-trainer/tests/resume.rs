@@ -21,6 +21,7 @@ fn config() -> BlocksRunConfig {
         validation_tasks: 5,
         validate_every: 0,
         permute_objects: true,
+        edge_fusion_hidden: 0,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,

@@ -27,6 +27,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         validation_tasks: 0,
         validate_every: 0,
         permute_objects: false,
+        edge_fusion_hidden: 0,
         optim: OptimConfig {
             epochs: 25,
             batch_size: 32,

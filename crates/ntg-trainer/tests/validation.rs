@@ -21,6 +21,7 @@ fn config() -> BlocksRunConfig {
         validation_tasks: 0,
         validate_every: 0,
         permute_objects: false,
+        edge_fusion_hidden: 0,
         optim: OptimConfig {
             epochs: 4,
             batch_size: 2,

@@ -252,6 +252,11 @@ pub fn eval(
     config: &CollectRunConfig,
     args: &super::train::EvalArgs,
 ) -> anyhow::Result<()> {
+    if args.split != super::train::EvalSplit::Test {
+        anyhow::bail!(
+            "--split validation is for block-stacking runs; object collection evaluates its test episodes"
+        );
+    }
     let model = collect::load_model(run, config)?;
     let result = collect::evaluate(
         &model,

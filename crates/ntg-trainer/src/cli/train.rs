@@ -81,6 +81,10 @@ pub struct TrainArgs {
     /// demo and step (block stacking, state observations; not in the paper).
     #[arg(long)]
     pub permute_objects: bool,
+    /// Hidden width of a fusion layer between the edge classifier's inputs
+    /// and its query (0 = the paper's linear W; not in the paper).
+    #[arg(long, default_value_t = 0)]
+    pub edge_fusion_hidden: usize,
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
@@ -106,6 +110,7 @@ impl TrainArgs {
             validation_tasks: self.validation_tasks,
             validate_every: self.validate_every,
             permute_objects: self.permute_objects,
+            edge_fusion_hidden: self.edge_fusion_hidden,
             optim: OptimConfig {
                 epochs: self.epochs,
                 batch_size: self.batch_size,
@@ -201,6 +206,20 @@ pub struct EvalArgs {
     /// model's configured threshold, 0.5).
     #[arg(long)]
     pub edge_threshold: Option<f32>,
+    /// Which tasks to evaluate on (blocks): the test set, or the held-out
+    /// validation tasks, where settings such as --edge-threshold can be
+    /// chosen without looking at the test set.
+    #[arg(long, value_enum, default_value_t = EvalSplit::Test)]
+    pub split: EvalSplit,
+}
+
+/// Task sets `ntg eval` can use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum EvalSplit {
+    /// The standard test set (the reported numbers).
+    Test,
+    /// The validation tasks (`env_blocks::validation_tasks`).
+    Validation,
 }
 
 /// Loads the trained model of `run` (the epoch selected on validation
@@ -241,13 +260,26 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     if let Some(t) = args.edge_threshold {
         name.push_str(&format!("-threshold{t}"));
     }
-    let result = blocks::evaluate(
-        &model,
-        config.obs,
-        config.failures,
-        args.test_tasks,
-        args.variant,
-    )?;
+    let result = match args.split {
+        EvalSplit::Test => blocks::evaluate(
+            &model,
+            config.obs,
+            config.failures,
+            args.test_tasks,
+            args.variant,
+        )?,
+        EvalSplit::Validation => {
+            name.insert_str(0, "validation-");
+            blocks::evaluate_tasks(
+                &model,
+                config.obs,
+                config.failures,
+                &env_blocks::validation_tasks(args.test_tasks)?,
+                blocks::Seeds::VALIDATION,
+                args.variant,
+            )?
+        }
+    };
     std::fs::create_dir_all(run.eval_dir())?;
     let path = run.eval_dir().join(format!("{name}.json"));
     RunDir::write_json(&path, &result)?;
