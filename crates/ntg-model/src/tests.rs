@@ -919,3 +919,74 @@ fn stepping_interpreter_learns_and_carries_over_to_longer_demos() {
         "only {after}/20 demos of 9 actions transcribed exactly"
     );
 }
+
+/// Soft edges: each row of ε is the hard policy's softmax over every
+/// allowed successor, reweighted by the completed graph's edge
+/// probabilities (demo edges at 1, floored), and π still sums to 1.
+#[test]
+fn soft_edges_weigh_the_edge_classifier_by_the_gcn_probabilities() {
+    let dev = device();
+    let hard_model = NtgModel::new(small_config(3), &dev).unwrap();
+    let mut soft_model = hard_model.clone();
+    soft_model.config.soft_edges = true;
+    let path = ids(&[2, 3, 2, 4]);
+    let hard = NtgPolicy::from_actions(&hard_model, &path).unwrap();
+    let soft = NtgPolicy::from_actions(&soft_model, &path).unwrap();
+    assert!(hard.edge_weights().is_none());
+    assert_eq!(hard.execution_graph(), hard.graph());
+    // Same GCN: same probabilities and thresholded graph.
+    assert_eq!(soft.edge_probabilities(), hard.edge_probabilities());
+    assert_eq!(soft.graph(), hard.graph());
+    let weights = soft.edge_weights().unwrap();
+    assert!(
+        weights.adjacency().iter().any(|&w| w > 0.01 && w < 0.99),
+        "the untrained GCN should give some edge a probability strictly between 0 and 1"
+    );
+    let full = Ctg::fully_connected(N);
+    assert_eq!(soft.execution_graph(), &full);
+    let initial = Ctg::from_path(N, &path).unwrap();
+    for from in 0..N {
+        for to in 0..N {
+            let (f, t) = (ActionId::new(from), ActionId::new(to));
+            let w = weights.weight(f, t);
+            if !full.has_edge(f, t) {
+                assert_eq!(w, 0.0);
+            } else if initial.has_edge(f, t) {
+                assert_eq!(w, 1.0);
+            } else {
+                let p = soft.edge_probabilities().weight(f, t);
+                assert_eq!(w, p.clamp(SOFT_EDGE_FLOOR, 1.0));
+            }
+        }
+    }
+    let obs = one_hot_row(3);
+    let p_hard = hard.edge_probabilities_for(&full, &obs).unwrap();
+    let p_soft = soft.edge_probabilities_for(&full, &obs).unwrap();
+    for from in 0..N {
+        let f = ActionId::new(from);
+        let row = &p_hard[from * N..(from + 1) * N];
+        let z: f32 = (0..N)
+            .map(|to| weights.weight(f, ActionId::new(to)) * row[to])
+            .sum();
+        for to in 0..N {
+            let expected = if z > 0.0 {
+                weights.weight(f, ActionId::new(to)) * row[to] / z
+            } else {
+                0.0
+            };
+            let got = p_soft[from * N + to];
+            assert!(
+                (got - expected).abs() < 1e-4,
+                "{from} -> {to}: {got} vs {expected}"
+            );
+        }
+    }
+    let logp = soft.log_probabilities(&obs).unwrap();
+    let total: f32 = logp.iter().map(|l| l.exp()).sum();
+    assert!((total - 1.0).abs() < 1e-4, "{total}");
+    let dist = soft.action_distribution(&obs).unwrap();
+    for (a, &l) in logp.iter().enumerate() {
+        let p = dist.probability(ActionId::new(a));
+        assert!((l.exp() - p).abs() < 1e-4, "action {a}: {} vs {p}", l.exp());
+    }
+}
