@@ -9,6 +9,11 @@
 //! classifier, given the observation, its node and the GCN's embeddings of
 //! the demo's graph, predicts the next action among the node's CTG
 //! successors. The four losses are summed and one Adam step updates all.
+//! A model with [`NtgConfig::soft_edges`] trains the edge classifier as its
+//! policy uses it: a softmax over every node of the fully connected graph,
+//! each logit raised by `ln C` of the graph the GCN completed from its
+//! input path (that path's edges at 1, floored at
+//! [`ntg_model::SOFT_EDGE_FLOOR`], no gradient into the GCN through `C`).
 //!
 //! Determinism and resuming: epoch `e` shuffles with a generator seeded by
 //! `(seed, e)` alone, so a run resumed from the checkpoint of epoch `e - 1`
