@@ -60,8 +60,8 @@ pub use gcn::{EdgeCounts, GcnOutput, GraphCompletionConfig, GraphCompletionNet, 
 pub use interpreter::{DemoInterpreter, DemoInterpreterConfig, InterpreterOutput, LossOutput};
 pub use localizer::{NodeLocalizer, NodeLocalizerConfig};
 pub use model::{
-    AblationConfig, CONFIG_FILE, CompletedGraph, NtgConfig, NtgModel, WEIGHTS_FILE, load_optimizer,
-    save_optimizer,
+    AblationConfig, CONFIG_FILE, CompletedGraph, NtgConfig, NtgModel, SOFT_EDGE_FLOOR,
+    WEIGHTS_FILE, load_optimizer, save_optimizer,
 };
 pub use policy::{MappedPolicy, NtgPolicy};
 

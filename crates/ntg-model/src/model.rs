@@ -72,12 +72,28 @@ pub struct NtgConfig {
     /// the GCN's probability for them falls below the threshold.
     #[config(default = true)]
     pub keep_demo_edges: bool,
+    /// Soft edges: the policy weighs the edge classifier's scores by the
+    /// completed graph's edge probabilities instead of masking them to the
+    /// thresholded graph, `ε(a|n,o) ∝ C_na · exp(s(a|n,o))` with `C` from
+    /// [`NtgModel::edge_weights`] (the initial graph's edges at weight 1
+    /// when `keep_demo_edges`, every weight at least [`SOFT_EDGE_FLOOR`]).
+    /// The thresholded graph is then only the displayed graph. The edge
+    /// classifier must be trained the same way (the trainer adds `ln C`
+    /// of the graph the GCN completes to the logits, softmax over every
+    /// node); off = the hard mask.
+    /// (`None` = off: configurations saved before this option load.)
+    pub soft_edges: Option<bool>,
     /// Seed of the initial weights.
     #[config(default = 0)]
     pub seed: u64,
 }
 
 impl NtgConfig {
+    /// Whether the policy weighs edges softly ([`NtgConfig::soft_edges`]).
+    pub fn uses_soft_edges(&self) -> bool {
+        self.soft_edges.unwrap_or(false)
+    }
+
     /// A consistent configuration for a domain with `num_nodes` CTG nodes
     /// and the given observation encoder, with default sizes everywhere.
     pub fn for_domain(num_nodes: usize, encoder: EncoderConfig) -> Self {
@@ -168,6 +184,12 @@ pub struct NtgModel {
     #[module(skip)]
     pub config: NtgConfig,
 }
+
+/// The smallest edge weight of a soft-edge policy
+/// ([`NtgConfig::soft_edges`]): a numerical floor that keeps `ln C` finite
+/// (`ln 1e-6 ≈ −13.8`, so an edge the GCN rules out is still practically
+/// absent); the same value in training and at test.
+pub const SOFT_EDGE_FLOOR: f32 = 1e-6;
 
 /// File name of the configuration in a checkpoint directory.
 pub const CONFIG_FILE: &str = "config.json";
@@ -279,6 +301,32 @@ impl NtgModel {
             graph,
             embeddings: out.embeddings.reshape([n, h]),
         })
+    }
+
+    /// The edge weights of a soft-edge policy ([`NtgConfig::soft_edges`]):
+    /// the completed graph's probabilities, with the initial graph's edges
+    /// at weight 1 when `keep_demo_edges`, floored at [`SOFT_EDGE_FLOOR`] on
+    /// every edge of the fully connected graph (and 0 elsewhere: into
+    /// `<start>`, out of `<end>`).
+    pub fn edge_weights(&self, initial: &Ctg, probabilities: &Ctg) -> Result<Ctg> {
+        let mut weights = probabilities.clone();
+        if self.config.keep_demo_edges {
+            weights.union_with(&initial.threshold(f32::MIN_POSITIVE)?)?;
+        }
+        let full = Ctg::fully_connected(self.num_nodes());
+        let floored: Vec<f32> = weights
+            .adjacency()
+            .iter()
+            .zip(full.adjacency())
+            .map(|(&w, &allowed)| {
+                if allowed > 0.0 {
+                    w.clamp(SOFT_EDGE_FLOOR, 1.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        Ok(Ctg::from_adjacency(self.num_nodes(), floored)?)
     }
 
     /// `NE_gcn` `[B, N, H]` for a batch of graphs, honouring the GCN

@@ -42,6 +42,12 @@ struct Scores {
 /// of ε(·|n,o) a softmax over the successors of `n` in the graph the
 /// executor passes (zero elsewhere, and an all-zero row for a node without
 /// successors).
+///
+/// With [`NtgConfig::soft_edges`](crate::NtgConfig::soft_edges) the policy
+/// executes every edge the fully connected graph allows, each row of
+/// ε(·|n,o) weighted by the completed graph's edge probabilities,
+/// `ε(a|n,o) ∝ C_na · exp(s(a|n,o))` ([`NtgPolicy::edge_weights`]);
+/// [`NtgPolicy::graph`] is still the thresholded graph (for display).
 #[derive(Debug)]
 pub struct NtgPolicy {
     model: NtgModel,
@@ -49,6 +55,11 @@ pub struct NtgPolicy {
     initial: Ctg,
     probabilities: Ctg,
     graph: Ctg,
+    /// The graph the policy executes: `graph`, or with soft edges the
+    /// support of `weights`.
+    execution: Ctg,
+    /// Soft-edge weights (`None`: the hard mask).
+    weights: Option<Ctg>,
     ne_gcn: Tensor<2>,
     memory: RefCell<Option<Vec<f32>>>,
     cache: RefCell<Option<Scores>>,
@@ -83,12 +94,20 @@ impl NtgPolicy {
 
     fn build(model: NtgModel, demo_actions: Vec<ActionId>, initial: Ctg) -> Result<Self> {
         let completed = model.complete_graph(&initial)?;
+        let (execution, weights) = if model.config.uses_soft_edges() {
+            let weights = model.edge_weights(&initial, &completed.probabilities)?;
+            (weights.threshold(f32::MIN_POSITIVE)?, Some(weights))
+        } else {
+            (completed.graph.clone(), None)
+        };
         Ok(NtgPolicy {
             model,
             demo_actions,
             initial,
             probabilities: completed.probabilities,
             graph: completed.graph,
+            execution,
+            weights,
             ne_gcn: completed.embeddings,
             memory: RefCell::new(None),
             cache: RefCell::new(None),
@@ -110,14 +129,28 @@ impl NtgPolicy {
         &self.probabilities
     }
 
-    /// The thresholded CTG this policy executes.
+    /// The thresholded CTG (the graph this policy executes, unless it uses
+    /// soft edges).
     pub fn graph(&self) -> &Ctg {
         &self.graph
     }
 
-    /// An executor over [`NtgPolicy::graph`] with the configured node selection.
+    /// The graph this policy executes: [`NtgPolicy::graph`], or with soft
+    /// edges every edge of positive weight.
+    pub fn execution_graph(&self) -> &Ctg {
+        &self.execution
+    }
+
+    /// The soft-edge weights `C` (`None` for the hard mask).
+    pub fn edge_weights(&self) -> Option<&Ctg> {
+        self.weights.as_ref()
+    }
+
+    /// An executor over [`NtgPolicy::execution_graph`] with the configured
+    /// node selection.
     pub fn executor(&self) -> GraphExecutor {
-        GraphExecutor::new(self.graph.clone()).with_node_selection(self.model.config.node_selection)
+        GraphExecutor::new(self.execution.clone())
+            .with_node_selection(self.model.config.node_selection)
     }
 
     /// Whether the edge classifier reads an execution memory (then
@@ -152,11 +185,11 @@ impl NtgPolicy {
     /// [`NtgPolicy::action_distribution`].
     pub fn log_probabilities(&self, observation: &[f32]) -> Result<Vec<f32>> {
         let scores = self.scores(observation)?;
-        let n = self.graph.num_nodes();
+        let n = self.execution.num_nodes();
         let log_node = log_node_probabilities(&scores, n);
         // Log-ε rows over successors; None for nodes without successors.
         let log_edge: Vec<Option<Vec<f64>>> = (0..n)
-            .map(|from| log_edge_row(&self.graph, &scores, from))
+            .map(|from| log_edge_row(&self.execution, self.weights.as_ref(), &scores, from))
             .collect();
         let mut out = vec![f64::NEG_INFINITY; n];
         match self.model.config.node_selection {
@@ -215,7 +248,8 @@ impl NtgPolicy {
     }
 
     /// ε(·|n,o) as an `N × N` row-major matrix of probabilities over the
-    /// successors of each node in `graph`.
+    /// successors of each node in `graph` (weighted by the soft-edge
+    /// weights, if any).
     pub fn edge_probabilities_for(&self, graph: &Ctg, observation: &[f32]) -> Result<Vec<f32>> {
         let scores = self.scores(observation)?;
         let n = graph.num_nodes();
@@ -228,7 +262,7 @@ impl NtgPolicy {
         }
         let mut out = vec![0.0f32; n * n];
         for from in 0..n {
-            if let Some(row) = log_edge_row(graph, &scores, from) {
+            if let Some(row) = log_edge_row(graph, self.weights.as_ref(), &scores, from) {
                 for (o, l) in out[from * n..(from + 1) * n].iter_mut().zip(row) {
                     *o = l.exp() as f32;
                 }
@@ -327,11 +361,22 @@ fn log_node_probabilities(scores: &Scores, n: usize) -> Vec<f64> {
 }
 
 /// ln ε(·|from,o) over the successors of `from` in `graph` (−∞ elsewhere),
-/// or `None` if `from` has no successors.
-fn log_edge_row(graph: &Ctg, scores: &Scores, from: usize) -> Option<Vec<f64>> {
+/// or `None` if `from` has no successors. With soft-edge `weights`, each
+/// successor's logit is raised by `ln C` (successors of weight 0 dropped).
+fn log_edge_row(
+    graph: &Ctg,
+    weights: Option<&Ctg>,
+    scores: &Scores,
+    from: usize,
+) -> Option<Vec<f64>> {
     let n = graph.num_nodes();
+    let weight = |to: usize| {
+        weights.map_or(1.0, |w| {
+            f64::from(w.weight(ActionId::new(from), ActionId::new(to)))
+        })
+    };
     let succ: Vec<bool> = (0..n)
-        .map(|to| graph.has_edge(ActionId::new(from), ActionId::new(to)))
+        .map(|to| graph.has_edge(ActionId::new(from), ActionId::new(to)) && weight(to) > 0.0)
         .collect();
     let count = succ.iter().filter(|&&s| s).count();
     if count == 0 {
@@ -343,6 +388,14 @@ fn log_edge_row(graph: &Ctg, scores: &Scores, from: usize) -> Option<Vec<f64>> {
             .map(|&x| f64::from(x))
             .collect(),
         None => vec![0.0; n],
+    };
+    let raw: Vec<f64> = if weights.is_some() {
+        raw.iter()
+            .enumerate()
+            .map(|(a, &x)| if succ[a] { x + weight(a).ln() } else { x })
+            .collect()
+    } else {
+        raw
     };
     let kept: Vec<f64> = (0..n).filter(|&a| succ[a]).map(|a| raw[a]).collect();
     let z = log_sum_exp(&kept);
@@ -368,7 +421,7 @@ fn to_ctg_error(e: ModelError) -> CtgError {
 
 impl NodeScorer<[f32]> for &NtgPolicy {
     fn score_nodes(&mut self, graph: &Ctg, observation: &[f32]) -> ctg_graph::Result<Vec<f32>> {
-        if graph.num_nodes() != self.graph.num_nodes() {
+        if graph.num_nodes() != self.execution.num_nodes() {
             return Err(CtgError::SizeMismatch {
                 left: graph.num_nodes(),
                 right: self.graph.num_nodes(),

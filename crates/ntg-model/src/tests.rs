@@ -1056,3 +1056,98 @@ fn only_the_fusion_layer_learns_a_node_dependent_observation_rule() {
     assert!(linear <= 0.75 + 1e-6, "linear W fit an XOR: {linear}");
     assert_eq!(fused, 1.0, "the fusion layer did not learn the rule");
 }
+
+/// Soft edges: each row of ε is the hard policy's softmax over every
+/// allowed successor, reweighted by the completed graph's edge
+/// probabilities (demo edges at 1, floored), and π still sums to 1.
+#[test]
+fn soft_edges_weigh_the_edge_classifier_by_the_gcn_probabilities() {
+    let dev = device();
+    let hard_model = NtgModel::new(small_config(3), &dev).unwrap();
+    let mut soft_model = hard_model.clone();
+    soft_model.config.soft_edges = Some(true);
+    let path = ids(&[2, 3, 2, 4]);
+    let hard = NtgPolicy::from_actions(&hard_model, &path).unwrap();
+    let soft = NtgPolicy::from_actions(&soft_model, &path).unwrap();
+    assert!(hard.edge_weights().is_none());
+    assert_eq!(hard.execution_graph(), hard.graph());
+    // Same GCN: same probabilities and thresholded graph.
+    assert_eq!(soft.edge_probabilities(), hard.edge_probabilities());
+    assert_eq!(soft.graph(), hard.graph());
+    let weights = soft.edge_weights().unwrap();
+    assert!(
+        weights.adjacency().iter().any(|&w| w > 0.01 && w < 0.99),
+        "the untrained GCN should give some edge a probability strictly between 0 and 1"
+    );
+    let full = Ctg::fully_connected(N);
+    assert_eq!(soft.execution_graph(), &full);
+    let initial = Ctg::from_path(N, &path).unwrap();
+    for from in 0..N {
+        for to in 0..N {
+            let (f, t) = (ActionId::new(from), ActionId::new(to));
+            let w = weights.weight(f, t);
+            if !full.has_edge(f, t) {
+                assert_eq!(w, 0.0);
+            } else if initial.has_edge(f, t) {
+                assert_eq!(w, 1.0);
+            } else {
+                let p = soft.edge_probabilities().weight(f, t);
+                assert_eq!(w, p.clamp(SOFT_EDGE_FLOOR, 1.0));
+            }
+        }
+    }
+    let obs = one_hot_row(3);
+    let p_hard = hard.edge_probabilities_for(&full, &obs).unwrap();
+    let p_soft = soft.edge_probabilities_for(&full, &obs).unwrap();
+    for from in 0..N {
+        let f = ActionId::new(from);
+        let row = &p_hard[from * N..(from + 1) * N];
+        let z: f32 = (0..N)
+            .map(|to| weights.weight(f, ActionId::new(to)) * row[to])
+            .sum();
+        for to in 0..N {
+            let expected = if z > 0.0 {
+                weights.weight(f, ActionId::new(to)) * row[to] / z
+            } else {
+                0.0
+            };
+            let got = p_soft[from * N + to];
+            assert!(
+                (got - expected).abs() < 1e-4,
+                "{from} -> {to}: {got} vs {expected}"
+            );
+        }
+    }
+    let logp = soft.log_probabilities(&obs).unwrap();
+    let total: f32 = logp.iter().map(|l| l.exp()).sum();
+    assert!((total - 1.0).abs() < 1e-4, "{total}");
+    let dist = soft.action_distribution(&obs).unwrap();
+    for (a, &l) in logp.iter().enumerate() {
+        let p = dist.probability(ActionId::new(a));
+        assert!((l.exp() - p).abs() < 1e-4, "action {a}: {} vs {p}", l.exp());
+    }
+}
+
+/// Checkpoints written before the optional settings existed (no
+/// `soft_edges`, `fusion_hidden` or `memory_dim` in `config.json`) still
+/// load, with the options off.
+#[test]
+fn checkpoints_without_the_optional_settings_still_load() {
+    let dev = device();
+    let model = NtgModel::new(small_config(5), &dev).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    model.save(dir.path()).unwrap();
+    let path = dir.path().join("config.json");
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let root = json.as_object_mut().unwrap();
+    assert!(root.remove("soft_edges").is_some());
+    let edge = root["edge"].as_object_mut().unwrap();
+    assert!(edge.remove("fusion_hidden").is_some());
+    assert!(edge.remove("memory_dim").is_some());
+    std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+    let loaded = NtgModel::load(dir.path(), &dev).unwrap();
+    assert!(!loaded.config.uses_soft_edges());
+    assert_eq!(loaded.edges.memory_dim, 0);
+    assert!(loaded.edges.fusion.is_none());
+}

@@ -311,11 +311,11 @@ impl Progress<'_> {
     pub fn line(&self) -> String {
         match self {
             Progress::Ntg(m) => format!(
-                "epoch {:>3}: loss {:.3} | tokens {:.3} | edge F1 {:.3} | localizer {:.3} | steps {:.3} | {:.1}s",
+                "epoch {:>3}: loss {:.3} | tokens {:.3} | edge F1 {} | localizer {:.3} | steps {:.3} | {:.1}s",
                 m.epoch,
                 m.loss,
                 m.token_accuracy,
-                m.edge_f1,
+                m.edge_f1_text(),
                 m.localizer_accuracy,
                 m.step_accuracy,
                 m.seconds
@@ -654,7 +654,7 @@ pub fn train_ntg(
                 interpreter_loss: m[1],
                 token_accuracy: m[2],
                 gcn_loss: m[3],
-                edge_f1: edges.f1(),
+                edge_f1: crate::train::edge_f1_of(edges),
                 localizer_loss: m[4],
                 localizer_accuracy: m[5],
                 edge_loss: m[6],

@@ -9,6 +9,11 @@
 //! classifier, given the observation, its node and the GCN's embeddings of
 //! the demo's graph, predicts the next action among the node's CTG
 //! successors. The four losses are summed and one Adam step updates all.
+//! A model with [`NtgConfig::soft_edges`] trains the edge classifier as its
+//! policy uses it: a softmax over every node of the fully connected graph,
+//! each logit raised by `ln C` of the graph the GCN completed from its
+//! input path (that path's edges at 1, floored at
+//! [`ntg_model::SOFT_EDGE_FLOOR`], no gradient into the GCN through `C`).
 //!
 //! Determinism and resuming: epoch `e` shuffles with a generator seeded by
 //! `(seed, e)` alone, so a run resumed from the checkpoint of epoch `e - 1`
@@ -94,8 +99,10 @@ pub struct EpochMetrics {
     pub token_accuracy: f32,
     /// GCN binary cross-entropy.
     pub gcn_loss: f32,
-    /// GCN edge F1 against the task graphs (threshold 0.5).
-    pub edge_f1: f32,
+    /// GCN edge F1 against the task graphs (threshold 0.5); `None` when no
+    /// edges were predicted (the GCN switched off, or a model without one).
+    #[serde(default)]
+    pub edge_f1: Option<f32>,
     /// Localizer cross-entropy.
     pub localizer_loss: f32,
     /// Localizer accuracy.
@@ -279,6 +286,21 @@ pub struct TrainExtras<'a> {
     pub validate_every: usize,
 }
 
+impl EpochMetrics {
+    /// The edge F1 for logs: three decimals, or `n/a` without a GCN.
+    pub fn edge_f1_text(&self) -> String {
+        self.edge_f1
+            .map_or_else(|| "n/a".to_owned(), |f| format!("{f:.3}"))
+    }
+}
+
+/// The edge F1 of an epoch's counts, `None` if nothing was counted (no GCN
+/// output was compared: the task graphs are never empty).
+pub fn edge_f1_of(counts: &EdgeCounts) -> Option<f32> {
+    let counted = counts.true_positives + counts.false_positives + counts.false_negatives;
+    (counted > 0).then(|| counts.f1())
+}
+
 /// Progress saved with each checkpoint.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct Progress {
@@ -455,7 +477,7 @@ pub fn train_with(
             interpreter_loss: mean(1),
             token_accuracy: mean(2),
             gcn_loss: mean(3),
-            edge_f1: edge_counts.f1(),
+            edge_f1: edge_f1_of(&edge_counts),
             localizer_loss: mean(4),
             localizer_accuracy: mean(5),
             edge_loss: mean(6),
@@ -621,10 +643,20 @@ fn step(
     let gcn_loss;
     let ne_gcn;
     let edges;
+    // Soft edges: the weights `C` of the graph each row's policy would use
+    // (see `NtgConfig::soft_edges`), `[B, N, N]`, not trained through.
+    let mut soft_weights = None;
     if model.config().ablation.gcn {
-        let gcn_out = model.gcn.forward(adjacency)?;
+        let gcn_out = model.gcn.forward(adjacency.clone())?;
         gcn_loss = model.gcn.loss(&gcn_out, target_adj.clone())?;
         edges = EdgeCounts::count_tensors(gcn_out.adjacency.clone(), target_adj, 0.5)?;
+        if model.config().uses_soft_edges() {
+            let mut c = gcn_out.adjacency.clone().detach();
+            if model.config().keep_demo_edges {
+                c = c.max_pair(adjacency);
+            }
+            soft_weights = Some(c);
+        }
         ne_gcn = gcn_out.embeddings;
     } else {
         gcn_loss = Tensor::zeros([1], device);
@@ -661,15 +693,29 @@ fn step(
         burn::tensor::TensorData::new(demo_index, [rows.len()]),
         device,
     );
-    let row_ne_gcn = ne_gcn.select(0, index);
-    let mask = successor_mask(&row_graphs, &nodes, Some(&next), n, device)?;
-    let edge_logits = model.edges.forward(
+    let row_ne_gcn = ne_gcn.select(0, index.clone());
+    let full = Ctg::fully_connected(n);
+    let mask = if soft_weights.is_some() {
+        let all = vec![&full; rows.len()];
+        successor_mask(&all, &nodes, Some(&next), n, device)?
+    } else {
+        successor_mask(&row_graphs, &nodes, Some(&next), n, device)?
+    };
+    let mut edge_logits = model.edges.forward(
         obs,
-        node_ids,
+        node_ids.clone(),
         row_ne_gcn,
         model.localizer.node_embeddings(),
         mask,
     )?;
+    if let Some(c) = soft_weights {
+        // ln C of each row's node: rows of C [R, N, N] gathered at the node.
+        let r = rows.len();
+        let gather = node_ids.reshape([r, 1, 1]).expand([r, 1, n]);
+        let c_rows = c.select(0, index).gather(1, gather).reshape([r, n]);
+        // Edges the fully connected graph lacks stay masked.
+        edge_logits = edge_logits + c_rows.clamp(ntg_model::SOFT_EDGE_FLOOR, 1.0).log();
+    }
     let edge = model.edges.loss(edge_logits, next_ids)?;
 
     let mut total = interp.loss.clone() + loc.loss.clone();
@@ -697,4 +743,40 @@ fn step(
 /// A fresh model for `config` on `device`, or an error naming the problem.
 pub fn new_model(config: NtgConfig, device: &Device) -> anyhow::Result<NtgModel> {
     Ok(NtgModel::new(config, device)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn edge_f1_is_absent_when_nothing_was_counted() {
+        assert_eq!(edge_f1_of(&EdgeCounts::default()), None);
+        let counts = EdgeCounts {
+            true_positives: 3,
+            false_positives: 1,
+            false_negatives: 2,
+        };
+        assert_eq!(edge_f1_of(&counts), Some(6.0 / 9.0));
+        let mut m = EpochMetrics {
+            epoch: 0,
+            loss: 1.0,
+            interpreter_loss: 0.0,
+            token_accuracy: 0.0,
+            gcn_loss: 0.0,
+            edge_f1: None,
+            localizer_loss: 0.0,
+            localizer_accuracy: 0.0,
+            edge_loss: 0.0,
+            step_accuracy: 0.0,
+            seconds: 0.0,
+        };
+        assert_eq!(m.edge_f1_text(), "n/a");
+        m.edge_f1 = Some(0.5);
+        assert_eq!(m.edge_f1_text(), "0.500");
+        // Metrics logged before the field was optional still read.
+        let old = r#"{"epoch":0,"loss":1.0,"interpreter_loss":0.0,"token_accuracy":0.0,"gcn_loss":0.0,"edge_f1":1.0,"localizer_loss":0.0,"localizer_accuracy":0.0,"edge_loss":0.0,"step_accuracy":0.0,"seconds":0.0}"#;
+        let parsed: EpochMetrics = serde_json::from_str(old).unwrap();
+        assert_eq!(parsed.edge_f1, Some(1.0));
+    }
 }

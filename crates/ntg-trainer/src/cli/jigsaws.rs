@@ -5,7 +5,8 @@
 //! - `ntg jigsaws stats --root DIR [--json]` reads a JIGSAWS copy (real or
 //!   synthetic; task folders are searched for, nested ones included) and
 //!   prints trials, gestures, frames and transition counts per task;
-//! - `ntg jigsaws nll [--jigsaws-root DIR] --out DIR [--profile P]` runs the
+//! - `ntg jigsaws nll [--jigsaws-root DIR] --out DIR [--profile P]
+//!   [--synth-seed S] [--model-seed S]` runs the
 //!   cross-task NLL experiment ([`crate::jigsaws`]): on the synthetic
 //!   stand-in by default, on a JIGSAWS copy with `--jigsaws-root`.
 //!
@@ -69,6 +70,10 @@ pub struct NllArgs {
     /// Seed of the synthetic stand-in (ignored with `--jigsaws-root`).
     #[arg(long, value_name = "S", default_value_t = 0)]
     pub synth_seed: u64,
+    /// Seed of both trained models' initial weights (default: the
+    /// profile's, 0).
+    #[arg(long, value_name = "S")]
+    pub model_seed: Option<u64>,
     /// Experiment scale (epochs).
     #[arg(long, value_enum, default_value_t = crate::reproduce::Profile::Quick)]
     pub profile: crate::reproduce::Profile,
@@ -119,6 +124,9 @@ fn nll(args: &NllArgs, out: &mut impl Write, err: &mut impl Write) -> anyhow::Re
     let mut config = JigsawsConfig::for_profile(args.profile, source);
     if let Some(epochs) = args.epochs {
         config.optim.epochs = epochs;
+    }
+    if let Some(seed) = args.model_seed {
+        config.model_seed = seed;
     }
     let runs = args.runs.clone().unwrap_or_else(|| args.out.join("runs"));
     let result = run_experiment(&config, &runs, |line| {
@@ -400,6 +408,7 @@ mod tests {
         let args = || NllArgs {
             jigsaws_root: Some(root.clone()),
             synth_seed: 0,
+            model_seed: None,
             profile: crate::reproduce::Profile::Smoke,
             epochs: Some(1),
             out: out.clone(),
@@ -436,6 +445,14 @@ mod tests {
             format!("{err:#}").contains("another configuration"),
             "{err:#}"
         );
+        // So is another model seed (the flag reaches the configuration).
+        let mut seeded = args();
+        seeded.model_seed = Some(3);
+        let err = run_to_strings(JigsawsCommand::Nll(seeded)).unwrap_err();
+        assert!(
+            format!("{err:#}").contains("another configuration"),
+            "{err:#}"
+        );
     }
 
     #[test]
@@ -444,6 +461,7 @@ mod tests {
         let err = run_to_strings(JigsawsCommand::Nll(NllArgs {
             jigsaws_root: Some(dir.path().join("missing")),
             synth_seed: 0,
+            model_seed: None,
             profile: crate::reproduce::Profile::Smoke,
             epochs: None,
             out: dir.path().join("out"),

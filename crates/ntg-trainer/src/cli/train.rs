@@ -166,11 +166,11 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
     );
     blocks::train_run(&run, &config, &device, |m| {
         eprintln!(
-            "epoch {:>3}: loss {:.3} | tokens {:.3} | edge F1 {:.3} | localizer {:.3} | steps {:.3} | {:.1}s",
+            "epoch {:>3}: loss {:.3} | tokens {:.3} | edge F1 {} | localizer {:.3} | steps {:.3} | {:.1}s",
             m.epoch,
             m.loss,
             m.token_accuracy,
-            m.edge_f1,
+            m.edge_f1_text(),
             m.localizer_accuracy,
             m.step_accuracy,
             m.seconds
