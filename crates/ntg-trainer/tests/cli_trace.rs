@@ -132,3 +132,24 @@ fn trace_of_a_missing_run_is_a_one_line_error() {
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(err.contains("/nonexistent/run"), "{err}");
 }
+
+#[test]
+fn renaming_cubes_of_video_runs_is_refused_before_anything_is_written() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let (code, _, err) = ntg(&[
+        "train",
+        "--obs",
+        "vid",
+        "--train-tasks",
+        "2",
+        "--demos-per-task",
+        "1",
+        "--permute-objects",
+        "--out",
+        s(&out),
+    ]);
+    assert_ne!(code, 0);
+    assert!(err.contains("--permute-objects"), "{err}");
+    assert!(!out.exists(), "no run folder is created");
+}

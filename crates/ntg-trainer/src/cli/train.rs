@@ -145,6 +145,11 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
         if config.train_tasks == 0 || config.demos_per_task == 0 {
             bail!("--train-tasks and --demos-per-task must be positive");
         }
+        if config.permute_objects && config.obs != ObsKind::State {
+            bail!(
+                "--permute-objects renames cubes in state observations; it does not apply to --obs vid"
+            );
+        }
         if !(0.0..1.0).contains(&config.optim.token_dropout) {
             bail!(
                 "--token-dropout must be in [0, 1), got {}",
