@@ -254,15 +254,28 @@ impl EdgeClassifier {
     /// accuracy.
     pub fn loss(&self, logits: Tensor<2>, next_actions: Tensor<1, Int>) -> Result<LossOutput> {
         let [b, _] = logits.dims();
-        if next_actions.dims() != [b] {
+        let ones = Tensor::ones([b], &logits.device());
+        self.weighted_loss(logits, next_actions, ones)
+    }
+
+    /// [`EdgeClassifier::loss`] with a weight per row `[B]` (a weighted
+    /// mean); the accuracy stays unweighted.
+    pub fn weighted_loss(
+        &self,
+        logits: Tensor<2>,
+        next_actions: Tensor<1, Int>,
+        weights: Tensor<1>,
+    ) -> Result<LossOutput> {
+        let [b, _] = logits.dims();
+        if next_actions.dims() != [b] || weights.dims() != [b] {
             return Err(ModelError::shape(
-                "next actions",
+                "next actions and row weights",
                 format!("[{b}]"),
                 next_actions.dims(),
             ));
         }
-        let weights = Tensor::ones([b], &logits.device());
-        let accuracy = masked_accuracy(logits.clone(), next_actions.clone(), weights.clone())?;
+        let ones = Tensor::ones([b], &logits.device());
+        let accuracy = masked_accuracy(logits.clone(), next_actions.clone(), ones)?;
         Ok(LossOutput {
             loss: masked_cross_entropy(logits, next_actions, weights),
             accuracy,

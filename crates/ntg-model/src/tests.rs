@@ -1151,3 +1151,65 @@ fn checkpoints_without_the_optional_settings_still_load() {
     assert_eq!(loaded.edges.memory_dim, 0);
     assert!(loaded.edges.fusion.is_none());
 }
+
+/// The weighted edge loss is a weighted mean over rows: a row with weight
+/// 0 does not count, equal weights give the plain loss, and the accuracy
+/// stays unweighted.
+#[test]
+fn weighted_edge_loss_is_a_weighted_mean_over_rows() {
+    let dev = device();
+    let model = NtgModel::new(small_config(4), &dev).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let b = 6;
+    let obs = rows_tensor(&random_rows(&mut rng, b, D), D, &dev).unwrap();
+    let nodes = ids_tensor(&ids(&[2, 3, 4, 2, 3, 4]), N, &dev).unwrap();
+    let all = Tensor::<2, Bool>::from_data(TensorData::new(vec![true; b * N], [b, N]), &dev);
+    let logits = model
+        .edges
+        .forward(
+            obs,
+            nodes,
+            model.gcn.initial_embeddings(b),
+            model.localizer.node_embeddings(),
+            all,
+        )
+        .unwrap();
+    let next = ids_tensor(&ids(&[3, 4, 5, 6, 2, 3]), N, &dev).unwrap();
+    let weights = |w: Vec<f32>| {
+        let n = w.len();
+        Tensor::<1>::from_data(TensorData::new(w, [n]), &dev)
+    };
+    let loss = |w: Vec<f32>, rows: std::ops::Range<usize>| {
+        let l = logits.clone().slice([rows.clone(), 0..N]);
+        let t = next.clone().narrow(0, rows.start, rows.len());
+        let n = l.dims()[0];
+        model.edges.weighted_loss(l, t, weights(w[..n].to_vec()))
+    };
+    let plain = model.edges.loss(logits.clone(), next.clone()).unwrap();
+    let same = loss(vec![2.0; b], 0..b).unwrap();
+    assert!(close(
+        &to_vec(plain.loss).unwrap(),
+        &to_vec(same.loss).unwrap(),
+        1e-5
+    ));
+    let masked = loss(vec![1.0, 1.0, 1.0, 0.0, 0.0, 0.0], 0..b).unwrap();
+    let first_half = model
+        .edges
+        .loss(
+            logits.clone().slice([0..3, 0..N]),
+            next.clone().narrow(0, 0, 3),
+        )
+        .unwrap();
+    assert!(close(
+        &to_vec(masked.loss).unwrap(),
+        &to_vec(first_half.loss).unwrap(),
+        1e-5
+    ));
+    assert_eq!(masked.accuracy, plain.accuracy, "accuracy is unweighted");
+    assert!(
+        model
+            .edges
+            .weighted_loss(logits, next, weights(vec![1.0; 3]))
+            .is_err()
+    );
+}

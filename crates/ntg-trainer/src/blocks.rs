@@ -151,6 +151,10 @@ pub struct BlocksRunConfig {
     /// `EdgeClassifierConfig::fusion_hidden`); 0 = the paper's linear `W`.
     #[serde(default)]
     pub edge_fusion_hidden: usize,
+    /// Edge-loss weight of recovery steps (see
+    /// `TrainExtras::retry_weight`); 0 or 1 = unweighted.
+    #[serde(default)]
+    pub retry_weight: f32,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -266,6 +270,7 @@ pub fn train_run(
         },
         permute_objects: symmetry.as_ref(),
         validate_every: config.validate_every,
+        retry_weight: config.retry_weight,
     };
     train_with(
         model,

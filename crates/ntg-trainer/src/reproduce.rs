@@ -248,6 +248,7 @@ pub fn reproduce(
                 // (`--permute-objects`) is an extension measured apart.
                 permute_objects: false,
                 edge_fusion_hidden: 0,
+                retry_weight: 0.0,
                 optim: OptimConfig {
                     epochs,
                     batch_size: BATCH_SIZE,

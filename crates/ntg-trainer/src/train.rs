@@ -284,6 +284,12 @@ pub struct TrainExtras<'a> {
     /// Validate after every this many epochs (and after the last); 0 and 1
     /// mean every epoch.
     pub validate_every: usize,
+    /// Weight, in the edge classifier's loss, of the steps whose next
+    /// action repeats one the demo already took (recovery after a failure:
+    /// re-picking a cube that slipped or fell). Recovery steps are rare, so
+    /// with weight 1 the classifier learns to move on. Values ≤ 1 (and the
+    /// default 0) mean 1. Not in the paper.
+    pub retry_weight: f32,
 }
 
 impl EpochMetrics {
@@ -364,6 +370,7 @@ pub fn train_with(
         mut validator,
         permute_objects: symmetry,
         validate_every,
+        retry_weight,
     } = extras;
     let validate_every = validate_every.max(1);
     if let Some(s) = symmetry {
@@ -453,6 +460,7 @@ pub fn train_with(
                     chunk,
                     gcn_sources: &gcn_sources,
                     relabelings: relabelings.as_ref().map(|(s, r)| (*s, r.as_slice())),
+                    retry_weight: retry_weight.max(1.0),
                 },
                 &dropout,
                 device,
@@ -569,6 +577,8 @@ struct Batch<'a> {
     gcn_sources: &'a [usize],
     /// Per demo, the renaming of its objects, if any.
     relabelings: Option<(&'a ObjectSymmetry, &'a [Relabeling])>,
+    /// Edge-loss weight of recovery steps (see `TrainExtras::retry_weight`).
+    retry_weight: f32,
 }
 
 fn step(
@@ -583,6 +593,7 @@ fn step(
         chunk,
         gcn_sources,
         relabelings,
+        retry_weight,
     } = batch_demos;
     let n = model.num_nodes();
     let dim = dataset.obs_dim();
@@ -668,6 +679,7 @@ fn step(
     let mut rows: Vec<&Vec<f32>> = Vec::new();
     let mut nodes = Vec::new();
     let mut next = Vec::new();
+    let mut row_weights: Vec<f32> = Vec::new();
     let mut demo_index = Vec::new();
     let mut row_graphs = Vec::new();
     for (b, (actions, obs)) in demo_actions.iter().zip(&demo_rows).enumerate() {
@@ -676,7 +688,9 @@ fn step(
             .iter()
             .copied()
             .chain(std::iter::once(ctg_graph::Vocabulary::END));
-        for ((o, node), nx) in obs.iter().zip(labels).zip(nexts) {
+        for (i, ((o, node), nx)) in obs.iter().zip(labels).zip(nexts).enumerate() {
+            let repeats = actions[..i.min(actions.len())].contains(&nx);
+            row_weights.push(if repeats { retry_weight } else { 1.0 });
             rows.push(o);
             nodes.push(node);
             next.push(nx);
@@ -716,7 +730,13 @@ fn step(
         // Edges the fully connected graph lacks stay masked.
         edge_logits = edge_logits + c_rows.clamp(ntg_model::SOFT_EDGE_FLOOR, 1.0).log();
     }
-    let edge = model.edges.loss(edge_logits, next_ids)?;
+    let row_weights = Tensor::<1>::from_data(
+        burn::tensor::TensorData::new(row_weights, [rows.len()]),
+        device,
+    );
+    let edge = model
+        .edges
+        .weighted_loss(edge_logits, next_ids, row_weights)?;
 
     let mut total = interp.loss.clone() + loc.loss.clone();
     if model.config().ablation.gcn {

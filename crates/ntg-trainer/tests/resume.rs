@@ -22,6 +22,7 @@ fn config() -> BlocksRunConfig {
         validate_every: 0,
         permute_objects: true,
         edge_fusion_hidden: 0,
+        retry_weight: 3.0,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,

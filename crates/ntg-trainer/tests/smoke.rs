@@ -28,6 +28,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         validate_every: 0,
         permute_objects: false,
         edge_fusion_hidden: 0,
+        retry_weight: 0.0,
         optim: OptimConfig {
             epochs: 25,
             batch_size: 32,

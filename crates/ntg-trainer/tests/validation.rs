@@ -22,6 +22,7 @@ fn config() -> BlocksRunConfig {
         validate_every: 0,
         permute_objects: false,
         edge_fusion_hidden: 0,
+        retry_weight: 0.0,
         optim: OptimConfig {
             epochs: 4,
             batch_size: 2,
@@ -82,6 +83,7 @@ fn the_best_scored_epoch_is_kept_and_returned() {
             validator: Some(&mut validator),
             permute_objects: None,
             validate_every: 1,
+            retry_weight: 0.0,
         },
     )
     .unwrap();
@@ -157,6 +159,7 @@ fn validate_every_skips_epochs_but_always_scores_the_last() {
             validator: Some(&mut validator),
             permute_objects: None,
             validate_every: 2,
+            retry_weight: 0.0,
         },
     )
     .unwrap();

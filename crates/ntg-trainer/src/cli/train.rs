@@ -85,6 +85,10 @@ pub struct TrainArgs {
     /// and its query (0 = the paper's linear W; not in the paper).
     #[arg(long, default_value_t = 0)]
     pub edge_fusion_hidden: usize,
+    /// Weight of recovery steps (the next action repeats one already taken)
+    /// in the edge classifier's loss (1 = unweighted; not in the paper).
+    #[arg(long, default_value_t = 1.0)]
+    pub retry_weight: f32,
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
@@ -111,6 +115,7 @@ impl TrainArgs {
             validate_every: self.validate_every,
             permute_objects: self.permute_objects,
             edge_fusion_hidden: self.edge_fusion_hidden,
+            retry_weight: self.retry_weight,
             optim: OptimConfig {
                 epochs: self.epochs,
                 batch_size: self.batch_size,
