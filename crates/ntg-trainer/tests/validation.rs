@@ -51,13 +51,27 @@ fn params(model: &NtgModel) -> Vec<Vec<f32>> {
     c.0
 }
 
+/// Trains a fresh model of `config` on its blocks dataset into `run`.
+fn train_tiny(config: &BlocksRunConfig, run: &RunDir, extras: TrainExtras<'_>) -> NtgModel {
+    let device = ntg_model::cpu_device().autodiff();
+    let split = env_blocks::standard_split().unwrap();
+    let dataset = build_dataset(config, split.train(config.train_tasks).unwrap()).unwrap();
+    train_with(
+        new_model(config, &device).unwrap(),
+        &dataset,
+        &config.optim,
+        run,
+        &device,
+        |_| {},
+        extras,
+    )
+    .unwrap()
+}
+
 #[test]
 fn the_best_scored_epoch_is_kept_and_returned() {
     let tmp = tempfile::tempdir().unwrap();
-    let device = ntg_model::cpu_device().autodiff();
     let config = config();
-    let split = env_blocks::standard_split().unwrap();
-    let dataset = build_dataset(&config, split.train(config.train_tasks).unwrap()).unwrap();
     let run = RunDir::create(&tmp.path().join("run")).unwrap();
 
     // Scores by epoch: epoch 1 is best; epoch 3 ties it on success but
@@ -72,21 +86,15 @@ fn the_best_scored_epoch_is_kept_and_returned() {
             goal_fraction,
         })
     };
-    let returned = train_with(
-        new_model(&config, &device).unwrap(),
-        &dataset,
-        &config.optim,
+    let returned = train_tiny(
+        &config,
         &run,
-        &device,
-        |_| {},
         TrainExtras {
             validator: Some(&mut validator),
-            permute_objects: None,
             validate_every: 1,
-            retry_weight: 0.0,
+            ..TrainExtras::default()
         },
-    )
-    .unwrap();
+    );
     assert_eq!(seen.len(), 4, "every epoch is validated once");
     assert_eq!(
         selected_epoch(&run).unwrap(),
@@ -111,22 +119,10 @@ fn the_best_scored_epoch_is_kept_and_returned() {
 #[test]
 fn without_a_validator_nothing_is_selected() {
     let tmp = tempfile::tempdir().unwrap();
-    let device = ntg_model::cpu_device().autodiff();
     let mut config = config();
     config.optim.epochs = 1;
-    let split = env_blocks::standard_split().unwrap();
-    let dataset = build_dataset(&config, split.train(config.train_tasks).unwrap()).unwrap();
     let run = RunDir::create(&tmp.path().join("run")).unwrap();
-    train_with(
-        new_model(&config, &device).unwrap(),
-        &dataset,
-        &config.optim,
-        &run,
-        &device,
-        |_| {},
-        TrainExtras::default(),
-    )
-    .unwrap();
+    train_tiny(&config, &run, TrainExtras::default());
     assert_eq!(selected_epoch(&run).unwrap(), None);
     assert!(!run.validation_path().exists());
 }
@@ -134,11 +130,8 @@ fn without_a_validator_nothing_is_selected() {
 #[test]
 fn validate_every_skips_epochs_but_always_scores_the_last() {
     let tmp = tempfile::tempdir().unwrap();
-    let device = ntg_model::cpu_device().autodiff();
     let mut config = config();
     config.optim.epochs = 5;
-    let split = env_blocks::standard_split().unwrap();
-    let dataset = build_dataset(&config, split.train(config.train_tasks).unwrap()).unwrap();
     let run = RunDir::create(&tmp.path().join("run")).unwrap();
     let mut calls = 0;
     let mut validator = |_: &NtgModel| -> anyhow::Result<ValidationScore> {
@@ -148,21 +141,15 @@ fn validate_every_skips_epochs_but_always_scores_the_last() {
             goal_fraction: 0.0,
         })
     };
-    train_with(
-        new_model(&config, &device).unwrap(),
-        &dataset,
-        &config.optim,
+    train_tiny(
+        &config,
         &run,
-        &device,
-        |_| {},
         TrainExtras {
             validator: Some(&mut validator),
-            permute_objects: None,
             validate_every: 2,
-            retry_weight: 0.0,
+            ..TrainExtras::default()
         },
-    )
-    .unwrap();
+    );
     assert_eq!(calls, 3);
     let epochs: Vec<usize> = std::fs::read_to_string(run.validation_path())
         .unwrap()
