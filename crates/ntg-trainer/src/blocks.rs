@@ -155,6 +155,16 @@ pub struct BlocksRunConfig {
     /// `TrainExtras::retry_weight`); 0 or 1 = unweighted.
     #[serde(default)]
     pub retry_weight: f32,
+    /// Keep the edge classifier's loss out of the GCN (see
+    /// `TrainExtras::detach_gcn_from_edges`). Not in the paper.
+    #[serde(default)]
+    pub detach_gcn_from_edges: bool,
+    /// Soft edges (see `NtgConfig::soft_edges`): the policy weighs the edge
+    /// classifier's scores by the completed graph's edge probabilities
+    /// instead of cutting them to the graph thresholded at 0.5, and the
+    /// classifier is trained the same way (softmax over every node).
+    #[serde(default)]
+    pub soft_edges: bool,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -211,6 +221,9 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
         .encoder(config.state_hidden_layers, config.pairwise);
     if config.edge_fusion_hidden > 0 {
         model_config.edge.fusion_hidden = Some(config.edge_fusion_hidden);
+    }
+    if config.soft_edges {
+        model_config.soft_edges = Some(true);
     }
     model_config.seed = config.model_seed;
     Ok(NtgModel::new(model_config, device)?)
@@ -271,6 +284,7 @@ pub fn train_run(
         permute_objects: symmetry.as_ref(),
         validate_every: config.validate_every,
         retry_weight: config.retry_weight,
+        detach_gcn_from_edges: config.detach_gcn_from_edges,
     };
     train_with(
         model,

@@ -249,6 +249,8 @@ pub fn reproduce(
                 permute_objects: false,
                 edge_fusion_hidden: 0,
                 retry_weight: 0.0,
+                detach_gcn_from_edges: false,
+                soft_edges: false,
                 optim: OptimConfig {
                     epochs,
                     batch_size: BATCH_SIZE,

@@ -1,18 +1,7 @@
 //! The `ntg graph` binary end to end: output, exit codes, one-line errors.
 
-use std::process::Command;
-
-fn ntg(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_ntg"))
-        .args(args)
-        .output()
-        .expect("the ntg binary runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::ntg;
 
 #[test]
 fn union_graph_has_a_pick_self_loop() {

@@ -3,19 +3,9 @@
 //! errors for a missing run, an unknown task and an occupied folder.
 
 use std::path::Path;
-use std::process::Command;
 
-fn ntg(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_ntg"))
-        .args(args)
-        .output()
-        .expect("the ntg binary runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
+mod common;
+use common::ntg;
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()

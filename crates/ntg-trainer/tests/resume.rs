@@ -23,6 +23,8 @@ fn config() -> BlocksRunConfig {
         permute_objects: true,
         edge_fusion_hidden: 0,
         retry_weight: 3.0,
+        detach_gcn_from_edges: true,
+        soft_edges: true,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,

@@ -29,6 +29,8 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         permute_objects: false,
         edge_fusion_hidden: 0,
         retry_weight: 0.0,
+        detach_gcn_from_edges: false,
+        soft_edges: false,
         optim: OptimConfig {
             epochs: 25,
             batch_size: 32,

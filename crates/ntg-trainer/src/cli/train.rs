@@ -89,6 +89,14 @@ pub struct TrainArgs {
     /// in the edge classifier's loss (1 = unweighted; not in the paper).
     #[arg(long, default_value_t = 1.0)]
     pub retry_weight: f32,
+    /// Keep the edge classifier's loss out of the GCN, which then learns
+    /// only to complete task graphs (not in the paper).
+    #[arg(long)]
+    pub detach_gcn_from_edges: bool,
+    /// Weigh edges by the completed graph's probabilities instead of
+    /// cutting them to the graph thresholded at 0.5 (trained the same way).
+    #[arg(long)]
+    pub soft_edges: bool,
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
@@ -116,6 +124,8 @@ impl TrainArgs {
             permute_objects: self.permute_objects,
             edge_fusion_hidden: self.edge_fusion_hidden,
             retry_weight: self.retry_weight,
+            detach_gcn_from_edges: self.detach_gcn_from_edges,
+            soft_edges: self.soft_edges,
             optim: OptimConfig {
                 epochs: self.epochs,
                 batch_size: self.batch_size,

@@ -1,5 +1,7 @@
-//! Model selection on validation tasks: the epoch a validator scores best is
-//! kept in `best/`, returned by training and loaded by evaluation.
+//! Training's optional parts (`TrainExtras`): model selection on validation
+//! tasks (the epoch a validator scores best is kept in `best/`, returned by
+//! training and loaded by evaluation), and keeping the edge classifier's
+//! loss out of the GCN.
 
 use burn::module::Module;
 use ntg_model::NtgModel;
@@ -23,6 +25,8 @@ fn config() -> BlocksRunConfig {
         permute_objects: false,
         edge_fusion_hidden: 0,
         retry_weight: 0.0,
+        detach_gcn_from_edges: false,
+        soft_edges: false,
         optim: OptimConfig {
             epochs: 4,
             batch_size: 2,
@@ -35,7 +39,7 @@ fn config() -> BlocksRunConfig {
     }
 }
 
-fn params(model: &NtgModel) -> Vec<Vec<f32>> {
+fn params<M: Module>(module: &M) -> Vec<Vec<f32>> {
     struct Collect(Vec<Vec<f32>>);
     impl burn::module::ModuleVisitor for Collect {
         fn visit_float<const D: usize>(
@@ -47,7 +51,7 @@ fn params(model: &NtgModel) -> Vec<Vec<f32>> {
         }
     }
     let mut c = Collect(Vec::new());
-    model.visit(&mut c);
+    module.visit(&mut c);
     c.0
 }
 
@@ -158,4 +162,40 @@ fn validate_every_skips_epochs_but_always_scores_the_last() {
         .collect();
     assert_eq!(epochs, [1, 3, 4]);
     assert_eq!(selected_epoch(&run).unwrap().unwrap().epoch, 1);
+}
+
+#[test]
+fn detached_gcn_learns_only_from_its_own_loss() {
+    // Soft edges change only the edge classifier's loss (its mask and the
+    // `ln C` added to its logits), so with the GCN detached from that loss
+    // the GCN ends with the same weights either way; attached, it does not.
+    let gcn_after = |soft_edges: bool, detach_gcn_from_edges: bool| {
+        let tmp = tempfile::tempdir().unwrap();
+        let config = BlocksRunConfig {
+            soft_edges,
+            detach_gcn_from_edges,
+            ..config()
+        };
+        let run = RunDir::create(&tmp.path().join("run")).unwrap();
+        let model = train_tiny(
+            &config,
+            &run,
+            TrainExtras {
+                detach_gcn_from_edges,
+                ..TrainExtras::default()
+            },
+        );
+        (params(&model.gcn), params(&model.edges))
+    };
+    let (detached_hard, edges_hard) = gcn_after(false, true);
+    let (detached_soft, edges_soft) = gcn_after(true, true);
+    assert_eq!(detached_hard, detached_soft);
+    assert_ne!(
+        edges_hard, edges_soft,
+        "soft edges change the edge classifier"
+    );
+    let (attached_hard, _) = gcn_after(false, false);
+    let (attached_soft, _) = gcn_after(true, false);
+    assert_ne!(attached_hard, attached_soft);
+    assert_ne!(attached_hard, detached_hard);
 }
