@@ -1998,7 +1998,7 @@ pub fn report_section(result: &JigsawsResult) -> String {
         .collect();
     let _ = writeln!(
         s,
-        "## Fig. jigsaws: cross-task NLL on {TEST_TASK}\n\n![jigsaws](jigsaws.png)\n\nData: {}. Trained on {} {} + {} demos for up to {} epochs; the model of each method is the one with the lowest NLL on held-out {} and {} demos (every {}-th trial), checked every {} epochs: {} epochs. Each of the {} {TEST_TASK} demos conditions one policy, scored on all the others. Per-step NLL in nats with ε = {} smoothing (a probability-0 step costs ln(16/ε); such steps are counted); ± is the standard deviation over conditioning demos. Definitions: module docs of `ntg_trainer::jigsaws`.\n",
+        "## Fig. jigsaws: cross-task NLL on {TEST_TASK}\n\n![jigsaws](jigsaws.png)\n\nData: {}. Trained on {} {} + {} demos for up to {} epochs; the model of each method is the one with the lowest NLL on held-out {} and {} demos (every {}-th trial), checked every {} epochs: {} epochs (the two full methods are one training run). Each of the {} {TEST_TASK} demos conditions one policy, scored on all the others. Per-step NLL in nats with ε = {} smoothing (a probability-0 step costs ln(16/ε); such steps are counted); ± is the standard deviation over conditioning demos. Definitions: module docs of `ntg_trainer::jigsaws`.\n",
         result.source,
         result.train_demos,
         TRAIN_TASKS[0],
@@ -2008,7 +2008,7 @@ pub fn report_section(result: &JigsawsResult) -> String {
         TRAIN_TASKS[1],
         result.config.validation_every,
         result.config.eval_every,
-        selected.join(", "),
+        selected.join("; "),
         result.test_demos,
         result.config.smoothing
     );
