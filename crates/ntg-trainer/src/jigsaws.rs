@@ -1182,11 +1182,18 @@ struct RunConfig {
 fn open_run(dir: &Path, config: &RunConfig) -> anyhow::Result<RunDir> {
     if dir.join("config.json").is_file() {
         let run = RunDir::open(dir)?;
-        let saved: RunConfig = RunDir::read_json(&run.config_path())?;
-        if &saved != config {
+        // A run of an older format (e.g. one method per run) is another
+        // configuration too.
+        let saved: Option<RunConfig> = RunDir::read_json(&run.config_path()).ok();
+        if saved.as_ref() != Some(config) {
             bail!(
-                "{} holds a run with another configuration; move it away or delete it",
-                dir.display()
+                "{} holds a run with another configuration{}; move it away or delete it",
+                dir.display(),
+                if saved.is_none() {
+                    " (or of an older format)"
+                } else {
+                    ""
+                }
             );
         }
         Ok(run)
@@ -2413,6 +2420,27 @@ mod tests {
             .map(|v| v.1)
             .fold(f64::MAX, f64::min);
         assert!((own_head - head_best).abs() < 1e-9);
+
+        // A run folder of the older one-method format is refused clearly.
+        let old_format = dir.path().join("old");
+        std::fs::create_dir_all(&old_format).unwrap();
+        std::fs::write(
+            old_format.join("config.json"),
+            serde_json::json!({ "experiment": config, "method": "full" }).to_string(),
+        )
+        .unwrap();
+        let err = fit(
+            &[Method::NoGraph],
+            &old_format,
+            None,
+            &mut |_: &EpochMetrics| {},
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("another configuration") && err.contains("older format"),
+            "{err}"
+        );
 
         // A finished run is reused as it was selected.
         let again = fit(
