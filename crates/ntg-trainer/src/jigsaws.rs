@@ -38,52 +38,168 @@
 //!   allows, so it is not a network handicapped at test time. (The shared
 //!   trainer would mask the edge loss to the training tasks' graphs, leaving
 //!   the logits of every other transition untrained.)
-//! - **full NTG**: demo interpreter → path CTG → GCN completion → the
-//!   policy over the completed graph ([`NtgPolicy::from_demo`]) with **soft
-//!   edges** ([`NtgConfig::soft_edges`], [`JigsawsConfig::soft_edges`]):
-//!   each row of the edge classifier is weighted by the GCN's edge
-//!   probabilities, `ε(a|n,o) ∝ C_na · exp(s(a|n,o))` (the transcribed
-//!   path's edges at weight 1, every weight at least
-//!   [`ntg_model::SOFT_EDGE_FLOOR`]), instead of being cut to the graph
-//!   thresholded at 0.5. It is trained as it is used: the GCN reads
+//! - **full NTG, own head** ([`Method::FullOwnHead`], the paper's
+//!   wiring): demo interpreter → path CTG → GCN completion → the policy over
+//!   the completed graph ([`NtgPolicy::from_demo`]) with the full model's
+//!   own node localizer and edge classifier, which reads the GCN's
+//!   embeddings `NE_gcn`, and with **soft edges** ([`NtgConfig::soft_edges`],
+//!   [`JigsawsConfig::soft_edges`]): each row of the edge classifier is
+//!   weighted by the GCN's edge probabilities, `ε(a|n,o) ∝ C_na ·
+//!   exp(s(a|n,o))` (the transcribed path's edges at weight 1, every weight
+//!   at least [`ntg_model::SOFT_EDGE_FLOOR`]), instead of being cut to the
+//!   graph thresholded at 0.5. It is trained as it is used: the GCN reads
 //!   **another** demo of the same task than the one the edge classifier
 //!   imitates ([`OptimConfig::gcn_from_other_demo`]), and the edge
 //!   classifier's logits get the same `ln C` of that completed graph, with
 //!   a softmax over every node.
 //!
-//!   Why (measured on the quick profile, seeds 0): with the hard mask and
-//!   the GCN reading the imitated demo itself, full NTG scored 0.970 on
-//!   Needle Passing against 0.725 for no graph, and 0.978 against 0.584 on
-//!   the held-out training-task demos. The GCN embeddings of the demo's own
-//!   path told the edge classifier where that demo retries and ends, so it
-//!   was overconfident on retries and endings of other demos (GCN from
-//!   another demo: 0.835); and a hard 0.5 threshold made an edge the GCN
-//!   was unsure of cost `ln(16/ε)` while the classifier had never been
-//!   trained on logits outside the training tasks' graphs (soft edges
-//!   alone: 0.690; both: 0.653). The thresholded graph remains what the
+//!   Why soft edges and the other demo (measured on the quick profile,
+//!   seeds 0): with the hard mask and the GCN reading the imitated demo
+//!   itself, this method scored 0.970 on Needle Passing against 0.725 for
+//!   no graph, and 0.978 against 0.584 on the held-out training-task demos.
+//!   The GCN embeddings of the demo's own path told the edge classifier
+//!   where that demo retries and ends, so it was overconfident on retries
+//!   and endings of other demos (GCN from another demo: 0.835); and a hard
+//!   0.5 threshold made an edge the GCN was unsure of cost `ln(16/ε)` while
+//!   the classifier had never been trained on logits outside the training
+//!   tasks' graphs (soft edges alone: 0.690; both: 0.653).
+//! - **full NTG** ([`Method::Full`], the figure's "NTG (full)"; **a
+//!   deviation from the paper**): the same trained full model's demo
+//!   interpreter and GCN give the graph, and the graph is a **prior on the
+//!   no-graph model's node localizer and edge classifier** ([`GraphPrior`]):
+//!   `π(a|o) ∝ Σ_n ℓ₀(n|o) ε_τ(a|n,o)`, `ε_τ(a|n,o) ∝ C_na^τ · ε₀(a|n,o)`,
+//!   with `ℓ₀`, `ε₀` the no-graph model's and `C` the soft-edge weights
+//!   above. Full NTG and no graph therefore differ **only by the graph**.
+//!   The prior's weight `τ` is chosen from
+//!   [`JigsawsConfig::prior_weights`] (0, ¼, ½, ¾, 1; 0 is the no-graph
+//!   policy, 1 the soft-edge policy on the no-graph head) on the held-out
+//!   training-task demos, together with the full model's epoch
+//!   ([`train_method`]); the chosen `τ` is in the report. The full model is
+//!   trained exactly as for the own-head method (one run serves both, each
+//!   with its own epoch selection); the thresholded graph remains what the
 //!   figure of the predicted graph shows.
+//!
+//! # Why full NTG was fragile, and the validation protocol
+//!
+//! With the own-head method, the order full < no graph held at the default
+//! seeds (0.653 vs 0.725) but not when one seed changed: full was lower in
+//! 2 of 8 settings, and model seed 2 gave 1.649 (table below; before soft
+//! edges and the GCN reading another demo, full scored 0.94–1.13 on the
+//! five of these measured). The graph's real contribution here is small
+//! (it removes the other tasks' gestures: `G12` after `G1`, `G9`/`G10`
+//! after `G6`), while the edge classifiers' reading of Needle Passing
+//! kinematics, which they never saw, varies with the seed by as much (no
+//! graph alone spans 0.569–0.725). Diagnosed by scoring, per setting, the
+//! own-head policy with the true transcription, the own head without the
+//! graph's weights, and the no-graph head under the same graph (a one-off
+//! diagnostic, not kept in the code):
+//!
+//! - **The own edge classifier on unseen kinematics** (model seed 2): 1.649
+//!   with the interpreter's transcriptions, 1.604 with the true ones, 1.767
+//!   without the graph's weights at all, but 0.637 for the no-graph head
+//!   under the same graph (no graph: 0.661). The excess sits on the common
+//!   steps `G3 → G6` and `G2 → G3`: this classifier, trained only with the
+//!   graph's `ln C` removing every off-graph gesture, reads Needle Passing
+//!   kinematics badly, and the no-graph classifier of the same seed does
+//!   not. Hence the shared head: the edge classifier and localizer are
+//!   trained once, as the no-graph model trains them, and the graph only
+//!   reweighs them.
+//! - **Transcription errors** (data seed 1): the interpreter writes
+//!   Suturing's `G9` after `G6` into Needle Passing transcriptions, and the
+//!   GCN then gives the true `G6 → G4` only 0.18, so every `G6 → G4` step
+//!   pays for it (own head 0.807, 0.537 with the true transcriptions; the
+//!   no-graph head under the interpreter's graph 0.810, under the true
+//!   path's 0.582). With the shared head the interpreter and GCN are
+//!   selected for the graph they give, not for the own head's score, and
+//!   were selected at later epochs (20–40 instead of 8–16), and the
+//!   graph's weight can be turned down.
+//! - **The graph at full weight is overconfident even within a task**: on
+//!   the held-out Suturing demos, the no-graph head under the full-weight
+//!   graph of one other Suturing demo scored worse than without it in all
+//!   8 settings (e.g. 0.747 vs 0.634 at data seed 1); on Knot Tying it
+//!   helped (0.393 vs 0.440 at the defaults). A single demo does not show
+//!   every retry, and the GCN's probabilities for the missing ones are
+//!   small. Hence a tempered prior whose weight is chosen on validation.
+//!
+//! **Validation protocol.** Every choice is made on the held-out
+//! demonstrations of the training tasks (every 5th trial of Suturing and of
+//! Knot Tying: 7 + 7 demos, never trained on), each task's group scored
+//! leave-one-out within itself exactly as Needle Passing is, and the
+//! conditioning demos' scores averaged: each model's epoch, and the prior
+//! weight `τ`. The candidates of `τ` were fixed before any run. Needle
+//! Passing is scored once, after. Leaving a whole training task out (train
+//! on Suturing, score on Knot Tying, and the reverse) was considered and not
+//! used: the two tasks share only `G1` and `G11`, so a model trained on one
+//! has never produced 4 (Knot Tying) or 8 (Suturing) of the other's
+//! gestures, and the score would be dominated by those steps whatever the
+//! method; Needle Passing's gestures are all Suturing's, which makes the
+//! within-task held-out demos the closer proxy for what the graph must do.
+//! What the protocol cannot show is unfamiliar kinematics; that failure is
+//! addressed by the design (one shared head), not by a tuned number.
+//! Disclosure: the diagnostics above (step 1 of the work) scored two
+//! shared-head variants on Needle Passing (the no-graph head under the
+//! graph at weight 1 and ½, with the own head's epoch selection) before the
+//! method was fixed; the method itself (shared head, `τ` and the epoch
+//! chosen on validation among the candidates above) was then run once over
+//! the settings below, unchanged.
 //!
 //! # Seed sensitivity (measured, quick profile)
 //!
-//! The order full < no graph holds for the default seeds (0.653 vs 0.725)
-//! but not for every seed. Changing one seed at a time (`--synth-seed`,
-//! `--model-seed`), no graph vs full: synthetic data 1: 0.634 vs 0.807;
-//! 2: 0.689 vs 0.614; 3: 0.679 vs 0.712; model 1: 0.569 vs 0.602; 2: 0.661
-//! vs 1.649; 3: 0.688 vs 0.710; 4: 0.574 vs 0.612 (full lower in 2 of 8;
-//! before soft edges and the GCN reading another demo, full scored 0.94–1.13
-//! on the five of these measured). What the graph can add here is small:
-//! it removes the other tasks' gestures (`G12` after `G1`, `G9`/`G10` after
-//! `G6`), while the edge classifier's reading of Needle Passing kinematics,
-//! which it never saw, varies with the seed by as much (no graph alone
-//! spans 0.569–0.725). Two failure modes: the demo interpreter writes
-//! Suturing's `G9` after `G6` into Needle Passing transcriptions (data seed
-//! 1: full 0.537 with the true transcriptions), and the edge classifier
-//! predicts retries after `G3` on Needle Passing kinematics (model seed 2:
-//! `G3 → G2` at 0.83, 2.7 % in the data; 1.60 with true transcriptions).
-//! Tried and not kept: the length-independent "stepping" interpreter of
-//! object collection (full above no graph for all eight, 0.934 for the
-//! defaults) and decoder token dropout 0.5 (full lower in 3 of 8, 0.934
-//! for the defaults).
+//! `ntg jigsaws nll --seed-table` (and `ntg reproduce` at the quick and
+//! paper profiles) repeats the experiment with one seed changed at a time
+//! ([`seed_table`]: synthetic-data seeds 1–3, model seeds 1–5; model seed 5
+//! was added to the eight settings before any run of the method).
+//! Mean NLL over the 28 conditioning demos (the spread over conditioning
+//! demos is 0.005–0.007 for no graph and full, up to 0.21 for the own
+//! head); τ is the selected prior weight. Measured with this code, quick
+//! profile (release, `RAYON_NUM_THREADS=1`, 1 min 50 s for all nine on
+//! two busy cores):
+//!
+//! | setting | no graph | own head | full | τ | full < no graph |
+//! |---|---|---|---|---|---|
+//! | default | 0.725 | 0.653 | 0.686 | 1 | yes |
+//! | data 1 | 0.634 | 0.807 | 0.616 | ¼ | yes |
+//! | data 2 | 0.689 | 0.614 | 0.651 | ½ | yes |
+//! | data 3 | 0.679 | 0.712 | 0.639 | ¾ | yes |
+//! | model 1 | 0.569 | 0.602 | 0.536 | 1 | yes |
+//! | model 2 | 0.661 | 1.649 | 0.626 | 1 | yes |
+//! | model 3 | 0.688 | 0.710 | 0.654 | 1 | yes |
+//! | model 4 | 0.574 | 0.612 | 0.542 | 1 | yes |
+//! | model 5 | 0.643 | 0.631 | 0.591 | 1 | yes |
+//! | mean | 0.651 | 0.777 | 0.616 | | 9 of 9 |
+//!
+//! Uniform is `ln 16 ≈ 2.773` throughout, so full < no graph < uniform in
+//! all nine settings and in the mean. The own-head column is the previous
+//! method (its numbers are unchanged: same training, same selection); it
+//! beats no graph in 3 of 9. Full NTG's margin over no graph is small
+//! (0.018–0.052 nats, mean 0.036), smaller than the seed-to-seed spread
+//! of either method (no graph 0.569–0.725), which is what the graph can
+//! add on this data (see above); at the default seeds the own head is
+//! lower still (0.653), but not robustly. No graph's numbers are those of
+//! the same no-graph model as before. The selected τ is below 1 exactly in
+//! the three data-seed settings.
+//!
+//! **Fresh settings, run once after the above was committed** (not in the
+//! table's code, which stays at the nine settings fixed beforehand): data
+//! seed 4: no graph 0.580, own head 0.531, full 0.583 (τ = ¾; full
+//! **higher**); data 5: 0.618, 0.602, 0.575; model 6: 0.571, 0.596, 0.533;
+//! model 7: 0.732, 0.843, 0.696. So full < no graph in 12 of 13 settings
+//! measured. The failure at data seed 4 is a third failure mode, seen only
+//! there: for 2 of the 28 conditioning demos (`D003`, `B004`) the demo
+//! interpreter transcribes a Knot Tying sequence (`G1 G12 G13 G14 G15 …
+//! G11`), the GCN completes the Knot Tying graph, and every true Needle
+//! Passing edge gets a weight below 0.005; those two policies score 1.19
+//! while the other 26 lie in 0.52–0.55 (below no graph's 0.58). Held-out
+//! training-task demos never show this (their task is one the interpreter
+//! knows), so the validation protocol cannot guard against it; it is left
+//! as found (a method that also keeps the transitions the node localizer
+//! reads in the demo would address it, but it would be chosen on Needle
+//! Passing).
+//!
+//! Tried before and not kept (own-head method): the length-independent
+//! "stepping" interpreter of object collection (full above no graph for
+//! all eight settings, 0.934 for the defaults) and decoder token dropout
+//! 0.5 (full lower in 3 of 8, 0.934 for the defaults).
 //!
 //! # Scoring
 //!
@@ -107,12 +223,15 @@
 //! # Training and model selection
 //!
 //! Every `validation_every`-th trial of each training task (5: positions
-//! 4, 9, …) is held out. Each trained method is trained for up to
-//! `optim.epochs` epochs, and every `eval_every` epochs its policy is
-//! scored with the same leave-one-out protocol on the held-out demos of
-//! each training task, within the task; the model with the lowest such
-//! validation NLL is the one scored on Needle Passing ([`train_method`]).
-//! Needle Passing plays no part in choosing anything.
+//! 4, 9, …) is held out. Two models are trained, each for up to
+//! `optim.epochs` epochs: the no-graph model first, then the full model.
+//! Every `eval_every` epochs each method's policy is scored with the same
+//! leave-one-out protocol on the held-out demos of each training task,
+//! within the task, and each method keeps the model (and, for full NTG, the
+//! prior weight) with the lowest such validation NLL ([`train_method`]):
+//! no graph its model; the own-head method and full NTG each their epoch
+//! of the one full-model run (full NTG scored with the selected no-graph
+//! model as its head). Needle Passing plays no part in choosing anything.
 //!
 //! Everything is seeded: the synthetic data by its seed, the weights by
 //! `model_seed`, the shuffling by the optimiser's seed; the same config
@@ -219,6 +338,17 @@ pub struct JigsawsConfig {
     /// thresholded graph.
     #[serde(default)]
     pub soft_edges: bool,
+    /// The candidate weights `τ` of [`Method::Full`]'s graph prior
+    /// ([`GraphPrior`]); the one with the lowest validation NLL is used.
+    #[serde(default = "default_prior_weights")]
+    pub prior_weights: Vec<f64>,
+}
+
+/// The default candidates of [`JigsawsConfig::prior_weights`]: from no
+/// prior (0, the no-graph policy) to the full soft-edge prior (1) in
+/// quarters.
+pub fn default_prior_weights() -> Vec<f64> {
+    vec![0.0, 0.25, 0.5, 0.75, 1.0]
 }
 
 impl JigsawsConfig {
@@ -249,6 +379,7 @@ impl JigsawsConfig {
             validation_every: 5,
             eval_every,
             soft_edges: true,
+            prior_weights: default_prior_weights(),
         }
     }
 
@@ -259,6 +390,15 @@ impl JigsawsConfig {
             self.smoothing
         );
         ensure!(self.eval_every > 0, "eval_every must be positive");
+        ensure!(
+            !self.prior_weights.is_empty()
+                && self
+                    .prior_weights
+                    .iter()
+                    .all(|w| w.is_finite() && (0.0..=1.0).contains(w)),
+            "the prior weights must be numbers in [0, 1] (at least one), got {:?}",
+            self.prior_weights
+        );
         if let DataSource::Synthetic { duration_scale, .. } = self.source {
             ensure!(
                 duration_scale.is_finite() && duration_scale > 0.0,
@@ -430,19 +570,30 @@ pub enum Method {
     Uniform,
     /// NTG without a task graph (see the module docs).
     NoGraph,
-    /// The full NTG model.
+    /// The full NTG model with its own edge classifier, which reads the
+    /// GCN's embeddings `NE_gcn` (the paper's wiring; see the module docs).
+    FullOwnHead,
+    /// The full NTG model as this crate runs it: the demo's completed graph
+    /// as a prior on the no-graph model's node localizer and edge classifier
+    /// (see the module docs).
     Full,
 }
 
 impl Method {
     /// Every method, in figure order.
-    pub const ALL: [Method; 3] = [Method::Uniform, Method::NoGraph, Method::Full];
+    pub const ALL: [Method; 4] = [
+        Method::Uniform,
+        Method::NoGraph,
+        Method::FullOwnHead,
+        Method::Full,
+    ];
 
     /// Name in files and reports.
     pub fn name(self) -> &'static str {
         match self {
             Method::Uniform => "uniform",
             Method::NoGraph => "no-graph",
+            Method::FullOwnHead => "full-own-head",
             Method::Full => "full",
         }
     }
@@ -452,12 +603,14 @@ impl Method {
         match self {
             Method::Uniform => "uniform",
             Method::NoGraph => "NTG, no graph",
+            Method::FullOwnHead => "NTG, own head",
             Method::Full => "NTG (full)",
         }
     }
 
     /// The ablation switches of the trained model behind this method
-    /// (`None` for uniform, which has none).
+    /// (`None` for uniform, which has none). Both full methods use the
+    /// full model (for [`Method::Full`], its demo interpreter and GCN).
     pub fn ablation(self) -> Option<AblationConfig> {
         match self {
             Method::Uniform => None,
@@ -466,7 +619,7 @@ impl Method {
                     .with_demo_interpreter(false)
                     .with_gcn(false),
             ),
-            Method::Full => Some(AblationConfig::new()),
+            Method::FullOwnHead | Method::Full => Some(AblationConfig::new()),
         }
     }
 }
@@ -606,24 +759,42 @@ fn policy_nlls(
     )
 }
 
-/// Scores `method` on the test demos. `model` must be the model trained
-/// for it (ignored for uniform); its ablation switches are set from the
-/// method.
+/// What scores a method's policies: the model(s) behind it.
+#[derive(Debug, Clone, Copy)]
+pub enum Scorer<'a> {
+    /// The uniform policy.
+    Uniform,
+    /// A model's own NTG policy, with the method's ablation switches
+    /// ([`Method::NoGraph`], [`Method::FullOwnHead`]).
+    Own(Method, &'a NtgModel),
+    /// [`Method::Full`]: the graph prior of `graph` (its demo interpreter
+    /// and GCN) raised to `weight`, on the node localizer and edge
+    /// classifier of `head` (the no-graph model); see [`GraphPrior`].
+    GraphPrior {
+        /// The no-graph model.
+        head: &'a NtgModel,
+        /// The full model.
+        graph: &'a NtgModel,
+        /// The prior weight `τ`.
+        weight: f64,
+    },
+}
+
+/// Scores `scorer`'s policies on the test demos, as `method`.
 pub fn score(
     method: Method,
-    model: Option<&NtgModel>,
+    scorer: Scorer<'_>,
     data: &JigsawsData,
     smoothing: f64,
 ) -> anyhow::Result<MethodResult> {
-    let per_demo = score_demos(method, model, &data.vocab, &data.test, smoothing)?;
+    let per_demo = score_demos(scorer, &data.vocab, &data.test, smoothing)?;
     Ok(MethodResult::from_scores(method, per_demo))
 }
 
-/// The leave-one-out scores of `method` on `test` (each demo conditions a
-/// policy scored on all the others); `model` as for [`score`].
+/// The leave-one-out scores of `scorer`'s policies on `test` (each demo
+/// conditions a policy scored on all the others).
 pub fn score_demos(
-    method: Method,
-    model: Option<&NtgModel>,
+    scorer: Scorer<'_>,
     vocab: &Vocabulary,
     test: &[TestDemo],
     smoothing: f64,
@@ -634,8 +805,8 @@ pub fn score_demos(
         test.len()
     );
     let choices = num_choices(vocab);
-    let per_demo = match (method.ablation(), model) {
-        (None, _) => {
+    let per_demo = match scorer {
+        Scorer::Uniform => {
             let uniform = vec![-(choices as f32).ln(); vocab.len()];
             let rows: Vec<(Vec<f64>, usize)> = test
                 .iter()
@@ -643,8 +814,17 @@ pub fn score_demos(
                 .collect::<anyhow::Result<_>>()?;
             leave_one_out(test, |_, e| (&rows[e].0, rows[e].1))
         }
-        (Some(_), None) => bail!("method {} needs a trained model", method.name()),
-        (Some(ablation), Some(model)) => {
+        Scorer::GraphPrior {
+            head,
+            graph,
+            weight,
+        } => graph_prior_scores(head, graph, vocab, test, smoothing, &[weight])?
+            .pop()
+            .context("no scores")?,
+        Scorer::Own(method, model) => {
+            let ablation = method
+                .ablation()
+                .with_context(|| format!("method {} has no model", method.name()))?;
             let mut model = model.valid();
             model.config.ablation = ablation;
             if method == Method::NoGraph {
@@ -681,6 +861,184 @@ pub fn score_demos(
         }
     };
     Ok(per_demo)
+}
+
+/// The policy of [`Method::Full`]: the demo's completed graph as a prior on
+/// a demo-independent policy head.
+///
+/// `π(a|o) ∝ Σ_n ℓ(n|o) ε_τ(a|n,o)` with
+/// `ε_τ(a|n,o) ∝ C_na^τ · ε₀(a|n,o)`, where `ℓ` and `ε₀` (a softmax over
+/// every action of the fully connected graph) are the no-graph model's node
+/// localizer and edge classifier, `C` the soft-edge weights of the graph the
+/// full model's demo interpreter and GCN build from the demo
+/// ([`NtgModel::edge_weights`]: the transcribed path's edges at 1, the
+/// GCN's probabilities elsewhere, at least [`ntg_model::SOFT_EDGE_FLOOR`]),
+/// and `τ ∈ [0, 1]` the prior's weight: 1 is the soft-edge policy
+/// `ε ∝ C·exp(s)` on the no-graph head, 0 the no-graph policy itself.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GraphPrior {
+    /// `C`, row-major `N × N`.
+    weights: Vec<f64>,
+    num_nodes: usize,
+}
+
+impl GraphPrior {
+    /// The prior the full model `graph` builds from one demonstration.
+    pub fn from_demo(
+        graph: &NtgModel,
+        demo_observations: &[Vec<f32>],
+    ) -> anyhow::Result<GraphPrior> {
+        let mut model = graph.valid();
+        model.config.ablation = AblationConfig::new();
+        let (_, initial) = model.initial_graph(demo_observations)?;
+        let completed = model.complete_graph(&initial)?;
+        let c = model.edge_weights(&initial, &completed.probabilities)?;
+        Ok(GraphPrior {
+            weights: c.adjacency().iter().map(|&w| f64::from(w)).collect(),
+            num_nodes: c.num_nodes(),
+        })
+    }
+
+    /// `ln π(·|o)` over every node for a head's node probabilities `ℓ`
+    /// (`[N]`) and edge rows `ε₀` (`[N × N]`, row = current node), with
+    /// the prior raised to `weight` (`-inf` where the probability is 0).
+    pub fn log_probabilities(
+        &self,
+        node: &[f32],
+        edge: &[f32],
+        weight: f64,
+    ) -> anyhow::Result<Vec<f32>> {
+        let n = self.num_nodes;
+        ensure!(
+            node.len() == n && edge.len() == n * n,
+            "a graph prior over {n} nodes got {} node and {} edge probabilities",
+            node.len(),
+            edge.len()
+        );
+        ensure!(
+            weight.is_finite() && weight >= 0.0,
+            "the prior weight must be a non-negative number, got {weight}"
+        );
+        let mut out = vec![0f64; n];
+        let mut row = vec![0f64; n];
+        for from in 0..n {
+            let l = f64::from(node[from]);
+            if l <= 0.0 {
+                continue;
+            }
+            for (a, r) in row.iter_mut().enumerate() {
+                let c = self.weights[from * n + a];
+                *r = if c > 0.0 {
+                    f64::from(edge[from * n + a]) * c.powf(weight)
+                } else {
+                    0.0
+                };
+            }
+            let z: f64 = row.iter().sum();
+            if z > 0.0 {
+                for (o, r) in out.iter_mut().zip(&row) {
+                    *o += l * r / z;
+                }
+            }
+        }
+        let total: f64 = out.iter().sum();
+        Ok(out
+            .iter()
+            .map(|&p| {
+                if total > 0.0 {
+                    (p / total).ln() as f32
+                } else {
+                    f32::NEG_INFINITY
+                }
+            })
+            .collect())
+    }
+}
+
+/// One demo's step NLLs and its number of probability-0 steps.
+type StepNlls = (Vec<f64>, usize);
+
+/// The no-graph head's `(ℓ(·|o), ε₀(·|·,o))` for every observation of a
+/// demo (see [`GraphPrior`]).
+fn head_outputs(
+    head: &NtgPolicy,
+    demo: &Demonstration<Vec<f32>>,
+) -> anyhow::Result<Vec<(Vec<f32>, Vec<f32>)>> {
+    let full = Ctg::fully_connected(head.graph().num_nodes());
+    demo.observations()
+        .iter()
+        .map(|o| {
+            Ok((
+                head.node_probabilities(o)?,
+                head.edge_probabilities_for(&full, o)?,
+            ))
+        })
+        .collect()
+}
+
+/// Leave-one-out scores of [`Method::Full`] on `test` for every prior
+/// weight in `weights` (one list of scores per weight, in order): the
+/// head's outputs are computed once per demo, the prior once per
+/// conditioning demo.
+pub fn graph_prior_scores(
+    head: &NtgModel,
+    graph: &NtgModel,
+    vocab: &Vocabulary,
+    test: &[TestDemo],
+    smoothing: f64,
+    weights: &[f64],
+) -> anyhow::Result<Vec<Vec<DemoScore>>> {
+    ensure!(
+        test.len() >= 2,
+        "scoring needs at least 2 demonstrations, got {}",
+        test.len()
+    );
+    let choices = num_choices(vocab);
+    let mut head = head.valid();
+    head.config.ablation = Method::NoGraph
+        .ablation()
+        .context("the no-graph method has ablation switches")?;
+    head.config.soft_edges = None;
+    let head_policy = NtgPolicy::from_demo(&head, test[0].demo.observations(), vocab)?;
+    let outputs: Vec<Vec<(Vec<f32>, Vec<f32>)>> = test
+        .iter()
+        .map(|t| head_outputs(&head_policy, &t.demo))
+        .collect::<anyhow::Result<_>>()?;
+    // table[d][w][e]: the step NLLs of e under d's prior at weight w.
+    let table: Vec<Vec<Vec<StepNlls>>> = test
+        .par_iter()
+        .map(|d| {
+            let prior = GraphPrior::from_demo(graph, d.demo.observations())
+                .with_context(|| format!("graph prior from {}", d.trial))?;
+            weights
+                .iter()
+                .map(|&w| {
+                    test.iter()
+                        .zip(&outputs)
+                        .map(|(e, out)| {
+                            if std::ptr::eq(e, d) {
+                                return Ok((Vec::new(), 0));
+                            }
+                            let mut step = out.iter();
+                            demo_step_nlls(
+                                &e.demo,
+                                |_| {
+                                    let (node, edge) =
+                                        step.next().context("one head output per step")?;
+                                    prior.log_probabilities(node, edge, w)
+                                },
+                                smoothing,
+                                choices,
+                            )
+                        })
+                        .collect()
+                })
+                .collect()
+        })
+        .collect::<anyhow::Result<_>>()?;
+    Ok((0..weights.len())
+        .map(|w| leave_one_out(test, |d, e| (&table[d][w][e].0, table[d][w][e].1)))
+        .collect())
 }
 
 /// The full model's predicted graph for one Needle Passing demonstration.
@@ -800,6 +1158,10 @@ pub struct JigsawsResult {
     pub runs: Vec<TrainedRun>,
     /// The full model's graph for the first Needle Passing demo.
     pub graph: PredictedGraph,
+    /// The same experiment with one seed changed at a time ([`seed_table`];
+    /// not run at the smoke profile).
+    #[serde(default)]
+    pub seeds: Option<SeedTable>,
 }
 
 impl JigsawsResult {
@@ -813,17 +1175,25 @@ impl JigsawsResult {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct RunConfig {
     experiment: JigsawsConfig,
-    method: Method,
+    /// The methods whose models the run selects.
+    methods: Vec<Method>,
 }
 
 fn open_run(dir: &Path, config: &RunConfig) -> anyhow::Result<RunDir> {
     if dir.join("config.json").is_file() {
         let run = RunDir::open(dir)?;
-        let saved: RunConfig = RunDir::read_json(&run.config_path())?;
-        if &saved != config {
+        // A run of an older format (e.g. one method per run) is another
+        // configuration too.
+        let saved: Option<RunConfig> = RunDir::read_json(&run.config_path()).ok();
+        if saved.as_ref() != Some(config) {
             bail!(
-                "{} holds a run with another configuration; move it away or delete it",
-                dir.display()
+                "{} holds a run with another configuration{}; move it away or delete it",
+                dir.display(),
+                if saved.is_none() {
+                    " (or of an older format)"
+                } else {
+                    ""
+                }
             );
         }
         Ok(run)
@@ -984,35 +1354,49 @@ fn first(t: burn::tensor::Tensor<1>) -> anyhow::Result<f32> {
         .unwrap_or(f32::NAN))
 }
 
-/// Mean validation NLL of `method`'s model: each held-out group scored
+/// Mean validation NLL of `scorer`'s policies: each held-out group scored
 /// leave-one-out within itself, the conditioning demos' scores averaged
 /// over all groups. `None` without validation groups.
 pub fn validation_nll(
-    method: Method,
-    model: &NtgModel,
+    scorer: Scorer<'_>,
     data: &JigsawsData,
     smoothing: f64,
 ) -> anyhow::Result<Option<f64>> {
     let mut scores = Vec::new();
     for group in &data.validation {
-        scores.extend(score_demos(
-            method,
-            Some(model),
-            &data.vocab,
-            group,
-            smoothing,
-        )?);
+        scores.extend(score_demos(scorer, &data.vocab, group, smoothing)?);
     }
-    if scores.is_empty() {
-        return Ok(None);
-    }
-    Ok(Some(
-        scores.iter().map(|d| d.nll).sum::<f64>() / scores.len() as f64,
-    ))
+    Ok(mean_nll(&scores))
 }
 
-/// Where [`train_method`] keeps the selected model inside a run folder.
-pub const SELECTED_DIR: &str = "selected";
+fn mean_nll(scores: &[DemoScore]) -> Option<f64> {
+    (!scores.is_empty()).then(|| scores.iter().map(|d| d.nll).sum::<f64>() / scores.len() as f64)
+}
+
+/// The validation NLL of [`Method::Full`] for every prior weight in
+/// `weights` (as [`validation_nll`]); `None` without validation groups.
+pub fn validation_by_weight(
+    head: &NtgModel,
+    graph: &NtgModel,
+    data: &JigsawsData,
+    smoothing: f64,
+    weights: &[f64],
+) -> anyhow::Result<Option<Vec<f64>>> {
+    let mut by_weight = vec![Vec::new(); weights.len()];
+    for group in &data.validation {
+        let scores = graph_prior_scores(head, graph, &data.vocab, group, smoothing, weights)?;
+        for (all, s) in by_weight.iter_mut().zip(scores) {
+            all.extend(s);
+        }
+    }
+    Ok(by_weight.iter().map(|s| mean_nll(s)).collect())
+}
+
+/// Where [`train_method`] keeps `method`'s selected model inside a run
+/// folder.
+pub fn selected_dir(run: &Path, method: Method) -> PathBuf {
+    run.join(format!("selected-{}", method.name()))
+}
 const SELECTION_FILE: &str = "selection.json";
 
 /// How a method's model was chosen.
@@ -1020,56 +1404,94 @@ const SELECTION_FILE: &str = "selection.json";
 pub struct Selection {
     /// Epochs trained when the selected model was taken (1-based count).
     pub epochs: usize,
-    /// `(epochs trained, validation NLL)` at every evaluation.
+    /// `(epochs trained, validation NLL)` at every evaluation (for
+    /// [`Method::Full`], at the best prior weight of that evaluation).
     pub validation: Vec<(usize, f64)>,
+    /// [`Method::Full`]: the selected prior weight `τ`.
+    #[serde(default)]
+    pub prior_weight: Option<f64>,
+    /// [`Method::Full`]: `(τ, validation NLL)` of the selected epoch for
+    /// every candidate weight.
+    #[serde(default)]
+    pub by_prior_weight: Vec<(f64, f64)>,
 }
 
-/// Trains the model of `method` for up to `config.optim.epochs` epochs,
-/// evaluating the validation NLL every `config.eval_every` epochs (and
-/// after the last), and keeps the model with the lowest (the last one
-/// without validation data). The selected model is saved under
-/// `<dir>/selected/` with its [`Selection`]; a run folder that has one for
-/// the same configuration is reused without training.
+/// Trains one model and selects, for each of `methods` it serves, the
+/// model of the epoch with the lowest validation NLL of that method's
+/// policy (and, for [`Method::Full`], the prior weight among
+/// `config.prior_weights`; it needs the no-graph model as `head`).
+///
+/// Trains for up to `config.optim.epochs` epochs, evaluating every
+/// `config.eval_every` epochs (and after the last); without validation
+/// data the last epoch (and the largest prior weight) is used. Every method
+/// must use the same trained model ([`Method::ablation`]). Each selected
+/// model is saved under [`selected_dir`] with its [`Selection`]; a run
+/// folder that has them for the same configuration is reused without
+/// training.
 pub fn train_method(
-    method: Method,
+    methods: &[Method],
     data: &JigsawsData,
     config: &JigsawsConfig,
     dir: &Path,
+    head: Option<&NtgModel>,
     device: &Device,
     mut on_epoch: impl FnMut(&EpochMetrics),
-) -> anyhow::Result<(NtgModel, TrainedRun)> {
-    let ablation = method
+) -> anyhow::Result<Vec<(NtgModel, TrainedRun)>> {
+    let first = *methods.first().context("no method to train for")?;
+    let ablation = first
         .ablation()
-        .with_context(|| format!("method {} has no model to train", method.name()))?;
+        .with_context(|| format!("method {} has no model to train", first.name()))?;
+    ensure!(
+        methods
+            .iter()
+            .all(|m| m.ablation().as_ref() == Some(&ablation)),
+        "the methods {:?} do not share one trained model",
+        methods.iter().map(|m| m.name()).collect::<Vec<_>>()
+    );
+    let no_graph = ablation == Method::NoGraph.ablation().context("no-graph ablation")?;
+    let weights = &config.prior_weights;
+    if methods.contains(&Method::Full) {
+        ensure!(head.is_some(), "the full method needs the no-graph model");
+        ensure!(!weights.is_empty(), "the full method needs a prior weight");
+    }
     let run = open_run(
         dir,
         &RunConfig {
             experiment: config.clone(),
-            method,
+            methods: methods.to_vec(),
         },
     )?;
-    let selected_dir = dir.join(SELECTED_DIR);
-    let selection_path = selected_dir.join(SELECTION_FILE);
-    let (model, selection) = if selection_path.is_file() {
-        let selection: Selection = RunDir::read_json(&selection_path)?;
-        let model = NtgModel::load(&selected_dir, device)
-            .with_context(|| format!("reusing {}", selected_dir.display()))?;
-        (model, selection)
+    let finished = methods
+        .iter()
+        .all(|&m| selected_dir(dir, m).join(SELECTION_FILE).is_file());
+    let selected: Vec<(NtgModel, Selection)> = if finished {
+        methods
+            .iter()
+            .map(|&m| {
+                let sel_dir = selected_dir(dir, m);
+                let selection: Selection = RunDir::read_json(&sel_dir.join(SELECTION_FILE))?;
+                let model = NtgModel::load(&sel_dir, device)
+                    .with_context(|| format!("reusing {}", sel_dir.display()))?;
+                Ok((model, selection))
+            })
+            .collect::<anyhow::Result<_>>()?
     } else {
         let encoder = EncoderConfig::kinematics(config.observation.window);
         let mut model_config = NtgConfig::for_domain(data.vocab.len(), encoder);
         model_config.seed = config.model_seed;
         model_config.ablation = ablation;
-        model_config.soft_edges = Some(config.soft_edges && method == Method::Full);
+        model_config.soft_edges = Some(config.soft_edges && !no_graph);
         let fresh = NtgModel::new(model_config, device)?;
         let max = config.optim.epochs;
         let mut marks: Vec<usize> = (1..=max).filter(|e| e % config.eval_every == 0).collect();
         if marks.last() != Some(&max) {
             marks.push(max);
         }
-        let mut best: Option<(f64, usize, NtgModel)> = None;
-        let mut curve = Vec::new();
-        let mut no_graph = if method == Method::NoGraph {
+        // Per method: (value, mark, model, weight index, values by weight).
+        type Best = (f64, usize, NtgModel, usize, Vec<f64>);
+        let mut best: Vec<Option<Best>> = vec![None; methods.len()];
+        let mut curves = vec![Vec::new(); methods.len()];
+        let mut trainer = if no_graph {
             // In-memory trainer: start the metrics log afresh.
             let _ = std::fs::remove_file(run.metrics_path());
             Some(NoGraphTrainer::new(fresh.clone(), &data.train)?)
@@ -1077,7 +1499,7 @@ pub fn train_method(
             None
         };
         for &mark in &marks {
-            let model = match &mut no_graph {
+            let model = match &mut trainer {
                 Some(trainer) => {
                     trainer.train_to(mark, &config.optim, device, |m| {
                         on_epoch(m);
@@ -1102,39 +1524,88 @@ pub fn train_method(
                     )?
                 }
             };
-            let value = validation_nll(method, &model, data, config.smoothing)?;
-            if let Some(v) = value {
-                curve.push((mark, v));
-            }
-            let better = match (&best, value) {
-                (None, _) => true,
-                (Some((b, _, _)), Some(v)) => v < *b,
-                (Some(_), None) => true,
-            };
-            if better {
-                best = Some((value.unwrap_or(f64::NAN), mark, model));
+            for (i, &method) in methods.iter().enumerate() {
+                // (value, index of the best weight, value per weight).
+                let value: Option<(f64, usize, Vec<f64>)> = match (method, head) {
+                    (Method::Full, Some(head)) => {
+                        validation_by_weight(head, &model, data, config.smoothing, weights)?.map(
+                            |values| {
+                                let (w, v) = values
+                                    .iter()
+                                    .enumerate()
+                                    .min_by(|a, b| a.1.total_cmp(b.1))
+                                    .map_or((0, f64::NAN), |(w, &v)| (w, v));
+                                (v, w, values)
+                            },
+                        )
+                    }
+                    _ => validation_nll(Scorer::Own(method, &model), data, config.smoothing)?
+                        .map(|v| (v, 0, Vec::new())),
+                };
+                if let Some((v, _, _)) = &value {
+                    curves[i].push((mark, *v));
+                }
+                let better = match (&best[i], &value) {
+                    (None, _) | (Some(_), None) => true,
+                    (Some((b, ..)), Some((v, _, _))) => v < b,
+                };
+                if better {
+                    best[i] = Some(match value {
+                        Some((v, w, values)) => (v, mark, model.clone(), w, values),
+                        // No validation data: the last epoch, the largest weight.
+                        None => (
+                            f64::NAN,
+                            mark,
+                            model.clone(),
+                            weights.len().saturating_sub(1),
+                            Vec::new(),
+                        ),
+                    });
+                }
             }
         }
-        let (_, epochs, model) = best.context("no epochs to train (epochs is 0)")?;
-        let selection = Selection {
-            epochs,
-            validation: curve,
-        };
-        model.save(&selected_dir)?;
-        RunDir::write_json(&selection_path, &selection)?;
-        (model, selection)
+        methods
+            .iter()
+            .zip(best)
+            .zip(curves)
+            .map(|((&method, best), curve)| {
+                let (_, epochs, model, w, values) =
+                    best.context("no epochs to train (epochs is 0)")?;
+                let full = method == Method::Full;
+                let selection = Selection {
+                    epochs,
+                    validation: curve,
+                    prior_weight: full.then(|| weights[w]),
+                    by_prior_weight: if full {
+                        weights.iter().copied().zip(values).collect()
+                    } else {
+                        Vec::new()
+                    },
+                };
+                let sel_dir = selected_dir(dir, method);
+                model.save(&sel_dir)?;
+                RunDir::write_json(&sel_dir.join(SELECTION_FILE), &selection)?;
+                Ok((model, selection))
+            })
+            .collect::<anyhow::Result<_>>()?
     };
     let metrics = read_metrics(&run)?;
-    Ok((
-        model,
-        TrainedRun {
-            method,
-            run: dir.to_owned(),
-            train_seconds: metrics.iter().map(|m| f64::from(m.seconds)).sum(),
-            last_epoch: metrics.last().cloned(),
-            selection,
-        },
-    ))
+    Ok(methods
+        .iter()
+        .zip(selected)
+        .map(|(&method, (model, selection))| {
+            (
+                model,
+                TrainedRun {
+                    method,
+                    run: dir.to_owned(),
+                    train_seconds: metrics.iter().map(|m| f64::from(m.seconds)).sum(),
+                    last_epoch: metrics.last().cloned(),
+                    selection,
+                },
+            )
+        })
+        .collect())
 }
 
 /// Runs the whole experiment: data, the two trained models (run folders
@@ -1167,34 +1638,47 @@ pub fn run_experiment(
         data.test.len()
     ));
     let device = ntg_model::cpu_device().autodiff();
-    let mut methods = Vec::new();
     let mut trained = Vec::new();
-    let mut graph = None;
-    for method in Method::ALL {
-        let model = if method == Method::Uniform {
-            None
-        } else {
-            let dir = runs.join(format!(
-                "jigsaws-{}-{}",
-                config.source.run_tag(),
-                method.name()
-            ));
+    let mut models: Vec<(Method, NtgModel)> = Vec::new();
+    // The no-graph model first: the full method's head.
+    for group in [
+        &[Method::NoGraph][..],
+        &[Method::FullOwnHead, Method::Full][..],
+    ] {
+        let dir = runs.join(format!(
+            "jigsaws-{}-{}",
+            config.source.run_tag(),
+            if group[0] == Method::NoGraph {
+                "no-graph"
+            } else {
+                "full"
+            }
+        ));
+        log(&format!(
+            "jigsaws ({}): training -> {}",
+            group
+                .iter()
+                .map(|m| m.name())
+                .collect::<Vec<_>>()
+                .join(", "),
+            dir.display()
+        ));
+        let head = models
+            .iter()
+            .find(|(m, _)| *m == Method::NoGraph)
+            .map(|(_, model)| model);
+        let selected = train_method(group, &data, config, &dir, head, &device, |m| {
             log(&format!(
-                "jigsaws ({}): training -> {}",
-                method.name(),
-                dir.display()
-            ));
-            let (model, run) = train_method(method, &data, config, &dir, &device, |m| {
-                log(&format!(
-                    "  epoch {:>3}: loss {:.3}, tokens {:.3}, nodes {:.3}, steps {:.3}, edge F1 {}",
-                    m.epoch,
-                    m.loss,
-                    m.token_accuracy,
-                    m.localizer_accuracy,
-                    m.step_accuracy,
-                    m.edge_f1_text()
-                ))
-            })?;
+                "  epoch {:>3}: loss {:.3}, tokens {:.3}, nodes {:.3}, steps {:.3}, edge F1 {}",
+                m.epoch,
+                m.loss,
+                m.token_accuracy,
+                m.localizer_accuracy,
+                m.step_accuracy,
+                m.edge_f1_text()
+            ))
+        })?;
+        for (model, run) in selected {
             let curve: Vec<String> = run
                 .selection
                 .validation
@@ -1202,14 +1686,41 @@ pub fn run_experiment(
                 .map(|(e, v)| format!("{e}: {v:.3}"))
                 .collect();
             log(&format!(
-                "  validation NLL by epochs trained [{}]; using the model after {} epochs",
+                "  {}: validation NLL by epochs trained [{}]; using the model after {} epochs{}",
+                run.method.name(),
                 curve.join(", "),
-                run.selection.epochs
+                run.selection.epochs,
+                run.selection
+                    .prior_weight
+                    .map_or(String::new(), |w| format!(" and prior weight {w}"))
             ));
+            models.push((run.method, model));
             trained.push(run);
-            Some(model)
+        }
+    }
+    let model = |method: Method| {
+        models
+            .iter()
+            .find(|(m, _)| *m == method)
+            .map(|(_, model)| model)
+            .with_context(|| format!("no model was trained for {}", method.name()))
+    };
+    let mut methods = Vec::new();
+    for method in Method::ALL {
+        let scorer = match method {
+            Method::Uniform => Scorer::Uniform,
+            Method::NoGraph | Method::FullOwnHead => Scorer::Own(method, model(method)?),
+            Method::Full => Scorer::GraphPrior {
+                head: model(Method::NoGraph)?,
+                graph: model(Method::Full)?,
+                weight: trained
+                    .iter()
+                    .find(|r| r.method == Method::Full)
+                    .and_then(|r| r.selection.prior_weight)
+                    .context("no prior weight was selected")?,
+            },
         };
-        let result = score(method, model.as_ref(), &data, config.smoothing)?;
+        let result = score(method, scorer, &data, config.smoothing)?;
         log(&format!(
             "  {}: NLL {:.3} ± {:.3} over {} conditioning demos ({} of {} steps at probability 0 before smoothing)",
             method.name(),
@@ -1219,13 +1730,9 @@ pub fn run_experiment(
             result.zero_probability_steps,
             result.steps
         ));
-        if method == Method::Full
-            && let Some(model) = &model
-        {
-            graph = Some(predicted_graph(model, &data, 0)?);
-        }
         methods.push(result);
     }
+    let graph = predicted_graph(model(Method::Full)?, &data, 0)?;
     Ok(JigsawsResult {
         config: config.clone(),
         source: config.source.describe(),
@@ -1234,8 +1741,189 @@ pub fn run_experiment(
         test_demos: data.test.len(),
         methods,
         runs: trained,
-        graph: graph.context("the full model was not scored")?,
+        graph,
+        seeds: None,
     })
+}
+
+/// One setting of the [`seed_table`]: the base configuration with at most
+/// one seed changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SeedSetting {
+    /// The base configuration.
+    Default,
+    /// Another seed of the synthetic data.
+    Data(u64),
+    /// Another seed of both models' initial weights.
+    Model(u64),
+}
+
+impl SeedSetting {
+    /// The settings of the table: the default, synthetic-data seeds 1–3
+    /// (synthetic data only) and model seeds 1–5.
+    pub fn all(source: &DataSource) -> Vec<SeedSetting> {
+        let data: &[u64] = match source {
+            DataSource::Synthetic { .. } => &[1, 2, 3],
+            DataSource::Root { .. } => &[],
+        };
+        std::iter::once(SeedSetting::Default)
+            .chain(data.iter().map(|&s| SeedSetting::Data(s)))
+            .chain((1..=5).map(SeedSetting::Model))
+            .collect()
+    }
+
+    /// Name in reports and run folders: `default`, `data1`, `model2`.
+    pub fn name(self) -> String {
+        match self {
+            SeedSetting::Default => "default".to_owned(),
+            SeedSetting::Data(s) => format!("data{s}"),
+            SeedSetting::Model(s) => format!("model{s}"),
+        }
+    }
+
+    /// `base` with this setting's seed. Errors for a data seed on a
+    /// dataset read from disk.
+    pub fn apply(self, base: &JigsawsConfig) -> anyhow::Result<JigsawsConfig> {
+        let mut config = base.clone();
+        match (self, &mut config.source) {
+            (SeedSetting::Default, _) => {}
+            (SeedSetting::Model(s), _) => config.model_seed = s,
+            (SeedSetting::Data(s), DataSource::Synthetic { seed, .. }) => *seed = s,
+            (SeedSetting::Data(_), DataSource::Root { path }) => bail!(
+                "{}: a dataset on disk has no data seed to change",
+                path.display()
+            ),
+        }
+        Ok(config)
+    }
+}
+
+/// One row of the [`seed_table`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SeedRow {
+    /// The setting.
+    pub setting: SeedSetting,
+    /// Mean NLL over conditioning demos, per method in [`Method::ALL`]
+    /// order.
+    pub nll: Vec<(Method, f64)>,
+    /// [`Method::Full`]'s selected prior weight.
+    pub prior_weight: Option<f64>,
+}
+
+impl SeedRow {
+    /// The mean NLL of `method`.
+    pub fn nll(&self, method: Method) -> Option<f64> {
+        self.nll.iter().find(|(m, _)| *m == method).map(|&(_, v)| v)
+    }
+
+    fn of(setting: SeedSetting, result: &JigsawsResult) -> SeedRow {
+        SeedRow {
+            setting,
+            nll: result
+                .methods
+                .iter()
+                .map(|m| (m.method, m.mean_nll))
+                .collect(),
+            prior_weight: result
+                .runs
+                .iter()
+                .find(|r| r.method == Method::Full)
+                .and_then(|r| r.selection.prior_weight),
+        }
+    }
+}
+
+/// The experiment repeated with one seed changed at a time
+/// ([`SeedSetting::all`]): does full NTG beat no graph whatever the seeds?
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SeedTable {
+    /// One row per setting.
+    pub rows: Vec<SeedRow>,
+}
+
+impl SeedTable {
+    /// Settings where `a` scored a lower NLL than `b`.
+    pub fn wins(&self, a: Method, b: Method) -> usize {
+        self.rows
+            .iter()
+            .filter(|r| matches!((r.nll(a), r.nll(b)), (Some(x), Some(y)) if x < y))
+            .count()
+    }
+
+    /// Mean over settings of `method`'s NLL.
+    pub fn mean(&self, method: Method) -> f64 {
+        let v: Vec<f64> = self.rows.iter().filter_map(|r| r.nll(method)).collect();
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    }
+}
+
+/// Runs the experiment of `base` once per [`SeedSetting::all`] (run folders
+/// under `<runs>/jigsaws-seeds/<setting>/`, reused when finished), taking
+/// the default row from `done` when given (the result of `base` itself).
+pub fn seed_table(
+    base: &JigsawsConfig,
+    done: Option<&JigsawsResult>,
+    runs: &Path,
+    mut log: impl FnMut(&str),
+) -> anyhow::Result<SeedTable> {
+    let mut rows = Vec::new();
+    for setting in SeedSetting::all(&base.source) {
+        let row = match (setting, done) {
+            (SeedSetting::Default, Some(result)) => SeedRow::of(setting, result),
+            _ => {
+                let config = setting.apply(base)?;
+                log(&format!("jigsaws seed table: {}", setting.name()));
+                let dir = runs.join("jigsaws-seeds").join(setting.name());
+                let result = run_experiment(&config, &dir, |line| {
+                    if !line.starts_with("  epoch") {
+                        log(line);
+                    }
+                })?;
+                SeedRow::of(setting, &result)
+            }
+        };
+        rows.push(row);
+    }
+    Ok(SeedTable { rows })
+}
+
+/// The seed table as Markdown (a table and a one-line summary).
+pub fn seed_table_markdown(table: &SeedTable) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| setting | no graph | NTG, own head | NTG (full) | τ | full < no graph |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|");
+    let cell = |v: Option<f64>| v.map_or("–".to_owned(), |v| format!("{v:.3}"));
+    for r in &table.rows {
+        let (ng, full) = (r.nll(Method::NoGraph), r.nll(Method::Full));
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} |",
+            r.setting.name(),
+            cell(ng),
+            cell(r.nll(Method::FullOwnHead)),
+            cell(full),
+            r.prior_weight.map_or("–".to_owned(), |w| w.to_string()),
+            match (full, ng) {
+                (Some(f), Some(n)) if f < n => "yes",
+                _ => "**no**",
+            }
+        );
+    }
+    let n = table.rows.len();
+    let _ = writeln!(
+        s,
+        "| mean | {:.3} | {:.3} | {:.3} | | full lower in {} of {n}; own head lower than no graph in {} of {n} |",
+        table.mean(Method::NoGraph),
+        table.mean(Method::FullOwnHead),
+        table.mean(Method::Full),
+        table.wins(Method::Full, Method::NoGraph),
+        table.wins(Method::FullOwnHead, Method::NoGraph),
+    );
+    s
 }
 
 /// Runs the experiment at `profile` (synthetic data, seed 0, unless `root`
@@ -1258,12 +1946,18 @@ pub fn reproduce(
         },
     };
     let config = JigsawsConfig::for_profile(profile, source);
-    let result = run_experiment(&config, runs, |line| eprintln!("{line}"))?;
+    let mut result = run_experiment(&config, runs, |line| eprintln!("{line}"))?;
+    if profile != Profile::Smoke {
+        result.seeds = Some(seed_table(&config, Some(&result), runs, |line| {
+            eprintln!("{line}")
+        })?);
+    }
     write_outputs(&result, out)?;
     Ok(result)
 }
 
-/// Writes the figure, the graph and the JSON of `result` into `out`.
+/// Writes the figure, the graph, the report section (`jigsaws.md`) and the
+/// JSON of `result` into `out`.
 pub fn write_outputs(result: &JigsawsResult, out: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     write_figure(result, &out.join("jigsaws"))?;
@@ -1273,6 +1967,9 @@ pub fn write_outputs(result: &JigsawsResult, out: &Path) -> anyhow::Result<()> {
     let svg = crate::svg::dot_to_svg(&result.graph.dot)?;
     let svg_path = out.join("jigsaws_graph.svg");
     std::fs::write(&svg_path, svg).with_context(|| format!("writing {}", svg_path.display()))?;
+    let md_path = out.join("jigsaws.md");
+    std::fs::write(&md_path, report_section(result))
+        .with_context(|| format!("writing {}", md_path.display()))?;
     RunDir::write_json(&out.join("jigsaws.json"), result)
 }
 
@@ -1312,11 +2009,20 @@ pub fn report_section(result: &JigsawsResult) -> String {
     let selected: Vec<String> = result
         .runs
         .iter()
-        .map(|r| format!("{} after {}", r.method.label(), r.selection.epochs))
+        .map(|r| {
+            format!(
+                "{} after {}{}",
+                r.method.label(),
+                r.selection.epochs,
+                r.selection
+                    .prior_weight
+                    .map_or(String::new(), |w| format!(" (prior weight τ = {w})"))
+            )
+        })
         .collect();
     let _ = writeln!(
         s,
-        "## Fig. jigsaws: cross-task NLL on {TEST_TASK}\n\n![jigsaws](jigsaws.png)\n\nData: {}. Trained on {} {} + {} demos for up to {} epochs; the model of each method is the one with the lowest NLL on held-out {} and {} demos (every {}-th trial), checked every {} epochs: {} epochs. Each of the {} {TEST_TASK} demos conditions one policy, scored on all the others. Per-step NLL in nats with ε = {} smoothing (a probability-0 step costs ln(16/ε); such steps are counted); ± is the standard deviation over conditioning demos. Definitions: module docs of `ntg_trainer::jigsaws`.\n",
+        "## Fig. jigsaws: cross-task NLL on {TEST_TASK}\n\n![jigsaws](jigsaws.png)\n\nData: {}. Trained on {} {} + {} demos for up to {} epochs; the model of each method is the one with the lowest NLL on held-out {} and {} demos (every {}-th trial), checked every {} epochs: {} epochs (the two full methods are one training run). Each of the {} {TEST_TASK} demos conditions one policy, scored on all the others. Per-step NLL in nats with ε = {} smoothing (a probability-0 step costs ln(16/ε); such steps are counted); ± is the standard deviation over conditioning demos. Definitions: module docs of `ntg_trainer::jigsaws`.\n",
         result.source,
         result.train_demos,
         TRAIN_TASKS[0],
@@ -1326,7 +2032,7 @@ pub fn report_section(result: &JigsawsResult) -> String {
         TRAIN_TASKS[1],
         result.config.validation_every,
         result.config.eval_every,
-        selected.join(", "),
+        selected.join("; "),
         result.test_demos,
         result.config.smoothing
     );
@@ -1366,8 +2072,15 @@ pub fn report_section(result: &JigsawsResult) -> String {
     };
     let _ = writeln!(
         s,
-        "\nPaper: uniform worst, no graph better, full NTG best (no numbers in the text): {verdict}.\n"
+        "\nPaper: uniform worst, no graph better, full NTG best (no numbers in the text): {verdict}. **Deviation from the paper:** \"NTG (full)\" uses the completed graph as a prior on the no-graph model's node localizer and edge classifier, `ε(a|n,o) ∝ C_na^τ · ε₀(a|n,o)`, with τ chosen on the held-out training-task demos; \"NTG, own head\" is the full model with the paper's wiring (an edge classifier reading the GCN's embeddings), shown for comparison.\n"
     );
+    if let Some(table) = &result.seeds {
+        let _ = writeln!(
+            s,
+            "**Seed sensitivity.** The same experiment with one seed changed at a time (synthetic data, or both models' initial weights); mean NLL over conditioning demos, τ the selected prior weight of NTG (full):\n\n{}",
+            seed_table_markdown(table)
+        );
+    }
     let g = &result.graph;
     let short = |v: &[String]| {
         if v.len() > 30 {
@@ -1467,15 +2180,12 @@ mod tests {
     fn uniform_scores_ln_16_and_models_are_required() {
         let data =
             build_data(&small_synthetic(3, 2), ObservationConfig::default(), 0, "t").unwrap();
-        let r = score(Method::Uniform, None, &data, DEFAULT_SMOOTHING).unwrap();
+        let r = score(Method::Uniform, Scorer::Uniform, &data, DEFAULT_SMOOTHING).unwrap();
         assert_eq!(num_choices(&data.vocab), 16);
         for d in &r.per_demo {
             assert!((d.nll - 16f64.ln()).abs() < 1e-6, "{d:?}");
         }
-        let err = score(Method::Full, None, &data, DEFAULT_SMOOTHING).unwrap_err();
-        assert!(err.to_string().contains("needs a trained model"), "{err}");
-        let err =
-            score_demos(Method::Uniform, None, &data.vocab, &data.test[..1], 0.0).unwrap_err();
+        let err = score_demos(Scorer::Uniform, &data.vocab, &data.test[..1], 0.0).unwrap_err();
         assert!(err.to_string().contains("at least 2"), "{err}");
     }
 
@@ -1544,6 +2254,12 @@ mod tests {
         config.smoothing = 1.0;
         let err = run_experiment(&config, dir.path(), |_| {}).unwrap_err();
         assert!(err.to_string().contains("smoothing"), "{err}");
+        config.smoothing = DEFAULT_SMOOTHING;
+        for bad in [vec![], vec![0.5, 1.5], vec![f64::NAN]] {
+            config.prior_weights = bad;
+            let err = run_experiment(&config, dir.path(), |_| {}).unwrap_err();
+            assert!(err.to_string().contains("prior weights"), "{err}");
+        }
     }
 
     /// The no-graph trainer learns: on a small synthetic set, a few epochs
@@ -1567,14 +2283,14 @@ mod tests {
             let mut config = NtgConfig::for_domain(data.vocab.len(), EncoderConfig::kinematics(10));
             config.ablation = Method::NoGraph.ablation().unwrap();
             let model = NtgModel::new(config, &device).unwrap();
-            let before = validation_nll(Method::NoGraph, &model, &data, 0.01)
+            let before = validation_nll(Scorer::Own(Method::NoGraph, &model), &data, 0.01)
                 .unwrap()
                 .unwrap();
             let mut trainer = NoGraphTrainer::new(model, &data.train).unwrap();
             trainer
                 .train_to(optim.epochs, &optim, &device, |_| Ok(()))
                 .unwrap();
-            let after = validation_nll(Method::NoGraph, trainer.model(), &data, 0.01)
+            let after = validation_nll(Scorer::Own(Method::NoGraph, trainer.model()), &data, 0.01)
                 .unwrap()
                 .unwrap();
             (before, after)
@@ -1589,15 +2305,16 @@ mod tests {
         assert_eq!(train(), (before, after));
     }
 
-    /// The full model with soft edges, trained through `train` (the GCN
-    /// reading another demo of the task): its policy weighs edges by the
-    /// GCN's probabilities, its held-out NLL falls far below uniform's, and
-    /// the GCN's edge F1 is logged (the no-graph model logs none).
+    /// The two full methods share one trained model, each with its own
+    /// selection. The own-head model's policy weighs edges by the GCN's
+    /// probabilities and logs the GCN's edge F1 (the no-graph model logs
+    /// none). The graph-prior method's selection covers every candidate
+    /// weight, picks the lowest, and at weight 0 reproduces the no-graph
+    /// policy's validation NLL; both fall far below uniform's.
     #[test]
-    fn full_model_with_soft_edges_learns_the_next_gesture() {
+    fn full_methods_share_one_run_and_select_the_prior_weight() {
         let data =
             build_data(&small_synthetic(8, 5), ObservationConfig::default(), 4, "t").unwrap();
-        let device = ntg_model::cpu_device().autodiff();
         let mut config = JigsawsConfig::for_profile(
             Profile::Smoke,
             DataSource::Synthetic {
@@ -1606,53 +2323,264 @@ mod tests {
             },
         );
         assert!(config.soft_edges && config.optim.gcn_from_other_demo);
-        config.optim.epochs = 8;
-        config.eval_every = 8;
+        config.optim.epochs = 6;
+        config.eval_every = 3;
         let dir = tempfile::tempdir().unwrap();
-        let mut logged = Vec::new();
-        let (model, run) = train_method(
-            Method::Full,
-            &data,
-            &config,
-            &dir.path().join("full"),
-            &device,
-            |m| logged.push(m.clone()),
-        )
-        .unwrap();
-        assert!(model.config().uses_soft_edges());
-        assert_eq!(logged.len(), 8);
-        assert!(logged.iter().all(|m| m.edge_f1.is_some()), "{logged:?}");
-        let (_, validation) = run.selection.validation[0];
-        let uniform = 16f64.ln();
-        assert!(
-            validation < 0.5 * uniform,
-            "held-out NLL {validation:.3} (uniform {uniform:.3})"
-        );
-        let policy = NtgPolicy::from_demo(
-            &model.valid(),
-            data.test[0].demo.observations(),
-            &data.vocab,
-        )
-        .unwrap();
-        assert!(policy.edge_weights().is_some());
-
-        let (no_graph, _) = train_method(
-            Method::NoGraph,
-            &data,
-            &JigsawsConfig {
-                optim: OptimConfig {
-                    epochs: 1,
-                    ..config.optim.clone()
-                },
-                eval_every: 1,
-                ..config.clone()
-            },
+        let device = ntg_model::cpu_device().autodiff();
+        let fit = |methods: &[Method],
+                   run: &Path,
+                   head: Option<&NtgModel>,
+                   on_epoch: &mut dyn FnMut(&EpochMetrics)| {
+            train_method(methods, &data, &config, run, head, &device, on_epoch)
+        };
+        let (head, head_run) = fit(
+            &[Method::NoGraph],
             &dir.path().join("no-graph"),
-            &device,
-            |m| assert_eq!(m.edge_f1, None),
+            None,
+            &mut |m: &EpochMetrics| assert_eq!(m.edge_f1, None),
+        )
+        .unwrap()
+        .pop()
+        .unwrap();
+        assert!(!head.config().uses_soft_edges());
+        let err = fit(
+            &[Method::Full],
+            &dir.path().join("bad"),
+            None,
+            &mut |_: &EpochMetrics| {},
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string().contains("needs the no-graph model"),
+            "{err}"
+        );
+        let err = fit(
+            &[Method::NoGraph, Method::Full],
+            &dir.path().join("bad"),
+            Some(&head),
+            &mut |_: &EpochMetrics| {},
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("do not share"), "{err}");
+
+        let mut logged = Vec::new();
+        let full_dir = dir.path().join("full");
+        let mut trained = fit(
+            &[Method::FullOwnHead, Method::Full],
+            &full_dir,
+            Some(&head),
+            &mut |m: &EpochMetrics| logged.push(m.clone()),
         )
         .unwrap();
-        assert!(!no_graph.config().uses_soft_edges());
+        assert_eq!(logged.len(), 6);
+        assert!(logged.iter().all(|m| m.edge_f1.is_some()), "{logged:?}");
+        let (graph, graph_run) = trained.pop().unwrap();
+        let (own, own_run) = trained.pop().unwrap();
+        assert_eq!(
+            (own_run.method, graph_run.method),
+            (Method::FullOwnHead, Method::Full)
+        );
+        assert!(own.config().uses_soft_edges());
+        let policy =
+            NtgPolicy::from_demo(&own.valid(), data.test[0].demo.observations(), &data.vocab)
+                .unwrap();
+        assert!(policy.edge_weights().is_some());
+        assert_eq!(own_run.selection.prior_weight, None);
+
+        let uniform = 16f64.ln();
+        let sel = &graph_run.selection;
+        assert_eq!(sel.validation.len(), 2);
+        let weights: Vec<f64> = sel.by_prior_weight.iter().map(|&(w, _)| w).collect();
+        assert_eq!(weights, config.prior_weights);
+        let (best_w, best_v) = sel
+            .by_prior_weight
+            .iter()
+            .copied()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap();
+        assert_eq!(sel.prior_weight, Some(best_w));
+        assert!(sel.validation.contains(&(sel.epochs, best_v)), "{sel:?}");
+        assert!(best_v < 0.5 * uniform, "held-out NLL {best_v:.3}");
+        // Weight 0: the no-graph policy, whatever the graph.
+        let at_zero = validation_by_weight(&head, &graph, &data, DEFAULT_SMOOTHING, &[0.0])
+            .unwrap()
+            .unwrap()[0];
+        let own_head = validation_nll(
+            Scorer::Own(Method::NoGraph, &head),
+            &data,
+            DEFAULT_SMOOTHING,
+        )
+        .unwrap()
+        .unwrap();
+        assert!((at_zero - own_head).abs() < 1e-4, "{at_zero} vs {own_head}");
+        let head_best = head_run
+            .selection
+            .validation
+            .iter()
+            .map(|v| v.1)
+            .fold(f64::MAX, f64::min);
+        assert!((own_head - head_best).abs() < 1e-9);
+
+        // A run folder of the older one-method format is refused clearly.
+        let old_format = dir.path().join("old");
+        std::fs::create_dir_all(&old_format).unwrap();
+        std::fs::write(
+            old_format.join("config.json"),
+            serde_json::json!({ "experiment": config, "method": "full" }).to_string(),
+        )
+        .unwrap();
+        let err = fit(
+            &[Method::NoGraph],
+            &old_format,
+            None,
+            &mut |_: &EpochMetrics| {},
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("another configuration") && err.contains("older format"),
+            "{err}"
+        );
+
+        // A finished run is reused as it was selected.
+        let again = fit(
+            &[Method::FullOwnHead, Method::Full],
+            &full_dir,
+            Some(&head),
+            &mut |_: &EpochMetrics| panic!("a finished run trained again"),
+        )
+        .unwrap();
+        let reused = &again[1].1.selection;
+        assert_eq!(
+            (reused.epochs, reused.prior_weight),
+            (sel.epochs, sel.prior_weight)
+        );
+        for (a, b) in reused.by_prior_weight.iter().zip(&sel.by_prior_weight) {
+            // JSON keeps the values to the last bit or so.
+            assert!(a.0 == b.0 && (a.1 - b.1).abs() < 1e-12, "{a:?} vs {b:?}");
+        }
+        let scored = |model: &NtgModel| {
+            score(
+                Method::Full,
+                Scorer::GraphPrior {
+                    head: &head,
+                    graph: model,
+                    weight: best_w,
+                },
+                &data,
+                DEFAULT_SMOOTHING,
+            )
+            .unwrap()
+        };
+        assert_eq!(scored(&again[1].0), scored(&graph));
+    }
+
+    /// The prior on hand-made numbers: one node sure, a uniform head over
+    /// three actions, `C` = (0, 1, 0.25).
+    #[test]
+    fn graph_prior_weighs_the_head_by_c_to_the_weight() {
+        let n = 3;
+        let prior = GraphPrior {
+            weights: vec![0.0, 1.0, 0.25, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0],
+            num_nodes: n,
+        };
+        let node = [1.0, 0.0, 0.0];
+        let edge = [1.0 / 3.0; 9];
+        let p = |w: f64| -> Vec<f64> {
+            prior
+                .log_probabilities(&node, &edge, w)
+                .unwrap()
+                .iter()
+                .map(|&l| f64::from(l).exp())
+                .collect()
+        };
+        let close = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-6);
+        // Weight 1: ∝ C; 0.5: ∝ √C; 0: uniform over C's support.
+        assert!(close(&p(1.0), &[0.0, 0.8, 0.2]), "{:?}", p(1.0));
+        assert!(close(&p(0.5), &[0.0, 2.0 / 3.0, 1.0 / 3.0]), "{:?}", p(0.5));
+        assert!(close(&p(0.0), &[0.0, 0.5, 0.5]), "{:?}", p(0.0));
+        // The head's preferences count too, and node mass mixes rows; a
+        // node without successors (row 2) is skipped.
+        let edge = [0.0, 0.5, 0.5, 0.0, 0.9, 0.1, 0.0, 0.0, 0.0];
+        let logs = prior
+            .log_probabilities(&[0.5, 0.25, 0.25], &edge, 1.0)
+            .unwrap();
+        let got: Vec<f64> = logs.iter().map(|&l| f64::from(l).exp()).collect();
+        // Row 0: (0.5, 0.125) / 0.625 = (0.8, 0.2); row 1: (0.9, 0.1).
+        let want = [
+            0.0,
+            (0.5 * 0.8 + 0.25 * 0.9) / 0.75,
+            (0.5 * 0.2 + 0.25 * 0.1) / 0.75,
+        ];
+        assert!(close(&got, &want), "{got:?}");
+        assert_eq!(logs[0], f32::NEG_INFINITY);
+        // Bad input.
+        let err = prior.log_probabilities(&node, &edge[..8], 1.0).unwrap_err();
+        assert!(err.to_string().contains("8 edge"), "{err}");
+        let err = prior.log_probabilities(&node, &edge, -1.0).unwrap_err();
+        assert!(err.to_string().contains("non-negative"), "{err}");
+        let err = prior.log_probabilities(&[0.0; 3], &edge, 1.0).unwrap();
+        assert!(err.iter().all(|&l| l == f32::NEG_INFINITY));
+    }
+
+    #[test]
+    fn seed_settings_change_one_seed_and_the_table_counts_wins() {
+        let synth = DataSource::Synthetic {
+            seed: 0,
+            duration_scale: 1.0,
+        };
+        let base = JigsawsConfig::for_profile(Profile::Quick, synth.clone());
+        let all = SeedSetting::all(&synth);
+        assert_eq!(all.len(), 9);
+        let names: Vec<String> = all.iter().map(|s| s.name()).collect();
+        assert_eq!(names[..4], ["default", "data1", "data2", "data3"]);
+        assert_eq!(names[8], "model5");
+        let data2 = SeedSetting::Data(2).apply(&base).unwrap();
+        assert_eq!(
+            (data2.source.run_tag(), data2.model_seed),
+            ("synth2".to_owned(), 0)
+        );
+        let model3 = SeedSetting::Model(3).apply(&base).unwrap();
+        assert_eq!((model3.source.clone(), model3.model_seed), (synth, 3));
+        assert_eq!(SeedSetting::Default.apply(&base).unwrap(), base);
+        let root = DataSource::Root {
+            path: PathBuf::from("/data/jigsaws"),
+        };
+        assert!(
+            SeedSetting::all(&root)
+                .iter()
+                .all(|s| !matches!(s, SeedSetting::Data(_)))
+        );
+        let on_disk = JigsawsConfig::for_profile(Profile::Quick, root);
+        let err = SeedSetting::Data(1).apply(&on_disk).unwrap_err();
+        assert!(err.to_string().contains("no data seed"), "{err}");
+
+        let row = |setting, ng: f64, own: f64, full: f64| SeedRow {
+            setting,
+            nll: vec![
+                (Method::Uniform, 16f64.ln()),
+                (Method::NoGraph, ng),
+                (Method::FullOwnHead, own),
+                (Method::Full, full),
+            ],
+            prior_weight: Some(0.5),
+        };
+        let table = SeedTable {
+            rows: vec![
+                row(SeedSetting::Default, 0.7, 0.6, 0.65),
+                row(SeedSetting::Data(1), 0.6, 0.8, 0.62),
+                row(SeedSetting::Model(1), 0.5, 0.9, 0.4),
+            ],
+        };
+        assert_eq!(table.wins(Method::Full, Method::NoGraph), 2);
+        assert_eq!(table.wins(Method::FullOwnHead, Method::NoGraph), 1);
+        assert!((table.mean(Method::Full) - (0.65 + 0.62 + 0.4) / 3.0).abs() < 1e-12);
+        let md = seed_table_markdown(&table);
+        assert!(
+            md.contains("| data1 | 0.600 | 0.800 | 0.620 | 0.5 | **no** |"),
+            "{md}"
+        );
+        assert!(md.contains("full lower in 2 of 3"), "{md}");
     }
 
     #[test]

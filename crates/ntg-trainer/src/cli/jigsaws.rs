@@ -6,7 +6,7 @@
 //!   synthetic; task folders are searched for, nested ones included) and
 //!   prints trials, gestures, frames and transition counts per task;
 //! - `ntg jigsaws nll [--jigsaws-root DIR] --out DIR [--profile P]
-//!   [--synth-seed S] [--model-seed S]` runs the
+//!   [--synth-seed S] [--model-seed S] [--seed-table]` runs the
 //!   cross-task NLL experiment ([`crate::jigsaws`]): on the synthetic
 //!   stand-in by default, on a JIGSAWS copy with `--jigsaws-root`.
 //!
@@ -80,7 +80,12 @@ pub struct NllArgs {
     /// Training epochs (default: the profile's).
     #[arg(long, value_name = "N")]
     pub epochs: Option<usize>,
-    /// Where the figure, the predicted graph and `jigsaws.json` go.
+    /// Also run the experiment with one seed changed at a time (synthetic
+    /// data seeds 1–3, model seeds 1–5) and add the table to the report.
+    #[arg(long)]
+    pub seed_table: bool,
+    /// Where the figure, the predicted graph, the report section
+    /// (`jigsaws.md`) and `jigsaws.json` go.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
     /// Where the two training runs go (finished runs with the same
@@ -113,7 +118,9 @@ pub fn run_with(
 }
 
 fn nll(args: &NllArgs, out: &mut impl Write, err: &mut impl Write) -> anyhow::Result<()> {
-    use crate::jigsaws::{DataSource, JigsawsConfig, Method, run_experiment, write_outputs};
+    use crate::jigsaws::{
+        DataSource, JigsawsConfig, Method, run_experiment, seed_table, write_outputs,
+    };
     let source = match &args.jigsaws_root {
         Some(path) => DataSource::Root { path: path.clone() },
         None => DataSource::Synthetic {
@@ -129,9 +136,16 @@ fn nll(args: &NllArgs, out: &mut impl Write, err: &mut impl Write) -> anyhow::Re
         config.model_seed = seed;
     }
     let runs = args.runs.clone().unwrap_or_else(|| args.out.join("runs"));
-    let result = run_experiment(&config, &runs, |line| {
+    let mut result = run_experiment(&config, &runs, |line| {
         let _ = writeln!(err, "{line}");
     })?;
+    if args.seed_table {
+        let table = seed_table(&config, Some(&result), &runs, |line| {
+            let _ = writeln!(err, "{line}");
+        })?;
+        write!(out, "{}", crate::jigsaws::seed_table_markdown(&table))?;
+        result.seeds = Some(table);
+    }
     write_outputs(&result, &args.out)?;
     writeln!(out, "{}", result.source)?;
     for m in Method::ALL {
@@ -151,7 +165,7 @@ fn nll(args: &NllArgs, out: &mut impl Write, err: &mut impl Write) -> anyhow::Re
     }
     writeln!(
         out,
-        "wrote {} (jigsaws.svg/png, jigsaws_graph.dot/svg, jigsaws.json)",
+        "wrote {} (jigsaws.svg/png, jigsaws_graph.dot/svg, jigsaws.md, jigsaws.json)",
         args.out.display()
     )?;
     Ok(())
@@ -411,6 +425,7 @@ mod tests {
             model_seed: None,
             profile: crate::reproduce::Profile::Smoke,
             epochs: Some(1),
+            seed_table: false,
             out: out.clone(),
             runs: None,
         };
@@ -425,6 +440,7 @@ mod tests {
             "jigsaws.png",
             "jigsaws_graph.dot",
             "jigsaws_graph.svg",
+            "jigsaws.md",
             "jigsaws.json",
         ] {
             assert!(out.join(file).is_file(), "{file} missing");
@@ -453,6 +469,20 @@ mod tests {
             format!("{err:#}").contains("another configuration"),
             "{err:#}"
         );
+        // The seed table: on a copy on disk, model seeds only; the default
+        // row is the run above (not trained again).
+        let mut table = args();
+        table.seed_table = true;
+        let (text, log) = run_to_strings(JigsawsCommand::Nll(table)).unwrap();
+        assert!(
+            text.contains("| model5 |") && !text.contains("| data1 |"),
+            "{text}"
+        );
+        assert!(text.contains(" of 6;"), "{text}");
+        assert!(!log.contains("seed table: default"), "{log}");
+        let report = std::fs::read_to_string(out.join("jigsaws.md")).unwrap();
+        assert!(report.contains("**Seed sensitivity.**"), "{report}");
+        assert!(dir.path().join("out/runs/jigsaws-seeds/model5").is_dir());
     }
 
     #[test]
@@ -464,6 +494,7 @@ mod tests {
             model_seed: None,
             profile: crate::reproduce::Profile::Smoke,
             epochs: None,
+            seed_table: false,
             out: dir.path().join("out"),
             runs: None,
         }))
