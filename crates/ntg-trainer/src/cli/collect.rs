@@ -205,7 +205,7 @@ pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
         optim: OptimConfig {
             epochs: args.epochs,
             batch_size: args.batch_size,
-            learning_rate: args.lr,
+            learning_rate: args.lr.unwrap_or(crate::blocks::PAPER_LEARNING_RATE),
             seed: args.seed,
             token_dropout: 0.0,
             cosine_decay: args.cosine_decay,

@@ -6,7 +6,7 @@ use anyhow::{Context, bail};
 use clap::{Args, ValueEnum};
 use ntg_model::NtgModel;
 
-use crate::blocks::{self, BlocksRunConfig, ObsKind, Variant};
+use crate::blocks::{self, BlocksRunConfig, ObsKind, Recipe, Variant};
 use crate::run_dir::RunDir;
 use crate::train::OptimConfig;
 
@@ -25,6 +25,9 @@ pub struct TrainArgs {
     /// Task domain.
     #[arg(long, value_enum, default_value_t = Domain::Blocks)]
     pub domain: Domain,
+    /// Block stacking: the training recipe the other options add to.
+    #[arg(long, value_enum, default_value_t = Recipe::Recommended)]
+    pub recipe: Recipe,
     /// Observation kind.
     #[arg(long, value_enum, default_value_t = ObsKind::State)]
     pub obs: ObsKind,
@@ -44,9 +47,10 @@ pub struct TrainArgs {
     /// Demonstrations per optimisation step.
     #[arg(long, default_value_t = 32)]
     pub batch_size: usize,
-    /// Adam learning rate.
-    #[arg(long, default_value_t = 1e-3)]
-    pub lr: f64,
+    /// Adam learning rate [default: 3e-3 with --recipe recommended, else
+    /// 1e-3].
+    #[arg(long)]
+    pub lr: Option<f64>,
     /// Seed of the weights and the shuffling.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -66,9 +70,10 @@ pub struct TrainArgs {
     #[arg(long)]
     pub pairwise: bool,
     /// Hidden layers of the localizer's and edge classifier's state encoder
-    /// MLPs (state observations only; the demo interpreter keeps one).
-    #[arg(long, default_value_t = 1)]
-    pub state_hidden_layers: usize,
+    /// MLPs (state observations only; the demo interpreter keeps one)
+    /// [default: 3 with --recipe recommended, else 1].
+    #[arg(long)]
+    pub state_hidden_layers: Option<usize>,
     /// Held-out validation tasks scored after every epoch; the epoch that
     /// scores best is the run's result (`best/`). 0 = keep the last epoch.
     #[arg(long, default_value_t = 100)]
@@ -82,9 +87,10 @@ pub struct TrainArgs {
     #[arg(long)]
     pub permute_objects: bool,
     /// Hidden width of a fusion layer between the edge classifier's inputs
-    /// and its query (0 = the paper's linear W; not in the paper).
-    #[arg(long, default_value_t = 0)]
-    pub edge_fusion_hidden: usize,
+    /// and its query (0 = the paper's linear W; not in the paper)
+    /// [default: 256 with --recipe recommended, else 0].
+    #[arg(long)]
+    pub edge_fusion_hidden: Option<usize>,
     /// Weight of recovery steps (the next action repeats one already taken)
     /// in the edge classifier's loss (1 = unweighted; not in the paper).
     #[arg(long, default_value_t = 1.0)]
@@ -109,32 +115,36 @@ pub struct TrainArgs {
 }
 
 impl TrainArgs {
-    /// The run configuration these arguments describe.
+    /// The block-stacking run configuration these arguments describe: the
+    /// recipe, with the boolean flags added and the numbers overridden.
     pub fn config(&self) -> BlocksRunConfig {
+        let base = self.recipe.config(
+            self.obs,
+            self.train_tasks,
+            self.demos_per_task,
+            self.epochs,
+            self.seed,
+        );
         BlocksRunConfig {
-            obs: self.obs,
-            train_tasks: self.train_tasks,
-            demos_per_task: self.demos_per_task,
             failures: !self.no_failures,
-            model_seed: self.seed,
-            state_hidden_layers: self.state_hidden_layers,
-            pairwise: self.pairwise,
+            state_hidden_layers: self.state_hidden_layers.unwrap_or(base.state_hidden_layers),
+            pairwise: base.pairwise || self.pairwise,
             validation_tasks: self.validation_tasks,
             validate_every: self.validate_every,
-            permute_objects: self.permute_objects,
-            edge_fusion_hidden: self.edge_fusion_hidden,
+            permute_objects: base.permute_objects || self.permute_objects,
+            edge_fusion_hidden: self.edge_fusion_hidden.unwrap_or(base.edge_fusion_hidden),
             retry_weight: self.retry_weight,
-            detach_gcn_from_edges: self.detach_gcn_from_edges,
-            soft_edges: self.soft_edges,
+            detach_gcn_from_edges: base.detach_gcn_from_edges || self.detach_gcn_from_edges,
+            soft_edges: base.soft_edges || self.soft_edges,
             optim: OptimConfig {
-                epochs: self.epochs,
                 batch_size: self.batch_size,
-                learning_rate: self.lr,
-                seed: self.seed,
+                learning_rate: self.lr.unwrap_or(base.optim.learning_rate),
                 token_dropout: self.token_dropout,
-                cosine_decay: self.cosine_decay,
-                gcn_from_other_demo: self.gcn_from_other_demo,
+                cosine_decay: base.optim.cosine_decay || self.cosine_decay,
+                gcn_from_other_demo: base.optim.gcn_from_other_demo || self.gcn_from_other_demo,
+                ..base.optim
             },
+            ..base
         }
     }
 }
@@ -150,7 +160,7 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
         let saved: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
         if saved != config {
             bail!(
-                "{} was started with a different configuration; resume it with the same arguments as the original run (saved: {})",
+                "{} was started with a different configuration; resume it with the same arguments as the original run (runs started before --recipe existed need --recipe paper; saved: {})",
                 run.config_path().display(),
                 serde_json::to_string(&saved)?
             );
@@ -354,4 +364,54 @@ pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
         println!("not reproduced yet: {what} ({why})");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+    use crate::cli::{Cli, Command};
+
+    fn config_of(args: &[&str]) -> BlocksRunConfig {
+        let argv = ["ntg", "train", "--out", "run"].iter().chain(args);
+        match Cli::try_parse_from(argv).unwrap().command {
+            Command::Train(train) => train.config(),
+            other => panic!("parsed as {other:?}"),
+        }
+    }
+
+    #[test]
+    fn the_paper_recipe_adds_nothing() {
+        let c = config_of(&["--recipe", "paper"]);
+        assert_eq!(
+            (c.state_hidden_layers, c.pairwise, c.permute_objects),
+            (1, false, false)
+        );
+        assert_eq!((c.edge_fusion_hidden, c.detach_gcn_from_edges), (0, false));
+        assert!(!c.soft_edges);
+        assert_eq!(c.optim.learning_rate, blocks::PAPER_LEARNING_RATE);
+        assert!(!c.optim.cosine_decay && !c.optim.gcn_from_other_demo);
+        // Flags add to the recipe.
+        let c = config_of(&["--recipe", "paper", "--pairwise", "--lr", "0.01"]);
+        assert!(c.pairwise);
+        assert_eq!(c.optim.learning_rate, 0.01);
+    }
+
+    #[test]
+    fn the_recommended_recipe_is_the_default_and_numbers_override_it() {
+        let c = config_of(&[]);
+        assert_eq!(
+            (c.state_hidden_layers, c.pairwise, c.permute_objects),
+            (3, true, true)
+        );
+        assert_eq!((c.edge_fusion_hidden, c.detach_gcn_from_edges), (256, true));
+        assert!(c.soft_edges);
+        assert_eq!(c.optim.learning_rate, 3e-3);
+        assert!(c.optim.cosine_decay && c.optim.gcn_from_other_demo);
+        let c = config_of(&["--edge-fusion-hidden", "0", "--state-hidden-layers", "2"]);
+        assert_eq!((c.edge_fusion_hidden, c.state_hidden_layers), (0, 2));
+        // Frames have no per-cube columns to rename.
+        assert!(!config_of(&["--obs", "vid"]).permute_objects);
+    }
 }
