@@ -8,7 +8,7 @@
 //! - [`task`]: NTP's task-file format, statistics, the seeded generator and
 //!   the standard split (`datasets/blocks/`);
 //! - [`sorting`]: object-sorting tasks (4 categories into 4 bins);
-//! - [`env`]: [`BlocksEnv`], a `ctg_graph::Environment` at the flat level
+//! - [`env`](mod@env): [`BlocksEnv`], a `ctg_graph::Environment` at the flat level
 //!   (`pick(X)`, `place(Y)`) or NTP's primitive level;
 //! - [`expert`]: the scripted [`BlocksExpert`], NTP's hierarchical trace,
 //!   rich demos and parallel demo generation;

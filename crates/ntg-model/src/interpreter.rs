@@ -41,7 +41,7 @@ pub struct DemoInterpreterConfig {
     /// Location-aware attention (`Some(true)`, needs input feeding;
     /// Chorowski et al. 2015): the score of frame `s` at step `t` also gets
     /// `G Σ_j w_j α_{t−1}(s − j)` for shifts `j` in −1..=2 (learned `w`,
-    /// fixed gain `G` = [`LOCATION_GAIN`], `α_{−1}` on the first frame), so
+    /// fixed gain `G` = `LOCATION_GAIN` (10), `α_{−1}` on the first frame), so
     /// the attention can learn to move on by one frame per token whatever
     /// the demo's length. `None` means false.
     pub location_attention: Option<bool>,
@@ -188,7 +188,7 @@ pub struct DemoInterpreter {
     pub max_decode_len: usize,
     /// Whether the decoder reads the previous attentional state.
     pub input_feeding: bool,
-    /// Location-aware attention weights `w` over [`LOCATION_SHIFTS`].
+    /// Location-aware attention weights `w` over the shifts −1..=2.
     pub location: Option<Param<Tensor<1>>>,
     /// Whether each decoder step starts from a zero state.
     pub stateless: bool,

@@ -3,7 +3,7 @@
 //! evaluate both on unseen tasks with N = 1..5.
 //!
 //! Tasks come from env-collect's fixed train/test split by task identity
-//! ([`TaskSplitter::default`]): training tasks from the train side, test
+//! ([`env_collect::TaskSplitter`]'s default): training tasks from the train side, test
 //! tasks from the test side, so every evaluated task is unseen. Seeds:
 //! training demo `j` of training task `i` is recorded with seed
 //! `TRAIN_SEED_BASE + 1000 i + j`; test episode `i` with `N` objects uses

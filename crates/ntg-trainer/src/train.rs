@@ -19,7 +19,7 @@
 //! `(seed, e)` alone, so a run resumed from the checkpoint of epoch `e - 1`
 //! takes exactly the same steps as an uninterrupted one.
 //!
-//! Model selection: [`train_with_validation`] scores the model after every
+//! Model selection: [`train_with`] scores the model after every
 //! epoch on held-out tasks (a caller-supplied [`Validator`]) and keeps the
 //! best epoch's weights in the run's `best/` folder. How well the demo
 //! interpreter transcribes unseen demos swings from epoch to epoch (at 1000
