@@ -310,16 +310,7 @@ impl Progress<'_> {
     /// One human-readable line.
     pub fn line(&self) -> String {
         match self {
-            Progress::Ntg(m) => format!(
-                "epoch {:>3}: loss {:.3} | tokens {:.3} | edge F1 {} | localizer {:.3} | steps {:.3} | {:.1}s",
-                m.epoch,
-                m.loss,
-                m.token_accuracy,
-                m.edge_f1_text(),
-                m.localizer_accuracy,
-                m.step_accuracy,
-                m.seconds
-            ),
+            Progress::Ntg(m) => m.log_line(),
             Progress::Flat(m) => format!(
                 "epoch {:>3}: loss {:.3} | steps {:.3} | {:.1}s",
                 m.epoch, m.loss, m.step_accuracy, m.seconds

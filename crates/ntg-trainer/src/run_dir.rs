@@ -67,6 +67,38 @@ impl RunDir {
         Ok(dir)
     }
 
+    /// What `ntg train` does with `--out root`: with `resume`, opens the
+    /// run there after checking it was started with `config` (else an
+    /// error that shows the saved configuration, followed by `hint`);
+    /// without, creates the folder and saves `config` as its
+    /// `config.json`.
+    pub fn start_or_resume<C>(
+        root: &Path,
+        config: &C,
+        resume: bool,
+        hint: &str,
+    ) -> anyhow::Result<Self>
+    where
+        C: Serialize + DeserializeOwned + PartialEq,
+    {
+        if resume {
+            let run = RunDir::open(root)?;
+            let saved: C = RunDir::read_json(&run.config_path())?;
+            if saved != *config {
+                bail!(
+                    "{} was started with a different configuration; resume it with the same arguments as the original run ({hint}saved: {})",
+                    run.config_path().display(),
+                    serde_json::to_string(&saved)?
+                );
+            }
+            Ok(run)
+        } else {
+            let run = RunDir::create(root)?;
+            RunDir::write_json(&run.config_path(), config)?;
+            Ok(run)
+        }
+    }
+
     /// The folder itself.
     pub fn root(&self) -> &Path {
         &self.root
@@ -146,6 +178,32 @@ impl RunDir {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn start_or_resume_checks_the_saved_configuration() {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path().join("run");
+        let config = serde_json::json!({"epochs": 3});
+        RunDir::start_or_resume(&root, &config, false, "").unwrap();
+        let saved: serde_json::Value = RunDir::read_json(&root.join("config.json")).unwrap();
+        assert_eq!(saved, config);
+        // Starting again over it is refused; resuming with the same
+        // configuration is not.
+        assert!(RunDir::start_or_resume(&root, &config, false, "").is_err());
+        RunDir::start_or_resume(&root, &config, true, "").unwrap();
+        let other = serde_json::json!({"epochs": 4});
+        let err = RunDir::start_or_resume(&root, &other, true, "try --x; ")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("different configuration"), "{err}");
+        assert!(err.contains("(try --x; saved: {\"epochs\":3})"), "{err}");
+        // Resuming where nothing was started names the folder.
+        let missing = tmp.path().join("none");
+        let err = RunDir::start_or_resume(&missing, &config, true, "")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("none"), "{err}");
+    }
 
     #[test]
     fn refuses_to_overwrite_and_checks_open() {

@@ -300,6 +300,20 @@ pub struct TrainExtras<'a> {
 }
 
 impl EpochMetrics {
+    /// One human-readable log line.
+    pub fn log_line(&self) -> String {
+        format!(
+            "epoch {:>3}: loss {:.3} | tokens {:.3} | edge F1 {} | localizer {:.3} | steps {:.3} | {:.1}s",
+            self.epoch,
+            self.loss,
+            self.token_accuracy,
+            self.edge_f1_text(),
+            self.localizer_accuracy,
+            self.step_accuracy,
+            self.seconds
+        )
+    }
+
     /// The edge F1 for logs: three decimals, or `n/a` without a GCN.
     pub fn edge_f1_text(&self) -> String {
         self.edge_f1

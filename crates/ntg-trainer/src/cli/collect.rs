@@ -13,7 +13,7 @@
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use clap::{Args, Subcommand, ValueEnum};
 use env_collect::{CollectConfig, Split, TaskSplitter, export};
 use rand::SeedableRng;
@@ -213,22 +213,7 @@ pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
         },
     };
     config.validate()?;
-    let run = if args.resume {
-        let run = RunDir::open(&args.out)?;
-        let saved: CollectRunConfig = RunDir::read_json(&run.config_path())?;
-        if saved != config {
-            bail!(
-                "{} was started with a different configuration; resume it with the same arguments as the original run (saved: {})",
-                run.config_path().display(),
-                serde_json::to_string(&saved)?
-            );
-        }
-        run
-    } else {
-        let run = RunDir::create(&args.out)?;
-        RunDir::write_json(&run.config_path(), &config)?;
-        run
-    };
+    let run = RunDir::start_or_resume(&args.out, &config, args.resume, "")?;
     eprintln!(
         "training {} ({:?} observations) on N = {:?}, {} tasks per N x {} demos, {} epochs -> {}",
         config.method.name(),

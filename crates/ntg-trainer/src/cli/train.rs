@@ -155,18 +155,7 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
         return super::collect::train(args);
     }
     let config = args.config();
-    let run = if args.resume {
-        let run = RunDir::open(&args.out)?;
-        let saved: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
-        if saved != config {
-            bail!(
-                "{} was started with a different configuration; resume it with the same arguments as the original run (runs started before --recipe existed need --recipe paper; saved: {})",
-                run.config_path().display(),
-                serde_json::to_string(&saved)?
-            );
-        }
-        run
-    } else {
+    if !args.resume {
         if config.train_tasks == 0 || config.demos_per_task == 0 {
             bail!("--train-tasks and --demos-per-task must be positive");
         }
@@ -181,10 +170,13 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
                 config.optim.token_dropout
             );
         }
-        let run = RunDir::create(&args.out)?;
-        RunDir::write_json(&run.config_path(), &config)?;
-        run
-    };
+    }
+    let run = RunDir::start_or_resume(
+        &args.out,
+        &config,
+        args.resume,
+        "runs started before --recipe existed need --recipe paper; ",
+    )?;
     let device = ntg_model::cpu_device().autodiff();
     eprintln!(
         "training NTG ({:?} observations) on {} tasks x {} demos for {} epochs -> {}",
@@ -194,18 +186,7 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
         config.optim.epochs,
         run.root().display()
     );
-    blocks::train_run(&run, &config, &device, |m| {
-        eprintln!(
-            "epoch {:>3}: loss {:.3} | tokens {:.3} | edge F1 {} | localizer {:.3} | steps {:.3} | {:.1}s",
-            m.epoch,
-            m.loss,
-            m.token_accuracy,
-            m.edge_f1_text(),
-            m.localizer_accuracy,
-            m.step_accuracy,
-            m.seconds
-        );
-    })?;
+    blocks::train_run(&run, &config, &device, |m| eprintln!("{}", m.log_line()))?;
     match crate::train::selected_epoch(&run)? {
         Some(best) => eprintln!(
             "done: epoch {} scored best on the validation tasks (success {:.3}, goals met {:.3}); its weights are in {}",
