@@ -174,7 +174,8 @@ fn one() -> usize {
 }
 
 /// A set of training choices for block stacking: what `ntg train` starts
-/// from (`--recipe`) and what `ntg reproduce` trains.
+/// from (`--recipe`). (`ntg reproduce`'s figure keeps its own
+/// configuration, see `reproduce.rs`.)
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Recipe {

@@ -5,37 +5,26 @@
 
 use burn::module::Module;
 use ntg_model::NtgModel;
-use ntg_trainer::blocks::{BlocksRunConfig, ObsKind, build_dataset, new_model};
+use ntg_trainer::blocks::{BlocksRunConfig, ObsKind, Recipe, build_dataset, new_model};
 use ntg_trainer::run_dir::RunDir;
 use ntg_trainer::train::{
     OptimConfig, TrainExtras, ValidationRecord, ValidationScore, selected_epoch, train_with,
 };
 
+/// A tiny run of the paper's recipe, without failures or validation.
 fn config() -> BlocksRunConfig {
+    let paper = Recipe::Paper.config(ObsKind::State, 3, 2, 4, 5);
     BlocksRunConfig {
-        obs: ObsKind::State,
-        train_tasks: 3,
-        demos_per_task: 2,
         failures: false,
         model_seed: 3,
-        state_hidden_layers: 1,
-        pairwise: false,
         validation_tasks: 0,
         validate_every: 0,
-        permute_objects: false,
-        edge_fusion_hidden: 0,
-        retry_weight: 0.0,
-        detach_gcn_from_edges: false,
-        soft_edges: false,
         optim: OptimConfig {
-            epochs: 4,
             batch_size: 2,
             learning_rate: 1e-2,
-            seed: 5,
-            token_dropout: 0.0,
-            cosine_decay: false,
-            gcn_from_other_demo: false,
+            ..paper.optim
         },
+        ..paper
     }
 }
 
