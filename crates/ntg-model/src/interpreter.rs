@@ -45,6 +45,12 @@ pub struct DemoInterpreterConfig {
     /// the attention can learn to move on by one frame per token whatever
     /// the demo's length. `None` means false.
     pub location_attention: Option<bool>,
+    /// Initial weight of shift +1 in location-aware attention (the other
+    /// shifts start at 0): `Some(w)` starts the attention biased by
+    /// `G·w` towards the frame after the one it read last, the monotonic
+    /// alignment of a demo's frames and actions, instead of starting
+    /// without a preference and having to find it. `None` means 0.
+    pub location_step_prior: Option<f32>,
     /// A decoder without memory (`Some(true)`, needs input feeding): each
     /// step starts from a zero state and sees only the previous token and
     /// the previous attentional state `h̃_{t−1}`, so it cannot count how
@@ -130,8 +136,19 @@ impl DemoInterpreterConfig {
             num_nodes: self.num_nodes,
             max_decode_len: self.max_decode_len,
             input_feeding: feeding,
-            location: (self.location_attention == Some(true))
-                .then(|| extra.vector(LOCATION_SHIFTS.len(), 0.0)),
+            location: (self.location_attention == Some(true)).then(|| {
+                let weights = extra.vector(LOCATION_SHIFTS.len(), 0.0);
+                match self.location_step_prior {
+                    None => weights,
+                    Some(prior) => {
+                        let values: Vec<f32> = LOCATION_SHIFTS
+                            .iter()
+                            .map(|&j| if j == 1 { prior } else { 0.0 })
+                            .collect();
+                        Param::from_data(TensorData::new(values, [LOCATION_SHIFTS.len()]), device)
+                    }
+                }
+            }),
             stateless: self.stateless_decoder == Some(true),
             local: (self.local_annotations == Some(true))
                 .then(|| extra.linear(3 * encoder_dim, h, true)),

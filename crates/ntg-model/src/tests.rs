@@ -1213,3 +1213,36 @@ fn weighted_edge_loss_is_a_weighted_mean_over_rows() {
             .is_err()
     );
 }
+
+/// The location step prior sets only the initial weight of shift +1, and
+/// leaves every other weight as it was.
+#[test]
+fn location_step_prior_sets_the_initial_shift_plus_one_weight() {
+    let dev = device();
+    let base = small_config(2)
+        .interpreter
+        .with_input_feeding(Some(true))
+        .with_location_attention(Some(true));
+    let plain = base.clone().init(5, &dev).unwrap();
+    let primed = base
+        .with_location_step_prior(Some(0.3))
+        .init(5, &dev)
+        .unwrap();
+    use crate::interpreter::LOCATION_SHIFTS;
+    let location = |i: &DemoInterpreter| to_vec(i.location.as_ref().unwrap().val()).unwrap();
+    assert_eq!(location(&plain), vec![0.0; LOCATION_SHIFTS.len()]);
+    let expected: Vec<f32> = LOCATION_SHIFTS
+        .iter()
+        .map(|&j| if j == 1 { 0.3 } else { 0.0 })
+        .collect();
+    assert_eq!(location(&primed), expected);
+    let others = |i: &DemoInterpreter| {
+        [
+            i.out.weight.val(),
+            i.attn.weight.val(),
+            i.combine.weight.val(),
+        ]
+        .map(|t| to_vec(t).unwrap())
+    };
+    assert_eq!(others(&plain), others(&primed));
+}

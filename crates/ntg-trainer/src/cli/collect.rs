@@ -64,6 +64,27 @@ pub struct CollectTrainArgs {
     /// NTG: which demo interpreter.
     #[arg(long, value_enum, default_value_t = collect::InterpreterKind::Stepping)]
     pub interpreter: collect::InterpreterKind,
+    /// NTG with the stepping interpreter: initial weight of its
+    /// location-aware attention's shift +1, a bias towards reading the next
+    /// frame (0 = no preference) [default: 0.3 for NTG with the stepping
+    /// interpreter].
+    #[arg(long, value_name = "W")]
+    pub location_step_prior: Option<f32>,
+}
+
+impl CollectTrainArgs {
+    /// The location step prior of the run: the flag, else the
+    /// interpreter's default for NTG (none for the Flat Policy). An
+    /// explicit 0 is no prior, as in runs saved before the option existed,
+    /// so those resume with `--location-step-prior 0`.
+    pub fn location_step_prior(&self) -> Option<f32> {
+        match (self.location_step_prior, self.method) {
+            (Some(w), _) if w == 0.0 => None,
+            (Some(w), _) => Some(w),
+            (None, collect::Method::Ntg) => self.interpreter.default_step_prior(),
+            (None, collect::Method::Flat) => None,
+        }
+    }
 }
 
 /// Arguments of `ntg collect figure`.
@@ -201,6 +222,7 @@ pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
         learn_end: c.learn_end,
         memory: c.memory,
         interpreter: c.interpreter,
+        location_step_prior: c.location_step_prior(),
         model_seed: args.seed,
         optim: OptimConfig {
             epochs: args.epochs,

@@ -395,4 +395,23 @@ mod tests {
         // Frames have no per-cube columns to rename.
         assert!(!config_of(&["--obs", "vid"]).permute_objects);
     }
+
+    #[test]
+    fn collect_location_step_prior_defaults_per_method_and_interpreter() {
+        let prior = |args: &[&str]| {
+            let argv = ["ntg", "train", "--domain", "collect", "--out", "run"]
+                .iter()
+                .chain(args);
+            match Cli::try_parse_from(argv).unwrap().command {
+                Command::Train(train) => train.collect.location_step_prior(),
+                other => panic!("parsed as {other:?}"),
+            }
+        };
+        assert_eq!(prior(&[]), Some(crate::collect::LOCATION_STEP_PRIOR));
+        assert_eq!(prior(&["--method", "flat"]), None);
+        assert_eq!(prior(&["--interpreter", "luong"]), None);
+        assert_eq!(prior(&["--location-step-prior", "0.5"]), Some(0.5));
+        // An explicit 0 is no prior: what runs saved before the option hold.
+        assert_eq!(prior(&["--location-step-prior", "0"]), None);
+    }
 }
