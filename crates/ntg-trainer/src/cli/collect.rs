@@ -79,7 +79,7 @@ impl CollectTrainArgs {
     /// so those resume with `--location-step-prior 0`.
     pub fn location_step_prior(&self) -> Option<f32> {
         match (self.location_step_prior, self.method) {
-            (Some(w), _) if w == 0.0 => None,
+            (Some(0.0), _) => None,
             (Some(w), _) => Some(w),
             (None, collect::Method::Ntg) => self.interpreter.default_step_prior(),
             (None, collect::Method::Flat) => None,
