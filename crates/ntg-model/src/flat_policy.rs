@@ -10,7 +10,7 @@
 //! layer; only the query differs (the current observation instead of a
 //! decoder state) and an MLP replaces the token output layer.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use burn::config::Config;
 use burn::module::Module;
@@ -22,7 +22,6 @@ use ctg_graph::{ActionId, Vocabulary};
 use crate::batch::{DemoBatch, rows_tensor};
 use crate::encoder::{Encoder, EncoderConfig};
 use crate::interpreter::{LossOutput, luong_attention};
-use crate::model::{CONFIG_FILE, WEIGHTS_FILE};
 use crate::nn::{GruCell, Init, MASKED_LOGIT, masked_accuracy, masked_cross_entropy, to_vec};
 use crate::{ModelError, Result};
 
@@ -453,37 +452,15 @@ impl FlatPolicy {
     /// Saves the configuration (`config.json`) and weights (`model.bpk`)
     /// into `dir`, creating it if needed.
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<()> {
-        let dir = dir.as_ref();
-        std::fs::create_dir_all(dir).map_err(|e| ModelError::file(dir, e))?;
-        let config_path = dir.join(CONFIG_FILE);
-        let json = serde_json::to_string_pretty(&self.config)
-            .map_err(|e| ModelError::file(&config_path, e))?;
-        std::fs::write(&config_path, json).map_err(|e| ModelError::file(&config_path, e))?;
-        let weights = dir.join(WEIGHTS_FILE);
-        self.clone()
-            .save_file(&weights)
-            .map_err(|e| ModelError::file(&weights, e))
+        crate::checkpoint::save(self, &self.config, dir.as_ref())
     }
 
     /// Loads a policy saved by [`FlatPolicy::save`] onto `device`; a
     /// missing, corrupt or mismatched file is an error naming it.
     pub fn load(dir: impl AsRef<Path>, device: &Device) -> Result<Self> {
-        let config_path = dir.as_ref().join(CONFIG_FILE);
-        let text =
-            std::fs::read_to_string(&config_path).map_err(|e| ModelError::file(&config_path, e))?;
         let config: FlatPolicyConfig =
-            serde_json::from_str(&text).map_err(|e| ModelError::file(&config_path, e))?;
-        config
-            .validate()
-            .map_err(|e| ModelError::file(&config_path, e))?;
-        let weights: PathBuf = dir.as_ref().join(WEIGHTS_FILE);
-        if !weights.is_file() {
-            return Err(ModelError::file(&weights, "no such file"));
-        }
-        config
-            .init(device)?
-            .try_load_file(&weights)
-            .map_err(|e| ModelError::file(&weights, e))
+            crate::checkpoint::load_config(dir.as_ref(), FlatPolicyConfig::validate)?;
+        crate::checkpoint::load_weights(config.init(device)?, dir.as_ref())
     }
 }
 
@@ -552,6 +529,7 @@ mod tests {
 
     use super::*;
     use crate::StateEncoderConfig;
+    use crate::model::WEIGHTS_FILE;
     use crate::nn::to_vec;
     use crate::tests::device;
 

@@ -33,6 +33,7 @@
 
 mod backend;
 mod batch;
+mod checkpoint;
 mod edge;
 mod encoder;
 mod error;

@@ -1,7 +1,7 @@
 //! The whole NTG model: configuration, the four networks, ablations,
 //! checkpoints.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use burn::config::Config;
 use burn::module::Module;
@@ -346,39 +346,19 @@ impl NtgModel {
     /// Saves the configuration (`config.json`) and weights (`model.bpk`)
     /// into `dir`, creating it if needed.
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<()> {
-        let dir = dir.as_ref();
-        std::fs::create_dir_all(dir).map_err(|e| ModelError::file(dir, e))?;
-        let config_path = dir.join(CONFIG_FILE);
-        let json = serde_json::to_string_pretty(&self.config)
-            .map_err(|e| ModelError::file(&config_path, e))?;
-        std::fs::write(&config_path, json).map_err(|e| ModelError::file(&config_path, e))?;
-        let weights = dir.join(WEIGHTS_FILE);
-        self.clone()
-            .save_file(&weights)
-            .map_err(|e| ModelError::file(&weights, e))
+        crate::checkpoint::save(self, &self.config, dir.as_ref())
     }
 
     /// Reads the configuration saved in `dir` by [`NtgModel::save`].
     pub fn load_config(dir: impl AsRef<Path>) -> Result<NtgConfig> {
-        let path = dir.as_ref().join(CONFIG_FILE);
-        let text = std::fs::read_to_string(&path).map_err(|e| ModelError::file(&path, e))?;
-        let config: NtgConfig =
-            serde_json::from_str(&text).map_err(|e| ModelError::file(&path, e))?;
-        config.validate().map_err(|e| ModelError::file(&path, e))?;
-        Ok(config)
+        crate::checkpoint::load_config(dir.as_ref(), NtgConfig::validate)
     }
 
     /// Loads a model saved by [`NtgModel::save`] onto `device`. A missing,
     /// corrupt or mismatched file is an error naming it.
     pub fn load(dir: impl AsRef<Path>, device: &Device) -> Result<Self> {
         let config = Self::load_config(&dir)?;
-        let weights: PathBuf = dir.as_ref().join(WEIGHTS_FILE);
-        if !weights.is_file() {
-            return Err(ModelError::file(&weights, "no such file"));
-        }
-        NtgModel::new(config, device)?
-            .try_load_file(&weights)
-            .map_err(|e| ModelError::file(&weights, e))
+        crate::checkpoint::load_weights(NtgModel::new(config, device)?, dir.as_ref())
     }
 }
 
