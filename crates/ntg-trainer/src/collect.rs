@@ -557,12 +557,7 @@ pub fn train_flat(
     mut on_epoch: impl FnMut(&FlatEpochMetrics),
 ) -> anyhow::Result<FlatPolicy> {
     let n = policy.num_nodes();
-    if dataset.vocabulary().len() != n {
-        bail!(
-            "the dataset's vocabulary has {} nodes, the policy {n}",
-            dataset.vocabulary().len()
-        );
-    }
+    dataset.check_num_nodes(n, "policy")?;
     let by_task = demos_by_task(dataset)?;
     let dim = dataset.obs_dim();
     let (learn_end, memory) = (config.learn_end, config.memory);
@@ -651,12 +646,7 @@ pub fn train_ntg(
     mut on_epoch: impl FnMut(&EpochMetrics),
 ) -> anyhow::Result<NtgModel> {
     let n = model.num_nodes();
-    if dataset.vocabulary().len() != n {
-        bail!(
-            "the dataset's vocabulary has {} nodes, the model {n}",
-            dataset.vocabulary().len()
-        );
-    }
+    dataset.check_num_nodes(n, "model")?;
     let graphs = task_graphs(dataset)?;
     let by_task = demos_by_task(dataset)?;
     let (segments, learn_end, memory) = (config.segments, config.learn_end, config.memory);

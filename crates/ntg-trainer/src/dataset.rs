@@ -81,6 +81,17 @@ pub struct DemoDataset {
 }
 
 impl DemoDataset {
+    /// Errors unless the dataset's vocabulary has the `num_nodes` nodes of
+    /// the network (`what`: "model", "policy") that is to learn from it.
+    pub fn check_num_nodes(&self, num_nodes: usize, what: &str) -> anyhow::Result<()> {
+        ensure!(
+            self.vocabulary().len() == num_nodes,
+            "the dataset's vocabulary has {} nodes, the {what} {num_nodes}",
+            self.vocabulary().len()
+        );
+        Ok(())
+    }
+
     /// Builds a dataset from featurised demonstrations (each observation a
     /// row of `obs_dim` values).
     pub fn from_demos(
@@ -361,6 +372,21 @@ mod tests {
             &ProgressBar::hidden(),
         )
         .unwrap()
+    }
+
+    #[test]
+    fn a_network_of_another_vocabulary_size_is_refused() {
+        let ds = dataset(ObsDtype::F32);
+        let n = ds.vocabulary().len();
+        ds.check_num_nodes(n, "model").unwrap();
+        let err = ds.check_num_nodes(n + 1, "policy").unwrap_err().to_string();
+        assert_eq!(
+            err,
+            format!(
+                "the dataset's vocabulary has {n} nodes, the policy {}",
+                n + 1
+            )
+        );
     }
 
     #[test]

@@ -405,12 +405,7 @@ pub fn train_with(
         bail!("batch size must be positive");
     }
     let n = model.num_nodes();
-    if dataset.vocabulary().len() != n {
-        bail!(
-            "the dataset's vocabulary has {} nodes, the model {n}",
-            dataset.vocabulary().len()
-        );
-    }
+    dataset.check_num_nodes(n, "model")?;
     let graphs = task_graphs(dataset)?;
     let mut demos_of_task: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
     for (i, e) in dataset.demos().iter().enumerate() {
