@@ -147,6 +147,13 @@ pub struct BlocksRunConfig {
     /// Not in the paper.
     #[serde(default)]
     pub permute_objects: bool,
+    /// With `permute_objects`: never train on a renaming that turns a
+    /// training task into a held-out one (any of the 1000 test tasks or the
+    /// first [`HELD_OUT_VALIDATION_TASKS`] validation tasks); such renamings
+    /// are drawn again. Without it about one renamed demo in 2000 is a test
+    /// task under another name. Runs saved before it: false.
+    #[serde(default)]
+    pub exclude_held_out_renamings: bool,
     /// Hidden width of the edge classifier's fusion layer (see
     /// `EdgeClassifierConfig::fusion_hidden`); 0 = the paper's linear `W`.
     #[serde(default)]
@@ -220,6 +227,7 @@ impl Recipe {
             validate_every: 1,
             // Frames carry no column per cube to rename.
             permute_objects: recommended && obs == ObsKind::State,
+            exclude_held_out_renamings: recommended && obs == ObsKind::State,
             edge_fusion_hidden: if recommended { 256 } else { 0 },
             retry_weight: 0.0,
             detach_gcn_from_edges: recommended,
@@ -322,6 +330,14 @@ pub fn train_run(
             bail!("renaming cubes (permute_objects) works on state observations only")
         }
     };
+    let held_out = if config.permute_objects && config.exclude_held_out_renamings {
+        Some(HeldOutConfigurations::new()?)
+    } else {
+        None
+    };
+    let accept_renaming = held_out
+        .as_ref()
+        .map(|h| move |task: usize, perm: &[usize]| !h.contains_renamed(&tasks[task], perm));
     let validation = env_blocks::validation_tasks(config.validation_tasks)?;
     let mut validator = |model: &NtgModel| -> anyhow::Result<ValidationScore> {
         let result = evaluate_tasks(
@@ -350,6 +366,9 @@ pub fn train_run(
             Some(&mut validator)
         },
         permute_objects: symmetry.as_ref(),
+        accept_renaming: accept_renaming
+            .as_ref()
+            .map(|f| f as &(dyn Fn(usize, &[usize]) -> bool + Sync)),
         validate_every: config.validate_every,
         retry_weight: config.retry_weight,
         detach_gcn_from_edges: config.detach_gcn_from_edges,
@@ -363,6 +382,52 @@ pub fn train_run(
         &mut on_epoch,
         extras,
     )
+}
+
+/// Validation tasks a renamed training demo may not be (see
+/// [`BlocksRunConfig::exclude_held_out_renamings`]): more than any run
+/// validates or `ntg eval --split validation` is used with here.
+pub const HELD_OUT_VALIDATION_TASKS: usize = 1000;
+
+/// The end configurations (`StackTask::configuration_key`) of the held-out
+/// tasks: the 1000 test tasks and the first [`HELD_OUT_VALIDATION_TASKS`]
+/// validation tasks.
+#[derive(Debug, Clone)]
+pub struct HeldOutConfigurations {
+    keys: std::collections::HashSet<Vec<Vec<usize>>>,
+}
+
+impl HeldOutConfigurations {
+    /// The held-out configurations of the standard split.
+    pub fn new() -> anyhow::Result<Self> {
+        let split = env_blocks::standard_split()?;
+        let validation = env_blocks::validation_tasks(HELD_OUT_VALIDATION_TASKS)?;
+        let keys = split
+            .test
+            .iter()
+            .chain(&validation)
+            .map(StackTask::configuration_key)
+            .collect();
+        Ok(HeldOutConfigurations { keys })
+    }
+
+    /// Whether `task` with cube `i` renamed `perm[i]` ends in a held-out
+    /// configuration.
+    pub fn contains_renamed(&self, task: &StackTask, perm: &[usize]) -> bool {
+        self.keys.contains(&renamed_configuration(task, perm))
+    }
+}
+
+/// The end configuration of `task` with cube `i` renamed `perm[i]`, in the
+/// form of `StackTask::configuration_key` (towers bottom to top, sorted).
+pub fn renamed_configuration(task: &StackTask, perm: &[usize]) -> Vec<Vec<usize>> {
+    let mut towers: Vec<Vec<usize>> = task
+        .towers()
+        .iter()
+        .map(|tower| tower.iter().map(|&c| perm[c]).collect())
+        .collect();
+    towers.sort();
+    towers
 }
 
 /// Block stacking's symmetry under renaming cubes, for state observations:
@@ -621,6 +686,65 @@ pub fn evaluate_tasks(
 mod tests {
     use super::*;
     use ctg_graph::Ctg;
+
+    #[test]
+    fn held_out_configurations_catch_a_training_task_renamed_into_a_test_task() {
+        let split = env_blocks::standard_split().unwrap();
+        let held_out = HeldOutConfigurations::new().unwrap();
+        let identity: Vec<usize> = (0..env_blocks::world::NUM_OBJECTS).collect();
+        // Unrenamed, no training task is held out, and every test task is.
+        for task in &split.train_pool {
+            assert_eq!(
+                renamed_configuration(task, &identity),
+                task.configuration_key()
+            );
+            assert!(!held_out.contains_renamed(task, &identity));
+        }
+        assert!(
+            split
+                .test
+                .iter()
+                .all(|t| held_out.contains_renamed(t, &identity))
+        );
+        // A training task and a test task whose towers have the same
+        // shape: the renaming that maps one onto the other is caught.
+        let shape = |t: &StackTask| -> Vec<usize> {
+            let mut lens: Vec<usize> = t.towers().iter().map(Vec::len).collect();
+            lens.sort();
+            lens
+        };
+        let (train, test) = split
+            .train_pool
+            .iter()
+            .find_map(|a| {
+                split
+                    .test
+                    .iter()
+                    .find(|b| shape(a) == shape(b))
+                    .map(|b| (a, b))
+            })
+            .expect("some training and test task share a tower shape");
+        let (mut from, mut to) = (train.towers(), test.towers());
+        from.sort_by_key(Vec::len);
+        to.sort_by_key(Vec::len);
+        let mut perm = vec![usize::MAX; env_blocks::world::NUM_OBJECTS];
+        for (a, b) in from.iter().zip(&to) {
+            for (&x, &y) in a.iter().zip(b) {
+                perm[x] = y;
+            }
+        }
+        // Cubes in no tower go to the cubes the test task leaves free.
+        let used: std::collections::HashSet<usize> = perm.iter().copied().collect();
+        let mut free = (0..env_blocks::world::NUM_OBJECTS).filter(|c| !used.contains(c));
+        for p in perm.iter_mut().filter(|p| **p == usize::MAX) {
+            *p = free.next().unwrap();
+        }
+        assert_eq!(
+            renamed_configuration(train, &perm),
+            test.configuration_key()
+        );
+        assert!(held_out.contains_renamed(train, &perm));
+    }
 
     #[test]
     fn renaming_cubes_moves_columns_actions_and_graph_edges_together() {

@@ -250,6 +250,7 @@ pub fn reproduce(
                 // The figure reproduces the paper's method; cube renaming
                 // (`--permute-objects`) is an extension measured apart.
                 permute_objects: false,
+                exclude_held_out_renamings: false,
                 edge_fusion_hidden: 0,
                 retry_weight: 0.0,
                 detach_gcn_from_edges: false,

@@ -184,6 +184,15 @@ pub struct ObjectSymmetry {
     pub action_families: Vec<Vec<ActionId>>,
 }
 
+/// Most renamings [`ObjectSymmetry::random_accepted`] draws before it gives
+/// up.
+pub const MAX_RENAMING_DRAWS: usize = 10_000;
+
+/// Decides whether a renaming `perm` (object `i` becomes `perm[i]`) of a
+/// demo of dataset task `task` may be trained on (see
+/// [`TrainExtras::accept_renaming`]).
+pub type RenamingFilter<'a> = &'a (dyn Fn(usize, &[usize]) -> bool + Sync);
+
 /// One renaming of the objects: object `i` becomes `perm[i]`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Relabeling {
@@ -222,6 +231,23 @@ impl ObjectSymmetry {
         let mut perm: Vec<usize> = (0..self.num_objects).collect();
         perm.shuffle(rng);
         self.relabeling(perm, num_actions)
+    }
+
+    /// A uniformly random renaming among those `accept` takes: drawn again
+    /// until one is accepted, an error after [`MAX_RENAMING_DRAWS`] draws.
+    pub fn random_accepted(
+        &self,
+        num_actions: usize,
+        rng: &mut impl Rng,
+        accept: impl Fn(&[usize]) -> bool,
+    ) -> anyhow::Result<Relabeling> {
+        for _ in 0..MAX_RENAMING_DRAWS {
+            let relabeling = self.random(num_actions, rng);
+            if accept(&relabeling.perm) {
+                return Ok(relabeling);
+            }
+        }
+        bail!("no acceptable renaming of the objects in {MAX_RENAMING_DRAWS} draws")
     }
 
     /// The renaming `perm` (object `i` becomes `perm[i]`).
@@ -281,6 +307,12 @@ pub struct TrainExtras<'a> {
     /// stacking), this shows the networks many more task configurations
     /// than were demonstrated. Not in the paper.
     pub permute_objects: Option<&'a ObjectSymmetry>,
+    /// With `permute_objects`: which renamings of a demo of dataset task
+    /// `task` may be trained on; the others are drawn again. Block stacking
+    /// refuses the renamings that turn a training task into a held-out
+    /// (test or validation) one, so no held-out task is ever trained on
+    /// under another name. `None` accepts every renaming.
+    pub accept_renaming: Option<RenamingFilter<'a>>,
     /// Validate after every this many epochs (and after the last); 0 and 1
     /// mean every epoch.
     pub validate_every: usize,
@@ -390,6 +422,7 @@ pub fn train_with(
     let TrainExtras {
         mut validator,
         permute_objects: symmetry,
+        accept_renaming,
         validate_every,
         retry_weight,
         detach_gcn_from_edges,
@@ -465,10 +498,23 @@ pub fn train_with(
             };
             // The renaming of each demo's objects (see
             // `TrainExtras::permute_objects`).
-            let relabelings: Option<(&ObjectSymmetry, Vec<Relabeling>)> = symmetry.map(|s| {
-                let mut rng = ChaCha8Rng::seed_from_u64(dropout.seed ^ 0x0B1E_C75E_ED00);
-                (s, chunk.iter().map(|_| s.random(n, &mut rng)).collect())
-            });
+            let relabelings: Option<(&ObjectSymmetry, Vec<Relabeling>)> = match symmetry {
+                None => None,
+                Some(s) => {
+                    let mut rng = ChaCha8Rng::seed_from_u64(dropout.seed ^ 0x0B1E_C75E_ED00);
+                    let drawn = chunk
+                        .iter()
+                        .map(|&i| match accept_renaming {
+                            None => Ok(s.random(n, &mut rng)),
+                            Some(accept) => {
+                                let task = dataset.demos()[i].task;
+                                s.random_accepted(n, &mut rng, |perm| accept(task, perm))
+                            }
+                        })
+                        .collect::<anyhow::Result<Vec<_>>>()?;
+                    Some((s, drawn))
+                }
+            };
             let out = step(
                 &model,
                 dataset,
@@ -794,6 +840,28 @@ pub fn new_model(config: NtgConfig, device: &Device) -> anyhow::Result<NtgModel>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn accepted_renamings_are_drawn_again_until_accepted() {
+        let sym = ObjectSymmetry {
+            num_objects: 4,
+            obs_offset: 0,
+            obs_stride: 1,
+            action_families: vec![(0..4).map(ActionId::new).collect()],
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..50 {
+            let r = sym
+                .random_accepted(5, &mut rng, |perm| perm[0] == 0)
+                .unwrap();
+            assert_eq!(r.perm[0], 0);
+        }
+        let err = sym
+            .random_accepted(5, &mut rng, |_| false)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("no acceptable renaming"), "{err}");
+    }
 
     #[test]
     fn edge_f1_is_absent_when_nothing_was_counted() {

@@ -21,6 +21,7 @@ fn config() -> BlocksRunConfig {
         validation_tasks: 5,
         validate_every: 0,
         permute_objects: true,
+        exclude_held_out_renamings: true,
         edge_fusion_hidden: 0,
         retry_weight: 3.0,
         detach_gcn_from_edges: true,

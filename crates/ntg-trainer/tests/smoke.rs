@@ -27,6 +27,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         validation_tasks: 0,
         validate_every: 0,
         permute_objects: false,
+        exclude_held_out_renamings: false,
         edge_fusion_hidden: 0,
         retry_weight: 0.0,
         detach_gcn_from_edges: false,

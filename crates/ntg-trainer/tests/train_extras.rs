@@ -188,3 +188,57 @@ fn detached_gcn_learns_only_from_its_own_loss() {
     assert_ne!(attached_hard, attached_soft);
     assert_ne!(attached_hard, detached_hard);
 }
+
+#[test]
+fn the_renaming_filter_is_consulted_for_every_renamed_demo() {
+    // A filter that accepts nothing stops training with a clear error; one
+    // that accepts everything trains as if there were none.
+    let tmp = tempfile::tempdir().unwrap();
+    let config = BlocksRunConfig {
+        permute_objects: true,
+        ..config()
+    };
+    let device = ntg_model::cpu_device().autodiff();
+    let split = env_blocks::standard_split().unwrap();
+    let dataset = build_dataset(&config, split.train(config.train_tasks).unwrap()).unwrap();
+    let symmetry = ntg_trainer::blocks::object_symmetry();
+    let refuse_all = |_: usize, _: &[usize]| false;
+    let err = train_with(
+        new_model(&config, &device).unwrap(),
+        &dataset,
+        &config.optim,
+        &RunDir::create(&tmp.path().join("refused")).unwrap(),
+        &device,
+        |_| {},
+        TrainExtras {
+            permute_objects: Some(&symmetry),
+            accept_renaming: Some(&refuse_all),
+            ..TrainExtras::default()
+        },
+    )
+    .unwrap_err();
+    assert!(
+        format!("{err:#}").contains("no acceptable renaming"),
+        "{err:#}"
+    );
+
+    let accept_all = |_: usize, _: &[usize]| true;
+    let run = |name: &str, accept: Option<ntg_trainer::train::RenamingFilter<'_>>| {
+        let model = train_with(
+            new_model(&config, &device).unwrap(),
+            &dataset,
+            &config.optim,
+            &RunDir::create(&tmp.path().join(name)).unwrap(),
+            &device,
+            |_| {},
+            TrainExtras {
+                permute_objects: Some(&symmetry),
+                accept_renaming: accept,
+                ..TrainExtras::default()
+            },
+        )
+        .unwrap();
+        params(&model.edges)
+    };
+    assert_eq!(run("all", Some(&accept_all)), run("none", None));
+}

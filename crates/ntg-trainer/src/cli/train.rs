@@ -132,6 +132,8 @@ impl TrainArgs {
             validation_tasks: self.validation_tasks,
             validate_every: self.validate_every,
             permute_objects: base.permute_objects || self.permute_objects,
+            // Renamed demos never show a held-out task (new runs always).
+            exclude_held_out_renamings: base.permute_objects || self.permute_objects,
             edge_fusion_hidden: self.edge_fusion_hidden.unwrap_or(base.edge_fusion_hidden),
             retry_weight: self.retry_weight,
             detach_gcn_from_edges: base.detach_gcn_from_edges || self.detach_gcn_from_edges,
@@ -370,13 +372,16 @@ mod tests {
             (1, false, false)
         );
         assert_eq!((c.edge_fusion_hidden, c.detach_gcn_from_edges), (0, false));
-        assert!(!c.soft_edges);
+        assert!(!c.soft_edges && !c.exclude_held_out_renamings);
         assert_eq!(c.optim.learning_rate, blocks::PAPER_LEARNING_RATE);
         assert!(!c.optim.cosine_decay && !c.optim.gcn_from_other_demo);
         // Flags add to the recipe.
         let c = config_of(&["--recipe", "paper", "--pairwise", "--lr", "0.01"]);
         assert!(c.pairwise);
         assert_eq!(c.optim.learning_rate, 0.01);
+        // Renaming, from any recipe, never shows a held-out task.
+        let c = config_of(&["--recipe", "paper", "--permute-objects"]);
+        assert!(c.permute_objects && c.exclude_held_out_renamings);
     }
 
     #[test]
@@ -387,7 +392,7 @@ mod tests {
             (3, true, true)
         );
         assert_eq!((c.edge_fusion_hidden, c.detach_gcn_from_edges), (256, true));
-        assert!(c.soft_edges);
+        assert!(c.soft_edges && c.exclude_held_out_renamings);
         assert_eq!(c.optim.learning_rate, 3e-3);
         assert!(c.optim.cosine_decay && c.optim.gcn_from_other_demo);
         let c = config_of(&["--edge-fusion-hidden", "0", "--state-hidden-layers", "2"]);
