@@ -22,7 +22,8 @@ use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar}
 use crate::run_dir::RunDir;
 use crate::stats::SuccessRate;
 use crate::train::{
-    EpochMetrics, ObjectSymmetry, OptimConfig, TrainExtras, ValidationScore, train_with,
+    EpochMetrics, ObjectSymmetry, OptimConfig, RenamingFilter, TrainExtras, ValidationScore,
+    train_with,
 };
 
 /// Seed base of training demonstrations.
@@ -367,9 +368,7 @@ pub fn train_run(
             Some(&mut validator)
         },
         permute_objects: symmetry.as_ref(),
-        accept_renaming: accept_renaming
-            .as_ref()
-            .map(|f| f as &(dyn Fn(usize, &[usize]) -> bool + Sync)),
+        accept_renaming: accept_renaming.as_ref().map(|f| f as RenamingFilter<'_>),
         validate_every: config.validate_every,
         retry_weight: config.retry_weight,
         detach_gcn_from_edges: config.detach_gcn_from_edges,
