@@ -15,16 +15,16 @@ use clap::ValueEnum;
 use ctg_graph::{ActionId, record_demonstration};
 use env_blocks::{BlocksEnv, BlocksExpert, BlocksObservation, EnvConfig, StackTask};
 use ntg_model::{AblationConfig, EncoderConfig, NtgConfig, NtgModel, NtgPolicy};
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
+use crate::evaluate::in_parallel;
+use crate::fit::{OptimConfig, ValidationScore};
+use crate::method::ntg::{EpochMetrics, NtgTraining, TrainExtras, train_with};
 use crate::run_dir::RunDir;
+pub use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
-use crate::train::{
-    EpochMetrics, ObjectSymmetry, OptimConfig, RenamingFilter, TrainExtras, ValidationScore,
-    train_with,
-};
+use crate::symmetry::{ObjectSymmetry, RenamingFilter};
 
 /// Seed base of training demonstrations.
 pub const TRAIN_SEED_BASE: u64 = 10_000_000;
@@ -37,40 +37,28 @@ pub const VALIDATION_DEMO_SEED_BASE: u64 = 40_000_000;
 /// Seed base of the rollout scene of each validation task.
 pub const VALIDATION_ROLLOUT_SEED_BASE: u64 = 50_000_000;
 
-/// What the networks see.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum ObsKind {
-    /// The 26-number state (cube positions relative to the gripper, gripper one-hot).
-    State,
-    /// The rendered 64×64 RGB frame.
-    Vid,
+/// Values per observation row of `kind`.
+pub fn obs_dim(kind: ObsKind) -> usize {
+    match kind {
+        ObsKind::State => env_blocks::STATE_DIM,
+        ObsKind::Vid => 3 * 64 * 64,
+    }
 }
 
-impl ObsKind {
-    /// Values per observation row.
-    pub fn dim(self) -> usize {
-        match self {
-            ObsKind::State => env_blocks::STATE_DIM,
-            ObsKind::Vid => 3 * 64 * 64,
-        }
-    }
-
-    /// The matching encoder (`state_hidden_layers` and `pairwise` apply to
-    /// the state MLP: the relational input covers the 8 cube positions).
-    pub fn encoder(self, state_hidden_layers: usize, pairwise: bool) -> EncoderConfig {
-        match self {
-            ObsKind::State => EncoderConfig::State(
-                ntg_model::StateEncoderConfig::new(env_blocks::STATE_DIM)
-                    .with_hidden_layers(state_hidden_layers)
-                    .with_pairwise_objects(if pairwise {
-                        env_blocks::world::NUM_OBJECTS
-                    } else {
-                        0
-                    }),
-            ),
-            ObsKind::Vid => EncoderConfig::frame(),
-        }
+/// The encoder for `kind` (`state_hidden_layers` and `pairwise` apply to
+/// the state MLP: the relational input covers the 8 cube positions).
+pub fn encoder(kind: ObsKind, state_hidden_layers: usize, pairwise: bool) -> EncoderConfig {
+    match kind {
+        ObsKind::State => EncoderConfig::State(
+            ntg_model::StateEncoderConfig::new(env_blocks::STATE_DIM)
+                .with_hidden_layers(state_hidden_layers)
+                .with_pairwise_objects(if pairwise {
+                    env_blocks::world::NUM_OBJECTS
+                } else {
+                    0
+                }),
+        ),
+        ObsKind::Vid => EncoderConfig::frame(),
     }
 }
 
@@ -269,7 +257,7 @@ pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::R
         |o| featurize(o, kind),
         DatasetSpec {
             vocabulary: env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat),
-            obs_dim: kind.dim(),
+            obs_dim: obs_dim(kind),
             dtype: match kind {
                 ObsKind::State => ObsDtype::F32,
                 ObsKind::Vid => ObsDtype::U8,
@@ -283,7 +271,7 @@ pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::R
 /// `config.model_seed`).
 pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<NtgModel> {
     let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
-    let mut model_config = NtgConfig::for_domain(vocab.len(), config.obs.encoder(1, false));
+    let mut model_config = NtgConfig::for_domain(vocab.len(), encoder(config.obs, 1, false));
     // The localizer and edge classifier judge a single observation, so
     // relations between cubes (is something on the cube under the
     // gripper?) must come from their encoders. The demo interpreter has its
@@ -291,12 +279,9 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     // relational input it fit its training demos as well but transcribed
     // unseen ones worse (held-out token accuracy 0.73 against 0.98 at 1000
     // tasks x 20 demos).
-    model_config.localizer.encoder = config
-        .obs
-        .encoder(config.state_hidden_layers, config.pairwise);
-    model_config.edge.encoder = config
-        .obs
-        .encoder(config.state_hidden_layers, config.pairwise);
+    model_config.localizer.encoder =
+        encoder(config.obs, config.state_hidden_layers, config.pairwise);
+    model_config.edge.encoder = encoder(config.obs, config.state_hidden_layers, config.pairwise);
     if config.edge_fusion_hidden > 0 {
         model_config.edge.fusion_hidden = Some(config.edge_fusion_hidden);
     }
@@ -316,14 +301,7 @@ pub fn train_run(
 ) -> anyhow::Result<NtgModel> {
     let split = env_blocks::standard_split()?;
     let tasks = split.train(config.train_tasks)?;
-    let dataset_dir = run.dataset_dir();
-    let dataset = if dataset_dir.join("index.json").is_file() {
-        DemoDataset::load(&dataset_dir)?
-    } else {
-        let dataset = build_dataset(config, tasks)?;
-        dataset.save(&dataset_dir)?;
-        dataset
-    };
+    let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config, tasks))?;
     let model = new_model(config, device)?;
     let symmetry = match (config.permute_objects, config.obs) {
         (false, _) => None,
@@ -367,11 +345,14 @@ pub fn train_run(
         } else {
             Some(&mut validator)
         },
-        permute_objects: symmetry.as_ref(),
-        accept_renaming: accept_renaming.as_ref().map(|f| f as RenamingFilter<'_>),
         validate_every: config.validate_every,
-        retry_weight: config.retry_weight,
-        detach_gcn_from_edges: config.detach_gcn_from_edges,
+        training: NtgTraining {
+            retry_weight: config.retry_weight,
+            detach_gcn_from_edges: config.detach_gcn_from_edges,
+            permute_objects: symmetry.as_ref(),
+            accept_renaming: accept_renaming.as_ref().map(|f| f as RenamingFilter<'_>),
+            ..NtgTraining::default()
+        },
     };
     train_with(
         model,
@@ -630,46 +611,39 @@ pub fn evaluate_tasks(
     model.config.ablation = variant.ablation();
     let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
     let env_cfg = env_config(obs, failures);
-    let bar = progress_bar(tasks.len() as u64, "rollouts");
     let names = |ids: &[ActionId]| -> Vec<String> {
         ids.iter()
             .map(|&a| vocab.name(a).unwrap_or("?").to_owned())
             .collect()
     };
-    let records: Vec<TaskRecord> = tasks
-        .par_iter()
-        .enumerate()
-        .map(|(i, task)| {
-            let mut env = BlocksEnv::stacking(task.clone(), env_cfg)?;
-            let (demo, policy) =
-                policy_from_demo_seed(&model, &mut env, task, seeds.demo + i as u64, obs)?;
-            let mapped = policy.mapped(|o: &BlocksObservation| featurize(o, obs));
-            let (mut nodes, mut edges) = (&mapped, &mapped);
-            let rollout = policy
-                .executor()
-                .run(&mut env, &mut nodes, &mut edges, seeds.rollout + i as u64)
-                .with_context(|| format!("rollout of task {}", task.id))?;
-            bar.inc(1);
-            let goals_met = task
-                .goals
-                .iter()
-                .filter(|g| env.world().on_top(g.src, g.target))
-                .count();
-            let trace: Vec<ActionId> = rollout.steps.iter().map(|s| s.action).collect();
-            Ok(TaskRecord {
-                index: i,
-                task: task.id.clone(),
-                success: rollout.success,
-                steps: rollout.steps.len(),
-                goals_met,
-                goals: task.goals.len(),
-                trace: names(&trace),
-                transcription: names(policy.demo_actions()),
-                demo_actions: names(demo.actions()),
-            })
+    let records: Vec<TaskRecord> = in_parallel(tasks, "rollouts", |i, task| {
+        let mut env = BlocksEnv::stacking(task.clone(), env_cfg)?;
+        let (demo, policy) =
+            policy_from_demo_seed(&model, &mut env, task, seeds.demo + i as u64, obs)?;
+        let mapped = policy.mapped(|o: &BlocksObservation| featurize(o, obs));
+        let (mut nodes, mut edges) = (&mapped, &mapped);
+        let rollout = policy
+            .executor()
+            .run(&mut env, &mut nodes, &mut edges, seeds.rollout + i as u64)
+            .with_context(|| format!("rollout of task {}", task.id))?;
+        let goals_met = task
+            .goals
+            .iter()
+            .filter(|g| env.world().on_top(g.src, g.target))
+            .count();
+        let trace: Vec<ActionId> = rollout.steps.iter().map(|s| s.action).collect();
+        Ok(TaskRecord {
+            index: i,
+            task: task.id.clone(),
+            success: rollout.success,
+            steps: rollout.steps.len(),
+            goals_met,
+            goals: task.goals.len(),
+            trace: names(&trace),
+            transcription: names(policy.demo_actions()),
+            demo_actions: names(demo.actions()),
         })
-        .collect::<anyhow::Result<_>>()?;
-    bar.finish_and_clear();
+    })?;
     Ok(EvalResult {
         variant: variant.name().to_owned(),
         success: SuccessRate::from_outcomes(records.iter().map(|r| r.success)),

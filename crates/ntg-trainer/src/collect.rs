@@ -17,36 +17,30 @@
 //! (`--obs vid`).
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
-use std::collections::BTreeMap;
-
-use anyhow::{Context, bail, ensure};
-use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-use burn::tensor::{Device, Int, Tensor, TensorData};
+use anyhow::{Context, ensure};
+use burn::tensor::Device;
 use clap::ValueEnum;
-use ctg_graph::{ActionId, Ctg, Environment, Vocabulary, record_demonstration};
+use ctg_graph::{ActionId, Environment, record_demonstration};
 use env_collect::{CollectConfig, CollectEnv, CollectExpert, CollectObservation, Split, Task};
-use ntg_model::nn::to_vec;
 use ntg_model::{
-    DemoBatch, EdgeCounts, EncoderConfig, FlatBatch, FlatExample, FlatPolicy, FlatPolicyConfig,
-    NtgConfig, NtgModel, NtgPolicy, adjacency_tensor, executed_actions, ids_tensor, load_optimizer,
-    pending_nodes, rows_tensor, save_optimizer, successor_mask,
+    EncoderConfig, FlatPolicyConfig, NtgConfig, NtgModel, NtgPolicy, executed_actions,
 };
-use rand::seq::{IndexedRandom, SliceRandom};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::blocks::ObsKind;
 use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
+use crate::evaluate::in_parallel;
 use crate::figure::{Panel, Point, Series, write_figure};
-use crate::reproduce::Profile;
+use crate::fit::{OptimConfig, fit};
+use crate::method::flat::{FlatEpochMetrics, FlatStep, FlatTraining};
+use crate::method::ntg::{EpochMetrics, GcnSource, NtgStep, NtgTraining};
+use crate::method::{MethodId, Model};
 use crate::run_dir::RunDir;
+use crate::spec::{ObsKind, Profile};
 use crate::stats::SuccessRate;
-use crate::train::{EpochMetrics, OptimConfig, task_graphs};
 
 /// Seed base of training demonstrations.
 pub const TRAIN_SEED_BASE: u64 = 40_000_000;
@@ -92,33 +86,6 @@ pub fn env_config(kind: ObsKind) -> CollectConfig {
     CollectConfig {
         render: kind == ObsKind::Vid,
         ..CollectConfig::default()
-    }
-}
-
-/// The two methods of the figure.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Method {
-    /// Neural Task Graphs.
-    Ntg,
-    /// The Flat Policy baseline (attention over the demo, then an MLP).
-    Flat,
-}
-
-impl Method {
-    /// Name in files and legends.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Ntg => "ntg",
-            Method::Flat => "flat",
-        }
-    }
-
-    fn legend(self) -> &'static str {
-        match self {
-            Method::Ntg => "NTG (ours)",
-            Method::Flat => "Flat Policy",
-        }
     }
 }
 
@@ -193,7 +160,7 @@ pub struct CollectRunConfig {
     /// Always `"collect"` (tells `ntg eval` which domain a run is).
     pub domain: String,
     /// Which model.
-    pub method: Method,
+    pub method: MethodId,
     /// Observation kind.
     pub obs: ObsKind,
     /// Numbers of target objects of the training tasks.
@@ -261,7 +228,7 @@ impl CollectRunConfig {
         ensure!(self.optim.batch_size > 0, "batch size must be positive");
         if let Some(w) = self.location_step_prior {
             ensure!(
-                self.method == Method::Ntg && self.interpreter == InterpreterKind::Stepping,
+                self.method == MethodId::Ntg && self.interpreter == InterpreterKind::Stepping,
                 "a location step prior needs NTG with the stepping interpreter (the Flat Policy and the paper's interpreter have no location-aware attention)"
             );
             ensure!(
@@ -322,29 +289,6 @@ pub fn build_dataset(config: &CollectRunConfig) -> anyhow::Result<DemoDataset> {
     )
 }
 
-/// A trained model of either method.
-#[derive(Debug, Clone)]
-#[allow(clippy::large_enum_variant)] // one or two per run; boxing buys nothing
-pub enum CollectModel {
-    /// NTG.
-    Ntg(NtgModel),
-    /// The Flat Policy.
-    Flat(FlatPolicy),
-}
-
-/// Metrics of one Flat Policy epoch, as logged to `metrics.jsonl`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FlatEpochMetrics {
-    /// Epoch index (from 0).
-    pub epoch: usize,
-    /// Mean cross-entropy of the next action.
-    pub loss: f32,
-    /// Fraction of steps whose next action it picks.
-    pub step_accuracy: f32,
-    /// Wall-clock seconds of the epoch.
-    pub seconds: f32,
-}
-
 /// One line of training progress, either method.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Progress<'a> {
@@ -359,33 +303,29 @@ impl Progress<'_> {
     pub fn line(&self) -> String {
         match self {
             Progress::Ntg(m) => m.log_line(),
-            Progress::Flat(m) => format!(
-                "epoch {:>3}: loss {:.3} | steps {:.3} | {:.1}s",
-                m.epoch, m.loss, m.step_accuracy, m.seconds
-            ),
+            Progress::Flat(m) => m.log_line(),
         }
     }
 }
 
-/// Trains (or resumes) a run in `run`, returning the model.
+/// Trains (or resumes) a run in `run`, returning the model. Both methods
+/// imitate each training demo conditioned on *another* demo of its task
+/// (the Flat Policy attends over it; NTG's GCN completes its path, whose
+/// `NE_gcn` the edge classifier reads), as at test time: trained on its
+/// own demo's path, NTG's edge classifier learns that the node before
+/// `<end>` in *that* path ends the task, and at test time, in a scene where
+/// objects are found in another order, ends the episode there.
 pub fn train_run(
     run: &RunDir,
     config: &CollectRunConfig,
     device: &Device,
     mut on_epoch: impl FnMut(Progress<'_>),
-) -> anyhow::Result<CollectModel> {
+) -> anyhow::Result<Model> {
     config.validate()?;
-    let dataset_dir = run.dataset_dir();
-    let dataset = if dataset_dir.join("index.json").is_file() {
-        DemoDataset::load(&dataset_dir)?
-    } else {
-        let dataset = build_dataset(config)?;
-        dataset.save(&dataset_dir)?;
-        dataset
-    };
+    let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config))?;
     let n = env_collect::vocabulary().len();
     match config.method {
-        Method::Ntg => {
+        MethodId::Ntg => {
             let mut model_config = NtgConfig::for_domain(n, encoder(config.obs));
             model_config.seed = config.model_seed;
             config
@@ -393,465 +333,46 @@ pub fn train_run(
                 .apply_with_prior(&mut model_config.interpreter, config.location_step_prior);
             model_config.edge.memory_dim = config.memory.then_some(n);
             let model = NtgModel::new(model_config, device)?;
-            let model = train_ntg(model, &dataset, config, run, device, |m| {
+            let training = NtgTraining {
+                gcn_source: GcnSource::OtherFromEpoch,
+                token_dropout: config.optim.token_dropout,
+                segments: config.segments,
+                skip_end: !config.learn_end,
+                memory: config.memory,
+                gcn_loss_last: true,
+                ..NtgTraining::default()
+            };
+            let step = NtgStep::new(&model, &dataset, training, device)?;
+            let model = fit(model, &step, &config.optim, run, device, None, |m| {
                 on_epoch(Progress::Ntg(m))
             })?;
-            Ok(CollectModel::Ntg(model))
+            Ok(Model::Ntg(model))
         }
-        Method::Flat => {
+        MethodId::Flat => {
             let policy = FlatPolicyConfig::new(n, encoder(config.obs))
                 .with_seed(config.model_seed)
                 .with_memory_dim(config.memory.then_some(n))
                 .init(device)?;
-            let policy = train_flat(policy, &dataset, config, run, device, |m| {
+            let training = FlatTraining {
+                learn_end: config.learn_end,
+                memory: config.memory,
+            };
+            let step = FlatStep::new(&policy, &dataset, training, device)?;
+            let policy = fit(policy, &step, &config.optim, run, device, None, |m| {
                 on_epoch(Progress::Flat(m))
             })?;
-            Ok(CollectModel::Flat(policy))
+            Ok(Model::Flat(policy))
         }
     }
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-struct EpochsDone {
-    epochs_done: usize,
-}
-
-/// What one optimisation step reports: the loss to minimise, scalars to
-/// average over the epoch (the first is the loss itself), and GCN edge counts.
-struct StepReport {
-    loss: Tensor<1>,
-    values: Vec<f32>,
-    edges: EdgeCounts,
-}
-
-/// The epoch loop shared by both methods: epoch `e` shuffles the examples
-/// (and draws anything else it needs) with a generator seeded by
-/// `(seed, e)` alone, step `k` of the run uses
-/// [`OptimConfig::learning_rate_at`]`(k, total)`; after
-/// each epoch the model, the optimizer state and the progress are saved
-/// into `run`'s checkpoint, so a resumed run takes exactly the steps of an
-/// uninterrupted one. `finish` gets the epoch, the
-/// mean of each step value, the summed edge counts and the seconds taken.
-#[allow(clippy::too_many_arguments)]
-fn fit<M: Module>(
-    mut model: M,
-    num_examples: usize,
-    optim: &OptimConfig,
-    run: &RunDir,
-    load: impl Fn(&Path) -> anyhow::Result<M>,
-    save: impl Fn(&M, &Path) -> anyhow::Result<()>,
-    mut step: impl FnMut(&M, &[usize], &mut ChaCha8Rng) -> anyhow::Result<StepReport>,
-    mut finish: impl FnMut(usize, &[f32], &EdgeCounts, f32) -> anyhow::Result<()>,
-) -> anyhow::Result<M> {
-    if num_examples == 0 {
-        bail!("the dataset has no demonstrations");
-    }
-    if optim.batch_size == 0 {
-        bail!("batch size must be positive");
-    }
-    let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
-    let ckpt = run.checkpoint_dir();
-    let progress_path = ckpt.join("progress.json");
-    let mut start = 0;
-    if progress_path.is_file() {
-        let progress: EpochsDone = RunDir::read_json(&progress_path)?;
-        model = load(&ckpt).with_context(|| format!("resuming from {}", ckpt.display()))?;
-        optimizer = load_optimizer(optimizer, ckpt.join("optimizer.bpk"))
-            .with_context(|| format!("resuming from {}", ckpt.display()))?;
-        start = progress.epochs_done;
-    }
-    let steps_per_epoch = num_examples.div_ceil(optim.batch_size);
-    let total_steps = steps_per_epoch * optim.epochs;
-    for epoch in start..optim.epochs {
-        let started = Instant::now();
-        let mut rng = ChaCha8Rng::seed_from_u64(
-            optim.seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-        );
-        let mut order: Vec<usize> = (0..num_examples).collect();
-        order.shuffle(&mut rng);
-        let mut sums: Vec<f32> = Vec::new();
-        let mut edges = EdgeCounts::default();
-        let mut steps = 0usize;
-        for chunk in order.chunks(optim.batch_size) {
-            let report = step(&model, chunk, &mut rng)?;
-            if sums.is_empty() {
-                sums = vec![0.0; report.values.len()];
-            }
-            for (s, v) in sums.iter_mut().zip(&report.values) {
-                *s += v;
-            }
-            edges.true_positives += report.edges.true_positives;
-            edges.false_positives += report.edges.false_positives;
-            edges.false_negatives += report.edges.false_negatives;
-            steps += 1;
-            let grads = GradientsParams::from_grads(report.loss.backward(), &model);
-            let rate = optim.learning_rate_at(epoch * steps_per_epoch + steps - 1, total_steps);
-            model = optimizer.step(rate, model, grads);
-        }
-        let means: Vec<f32> = sums.iter().map(|s| s / steps as f32).collect();
-        let loss = means.first().copied().unwrap_or(f32::NAN);
-        if !loss.is_finite() {
-            bail!("training diverged at epoch {epoch} (loss {loss})");
-        }
-        save(&model, &ckpt)?;
-        save_optimizer(&optimizer, ckpt.join("optimizer.bpk"))?;
-        RunDir::write_json(
-            &progress_path,
-            &EpochsDone {
-                epochs_done: epoch + 1,
-            },
-        )?;
-        finish(epoch, &means, &edges, started.elapsed().as_secs_f32())?;
-    }
-    Ok(model)
-}
-
-fn scalar(t: Tensor<1>) -> anyhow::Result<f32> {
-    Ok(to_vec(t)?.first().copied().unwrap_or(f32::NAN))
-}
-
-/// The demos of each task, to draw partners from; errors if a task has one.
-fn demos_by_task(dataset: &DemoDataset) -> anyhow::Result<BTreeMap<usize, Vec<usize>>> {
-    let mut by_task: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
-    for (i, d) in dataset.demos().iter().enumerate() {
-        by_task.entry(d.task).or_default().push(i);
-    }
-    if let Some((task, _)) = by_task.iter().find(|(_, v)| v.len() < 2) {
-        bail!(
-            "task {task} has a single demonstration; training pairs a demo with another of its task"
-        );
-    }
-    Ok(by_task)
-}
-
-/// Another demo of the same task as demo `i`, drawn with `rng`.
-fn partner(
-    by_task: &BTreeMap<usize, Vec<usize>>,
-    dataset: &DemoDataset,
-    i: usize,
-    rng: &mut ChaCha8Rng,
-) -> usize {
-    let others: Vec<usize> = by_task[&dataset.demos()[i].task]
-        .iter()
-        .copied()
-        .filter(|&j| j != i)
-        .collect();
-    *others.choose(rng).unwrap_or(&i)
-}
-
-fn demo_rows(dataset: &DemoDataset, i: usize) -> Vec<Vec<f32>> {
-    dataset.demos()[i].rows().map(|r| dataset.row(r)).collect()
-}
-
-/// Trains a Flat Policy (on an autodiff device) for the epochs not yet
-/// done, checkpointing into `run` after each. Each example imitates one
-/// demonstration conditioned on another demonstration of the same task
-/// (drawn with the epoch's generator), as in Duan et al. Reads `config`'s
-/// `optim`, `learn_end` and `memory`.
-pub fn train_flat(
-    policy: FlatPolicy,
-    dataset: &DemoDataset,
-    config: &CollectRunConfig,
-    run: &RunDir,
-    device: &Device,
-    mut on_epoch: impl FnMut(&FlatEpochMetrics),
-) -> anyhow::Result<FlatPolicy> {
-    let n = policy.num_nodes();
-    dataset.check_num_nodes(n, "policy")?;
-    let by_task = demos_by_task(dataset)?;
-    let dim = dataset.obs_dim();
-    let (learn_end, memory) = (config.learn_end, config.memory);
-    fit(
-        policy,
-        dataset.demos().len(),
-        &config.optim,
-        run,
-        |dir| Ok(FlatPolicy::load(dir, device)?),
-        |p, dir| Ok(p.save(dir)?),
-        |policy, chunk, rng| {
-            let owned: Vec<_> = chunk
-                .iter()
-                .map(|&i| {
-                    let entry = &dataset.demos()[i];
-                    let mut next = entry.actions.clone();
-                    let mut queries = demo_rows(dataset, i);
-                    if learn_end {
-                        next.push(Vocabulary::END);
-                    } else {
-                        queries.pop();
-                    }
-                    let cond = partner(&by_task, dataset, i, rng);
-                    (demo_rows(dataset, cond), queries, next)
-                })
-                .collect();
-            let examples: Vec<FlatExample<'_, Vec<f32>>> = owned
-                .iter()
-                .map(|(d, q, t)| (&d[..], &q[..], &t[..]))
-                .collect();
-            let mut batch = FlatBatch::new(&examples, dim, n, device)?;
-            if memory {
-                // Before query `t` the agent has taken the first `t` actions.
-                let memories: Vec<Vec<Vec<f32>>> = owned
-                    .iter()
-                    .map(|(_, q, t)| (0..q.len()).map(|k| executed_actions(n, &t[..k])).collect())
-                    .collect();
-                batch = batch.with_memory(&memories, n)?;
-            }
-            let out = policy.loss(&batch)?;
-            Ok(StepReport {
-                values: vec![scalar(out.loss.clone())?, out.accuracy],
-                loss: out.loss,
-                edges: EdgeCounts::default(),
-            })
-        },
-        |epoch, means, _, seconds| {
-            let metrics = FlatEpochMetrics {
-                epoch,
-                loss: means[0],
-                step_accuracy: means[1],
-                seconds,
-            };
-            run.append_metrics(&metrics)?;
-            on_epoch(&metrics);
-            Ok(())
-        },
-    )
-}
-
-/// Trains NTG's four networks jointly on the paper's targets, like
-/// [`crate::train::train`], except that the GCN (and so the edge
-/// classifier's `NE_gcn`) reads the path of *another* demonstration of the
-/// same task than the one whose observations and next actions the
-/// localizer and edge classifier are trained on.
-///
-/// Why: at test time the graph comes from the conditioning demo and the
-/// policy acts in another scene, where objects are found in another order.
-/// Trained on its own demo's path, the edge classifier learns that the
-/// node before `<end>` in *that* path ends the task (e.g. the last
-/// receptacle of the demo), and at test time ends the episode as soon as
-/// it reaches that node, whatever is still undelivered. Pairing demos
-/// makes the graph carry what the task is, not the order this episode
-/// happens to take.
-///
-/// Also reads `config`'s `segments` (the interpreter also learns from a
-/// random stretch of each demo), `learn_end` (whether the edge classifier
-/// learns the final `<end>`), `memory` (whether it reads the task-graph
-/// nodes not yet executed) and `optim`.
-pub fn train_ntg(
-    model: NtgModel,
-    dataset: &DemoDataset,
-    config: &CollectRunConfig,
-    run: &RunDir,
-    device: &Device,
-    mut on_epoch: impl FnMut(&EpochMetrics),
-) -> anyhow::Result<NtgModel> {
-    let n = model.num_nodes();
-    dataset.check_num_nodes(n, "model")?;
-    let graphs = task_graphs(dataset)?;
-    let by_task = demos_by_task(dataset)?;
-    let (segments, learn_end, memory) = (config.segments, config.learn_end, config.memory);
-    fit(
-        model,
-        dataset.demos().len(),
-        &config.optim,
-        run,
-        |dir| Ok(NtgModel::load(dir, device)?),
-        |m, dir| Ok(m.save(dir)?),
-        |model, chunk, rng| {
-            let partners: Vec<usize> = chunk
-                .iter()
-                .map(|&i| partner(&by_task, dataset, i, rng))
-                .collect();
-            let segments: Vec<(usize, usize)> = if segments {
-                chunk
-                    .iter()
-                    .map(|&i| {
-                        let k = dataset.demos()[i].actions.len();
-                        let start = rng.random_range(0..k);
-                        (start, rng.random_range(start + 1..=k))
-                    })
-                    .collect()
-            } else {
-                Vec::new()
-            };
-            let draw = StepDraw { partners, segments };
-            let labels = Labels { learn_end, memory };
-            ntg_step(model, dataset, &graphs, chunk, &draw, labels, device)
-        },
-        |epoch, m, edges, seconds| {
-            let metrics = EpochMetrics {
-                epoch,
-                loss: m[0],
-                interpreter_loss: m[1],
-                token_accuracy: m[2],
-                gcn_loss: m[3],
-                edge_f1: crate::train::edge_f1_of(edges),
-                localizer_loss: m[4],
-                localizer_accuracy: m[5],
-                edge_loss: m[6],
-                step_accuracy: m[7],
-                seconds,
-            };
-            run.append_metrics(&metrics)?;
-            on_epoch(&metrics);
-            Ok(())
-        },
-    )
-}
-
-/// What an NTG step drew: the partner demo of each demo of the chunk, and
-/// (with segments) the stretch `start..end` of its actions the interpreter
-/// also reads.
-struct StepDraw {
-    partners: Vec<usize>,
-    segments: Vec<(usize, usize)>,
-}
-
-/// What an NTG step trains besides the paper's targets: the final `<end>`
-/// decision, and the edge classifier's execution memory.
-#[derive(Debug, Clone, Copy)]
-struct Labels {
-    learn_end: bool,
-    memory: bool,
-}
-
-/// One NTG step: demo `chunk[b]` trains the interpreter, the localizer and
-/// the edge classifier; the GCN completes the path of demo `partners[b]`
-/// (same task) into the task graph and gives the edge classifier `NE_gcn`.
-fn ntg_step(
-    model: &NtgModel,
-    dataset: &DemoDataset,
-    graphs: &BTreeMap<usize, Ctg>,
-    chunk: &[usize],
-    draw: &StepDraw,
-    labels: Labels,
-    device: &Device,
-) -> anyhow::Result<StepReport> {
-    let Labels { learn_end, memory } = labels;
-    let (partners, segments) = (&draw.partners, &draw.segments);
-    let n = model.num_nodes();
-    let dim = dataset.obs_dim();
-    let entries: Vec<_> = chunk.iter().map(|&i| &dataset.demos()[i]).collect();
-    let rows: Vec<Vec<Vec<f32>>> = chunk.iter().map(|&i| demo_rows(dataset, i)).collect();
-
-    // The interpreter reads each demo whole, and (with segments) one
-    // contiguous stretch of it: actions `start..end` with the frames
-    // `start..=end` around them.
-    let mut pairs: Vec<(&[Vec<f32>], &[ActionId])> = entries
-        .iter()
-        .zip(&rows)
-        .map(|(e, r)| (r.as_slice(), e.actions.as_slice()))
-        .collect();
-    for ((e, r), &(start, end)) in entries.iter().zip(&rows).zip(segments) {
-        pairs.push((&r[start..=end], &e.actions[start..end]));
-    }
-    let interp = model
-        .interpreter
-        .loss(&DemoBatch::new(&pairs, dim, n, device)?)?;
-
-    let targets: Vec<&Ctg> = entries.iter().map(|e| &graphs[&e.task]).collect();
-    let paths: Vec<Ctg> = partners
-        .iter()
-        .map(|&p| Ctg::from_path(n, &dataset.demos()[p].actions))
-        .collect::<Result<_, _>>()?;
-    let path_refs: Vec<&Ctg> = paths.iter().collect();
-    let (gcn_loss, ne_gcn, edges) = if model.config().ablation.gcn {
-        let target_adj = adjacency_tensor(&targets, n, device)?;
-        let out = model
-            .gcn
-            .forward(adjacency_tensor(&path_refs, n, device)?)?;
-        let loss = model.gcn.loss(&out, target_adj.clone())?;
-        let edges = EdgeCounts::count_tensors(out.adjacency.clone(), target_adj, 0.5)?;
-        (Some(loss), out.embeddings, edges)
-    } else {
-        let ne = model.gcn.initial_embeddings(entries.len());
-        (None, ne, EdgeCounts::default())
-    };
-
-    // Localizer: every frame. Edge classifier: every frame with a next
-    // action, the final `<end>` decision only if `learn_end`.
-    // With a memory, the edge classifier also reads which nodes of the
-    // task graph the agent has not executed yet: the graph is the partner
-    // demo's path (what the conditioning demo shows at test time), the
-    // executed actions those before the frame.
-    let (mut obs, mut nodes) = (Vec::new(), Vec::new());
-    let (mut e_obs, mut e_nodes, mut e_next, mut e_demo, mut e_graphs) =
-        (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let mut e_memory: Vec<Vec<f32>> = Vec::new();
-    for (b, (e, r)) in entries.iter().zip(&rows).enumerate() {
-        let labels = std::iter::once(Vocabulary::START).chain(e.actions.iter().copied());
-        let nexts = e.actions.iter().copied().chain([Vocabulary::END]);
-        for (t, ((o, node), nx)) in r.iter().zip(labels).zip(nexts).enumerate() {
-            obs.push(o);
-            nodes.push(node);
-            if learn_end || nx != Vocabulary::END {
-                e_obs.push(o);
-                e_nodes.push(node);
-                e_next.push(nx);
-                e_demo.push(b as i64);
-                e_graphs.push(targets[b]);
-                if memory {
-                    e_memory.push(pending_nodes(&paths[b], &e.actions[..t]));
-                }
-            }
-        }
-    }
-    let loc = model.localizer.loss(
-        model.localizer.forward(rows_tensor(&obs, dim, device)?)?,
-        ids_tensor(&nodes, n, device)?,
-    )?;
-    let index = Tensor::<1, Int>::from_data(TensorData::new(e_demo, [e_obs.len()]), device);
-    let mask = successor_mask(&e_graphs, &e_nodes, Some(&e_next), n, device)?;
-    let e_memory = if memory {
-        Some(rows_tensor(&e_memory, n, device)?)
-    } else {
-        None
-    };
-    let edge_logits = model.edges.forward_with_memory(
-        rows_tensor(&e_obs, dim, device)?,
-        ids_tensor(&e_nodes, n, device)?,
-        ne_gcn.select(0, index),
-        model.localizer.node_embeddings(),
-        mask,
-        e_memory,
-    )?;
-    let edge = model
-        .edges
-        .loss(edge_logits, ids_tensor(&e_next, n, device)?)?;
-
-    let gcn_value = match &gcn_loss {
-        Some(l) => scalar(l.clone())?,
-        None => 0.0,
-    };
-    let mut total = interp.loss.clone() + loc.loss.clone() + edge.loss.clone();
-    if let Some(l) = gcn_loss {
-        total = total + l;
-    }
-    Ok(StepReport {
-        values: vec![
-            scalar(total.clone())?,
-            scalar(interp.loss)?,
-            interp.accuracy,
-            gcn_value,
-            scalar(loc.loss)?,
-            loc.accuracy,
-            scalar(edge.loss)?,
-            edge.accuracy,
-        ],
-        loss: total,
-        edges,
-    })
 }
 
 /// Loads the trained model of a run (inference device).
-pub fn load_model(run: &RunDir, config: &CollectRunConfig) -> anyhow::Result<CollectModel> {
+pub fn load_model(run: &RunDir, config: &CollectRunConfig) -> anyhow::Result<Model> {
     let device = ntg_model::cpu_device();
-    let dir = run.checkpoint_dir();
-    let context = || format!("{} has no trained model yet", run.root().display());
-    Ok(match config.method {
-        Method::Ntg => CollectModel::Ntg(NtgModel::load(&dir, &device).with_context(context)?),
-        Method::Flat => CollectModel::Flat(FlatPolicy::load(&dir, &device).with_context(context)?),
-    })
+    config
+        .method
+        .load(&run.checkpoint_dir(), &device)
+        .with_context(|| format!("{} has no trained model yet", run.root().display()))
 }
 
 /// One evaluated test episode.
@@ -892,7 +413,7 @@ pub struct NPoint {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CollectEval {
     /// Which method.
-    pub method: Method,
+    pub method: MethodId,
     /// Success per N.
     pub points: Vec<NPoint>,
     /// Every episode.
@@ -927,7 +448,7 @@ fn names(ids: &[ActionId]) -> Vec<String> {
 }
 
 fn run_episode(
-    model: &CollectModel,
+    model: &Model,
     obs: ObsKind,
     n: usize,
     index: usize,
@@ -942,7 +463,7 @@ fn run_episode(
         .map(|o| featurize(o, obs))
         .collect();
     let (trace, transcription, success) = match model {
-        CollectModel::Ntg(model) => {
+        Model::Ntg(model) => {
             // The executor's greedy rollout (`GraphExecutor::run`), telling
             // the policy before each step which actions it has taken (a
             // no-op without a memory).
@@ -967,7 +488,7 @@ fn run_episode(
             }
             (trace, names(policy.demo_actions()), env.is_success())
         }
-        CollectModel::Flat(policy) => {
+        Model::Flat(policy) => {
             let memory = policy.memory_dim() > 0;
             let n = policy.num_nodes();
             let policy = policy.condition(&rows)?;
@@ -1002,8 +523,8 @@ fn run_episode(
 /// Evaluates `model` on `episodes` unseen test episodes for each N in
 /// `objects`, in parallel.
 pub fn evaluate(
-    model: &CollectModel,
-    method: Method,
+    model: &Model,
+    method: MethodId,
     obs: ObsKind,
     objects: &[usize],
     episodes: usize,
@@ -1014,20 +535,10 @@ pub fn evaluate(
             jobs.push((n, i, ep));
         }
     }
-    let bar = progress_bar(jobs.len() as u64, "rollouts");
-    let model = match model {
-        CollectModel::Ntg(m) => CollectModel::Ntg(m.valid()),
-        CollectModel::Flat(p) => CollectModel::Flat(p.valid()),
-    };
-    let records: Vec<EpisodeRecord> = jobs
-        .par_iter()
-        .map(|(n, i, ep)| {
-            let r = run_episode(&model, obs, *n, *i, ep);
-            bar.inc(1);
-            r
-        })
-        .collect::<anyhow::Result<_>>()?;
-    bar.finish_and_clear();
+    let model = model.valid();
+    let records: Vec<EpisodeRecord> = in_parallel(&jobs, "rollouts", |_, (n, i, ep)| {
+        run_episode(&model, obs, *n, *i, ep)
+    })?;
     let points = objects
         .iter()
         .map(|&n| NPoint {
@@ -1130,7 +641,7 @@ pub fn thor_all_scale(profile: Profile) -> ThorAllScale {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ThorAllLine {
     /// Which method.
-    pub method: Method,
+    pub method: MethodId,
     /// Success per N on unseen tasks.
     pub points: Vec<NPoint>,
     /// Seconds spent in training epochs (summed from the run's
@@ -1157,7 +668,7 @@ pub fn thor_all(profile: Profile, runs: &Path) -> anyhow::Result<ThorAllResult> 
     let scale = thor_all_scale(profile);
     let train_objects = vec![2, 4];
     let mut lines = Vec::new();
-    for method in [Method::Ntg, Method::Flat] {
+    for method in [MethodId::Ntg, MethodId::Flat] {
         let config = CollectRunConfig {
             domain: "collect".into(),
             method,
@@ -1170,25 +681,25 @@ pub fn thor_all(profile: Profile, runs: &Path) -> anyhow::Result<ThorAllResult> 
             memory: scale.memory,
             interpreter: InterpreterKind::Stepping,
             location_step_prior: match method {
-                Method::Ntg => InterpreterKind::Stepping.default_step_prior(),
-                Method::Flat => None,
+                MethodId::Ntg => InterpreterKind::Stepping.default_step_prior(),
+                MethodId::Flat => None,
             },
             model_seed: 0,
             optim: OptimConfig {
                 epochs: match method {
-                    Method::Ntg => scale.ntg_epochs,
-                    Method::Flat => scale.flat_epochs,
+                    MethodId::Ntg => scale.ntg_epochs,
+                    MethodId::Flat => scale.flat_epochs,
                 },
                 batch_size: scale.batch_size,
                 learning_rate: scale.learning_rate,
                 seed: 0,
                 token_dropout: 0.0,
-                cosine_decay: method == Method::Ntg,
+                cosine_decay: method == MethodId::Ntg,
                 gcn_from_other_demo: false,
             },
         };
         let dir = runs.join(format!("thor_all-{}", method.name()));
-        let run = open_or_create(&dir, &config)?;
+        let run = RunDir::open_or_create(&dir, &config)?;
         eprintln!(
             "thor_all ({}): training -> {}",
             method.name(),
@@ -1196,24 +707,15 @@ pub fn thor_all(profile: Profile, runs: &Path) -> anyhow::Result<ThorAllResult> 
         );
         let device = ntg_model::cpu_device().autodiff();
         let model = train_run(&run, &config, &device, |p| eprintln!("  {}", p.line()))?;
-        let eval_path = run
-            .eval_dir()
-            .join(format!("collect-{}.json", scale.test_episodes));
-        let eval = match cached(&run, &eval_path)? {
-            Some(eval) => eval,
-            None => {
-                let eval = evaluate(
-                    &model,
-                    method,
-                    scale.obs,
-                    &EVAL_OBJECTS,
-                    scale.test_episodes,
-                )?;
-                std::fs::create_dir_all(run.eval_dir())?;
-                RunDir::write_json(&eval_path, &eval)?;
-                eval
-            }
-        };
+        let eval = run.cached_eval(&format!("collect-{}.json", scale.test_episodes), || {
+            evaluate(
+                &model,
+                method,
+                scale.obs,
+                &EVAL_OBJECTS,
+                scale.test_episodes,
+            )
+        })?;
         for p in &eval.points {
             eprintln!(
                 "  N = {}: success {:.3} ({:.3}-{:.3})",
@@ -1223,7 +725,7 @@ pub fn thor_all(profile: Profile, runs: &Path) -> anyhow::Result<ThorAllResult> 
         lines.push(ThorAllLine {
             method,
             points: eval.points,
-            train_seconds: metrics_seconds(&run)?,
+            train_seconds: run.epoch_seconds()?,
             run: dir,
         });
     }
@@ -1232,57 +734,6 @@ pub fn thor_all(profile: Profile, runs: &Path) -> anyhow::Result<ThorAllResult> 
         train_objects,
         lines,
     })
-}
-
-/// Opens the run at `dir` if it holds `config`, creates it if absent, and
-/// errors if it holds another configuration.
-pub fn open_or_create(dir: &Path, config: &CollectRunConfig) -> anyhow::Result<RunDir> {
-    if dir.join("config.json").is_file() {
-        let run = RunDir::open(dir)?;
-        let saved: CollectRunConfig = RunDir::read_json(&run.config_path())?;
-        if &saved != config {
-            bail!(
-                "{} holds a run with another configuration; move it away or delete it",
-                dir.display()
-            );
-        }
-        Ok(run)
-    } else {
-        let run = RunDir::create(dir)?;
-        RunDir::write_json(&run.config_path(), config)?;
-        Ok(run)
-    }
-}
-
-/// The evaluation saved at `path`, if written after the run's last checkpoint.
-fn cached(run: &RunDir, path: &Path) -> anyhow::Result<Option<CollectEval>> {
-    let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
-    let checkpoint = run.checkpoint_dir().join("progress.json");
-    match (modified(path), modified(&checkpoint)) {
-        (Some(eval), Some(ckpt)) if eval >= ckpt => Ok(Some(RunDir::read_json(path)?)),
-        _ => Ok(None),
-    }
-}
-
-/// Sum of the `seconds` of every line of a run's `metrics.jsonl`.
-pub fn metrics_seconds(run: &RunDir) -> anyhow::Result<f64> {
-    let path = run.metrics_path();
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    let mut total = 0.0;
-    for (i, line) in text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-    {
-        let v: serde_json::Value = serde_json::from_str(line)
-            .with_context(|| format!("{}: line {} is not JSON", path.display(), i + 1))?;
-        total += v
-            .get("seconds")
-            .and_then(|s| s.as_f64())
-            .with_context(|| format!("{}: line {} has no \"seconds\"", path.display(), i + 1))?;
-    }
-    Ok(total)
 }
 
 /// Writes the figure (one panel, success vs N for both methods) as
@@ -1415,8 +866,8 @@ pub fn report_section(result: &ThorAllResult) -> String {
 /// the measured points: above with disjoint 95% intervals, above within
 /// overlapping intervals, tied, or below. `None` when a method is missing.
 pub fn comparison_sentence(result: &ThorAllResult) -> Option<String> {
-    let line = |m: Method| result.lines.iter().find(|l| l.method == m);
-    let (ntg, flat) = (line(Method::Ntg)?, line(Method::Flat)?);
+    let line = |m: MethodId| result.lines.iter().find(|l| l.method == m);
+    let (ntg, flat) = (line(MethodId::Ntg)?, line(MethodId::Flat)?);
     let mut groups: [(&str, Vec<usize>); 4] = [
         ("above, with disjoint 95% intervals", Vec::new()),
         ("above, within overlapping intervals", Vec::new()),
@@ -1453,8 +904,9 @@ pub fn comparison_sentence(result: &ThorAllResult) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ntg_model::nn::to_vec;
 
-    fn line(method: Method, successes: &[usize], trials: usize) -> ThorAllLine {
+    fn line(method: MethodId, successes: &[usize], trials: usize) -> ThorAllLine {
         ThorAllLine {
             method,
             points: successes
@@ -1477,8 +929,8 @@ mod tests {
             scale: thor_all_scale(Profile::Smoke),
             train_objects: vec![2, 4],
             lines: vec![
-                line(Method::Ntg, &[1000, 999, 500, 400, 997], 1000),
-                line(Method::Flat, &[997, 900, 500, 600, 0], 1000),
+                line(MethodId::Ntg, &[1000, 999, 500, 400, 997], 1000),
+                line(MethodId::Flat, &[997, 900, 500, 600, 0], 1000),
             ],
         };
         assert_eq!(
@@ -1493,7 +945,7 @@ mod tests {
         assert_eq!(comparison_sentence(&only_ntg), None);
     }
 
-    fn config(method: Method, epochs: usize) -> CollectRunConfig {
+    fn config(method: MethodId, epochs: usize) -> CollectRunConfig {
         CollectRunConfig {
             domain: "collect".into(),
             method,
@@ -1506,8 +958,8 @@ mod tests {
             memory: true,
             interpreter: InterpreterKind::Stepping,
             location_step_prior: match method {
-                Method::Ntg => Some(LOCATION_STEP_PRIOR),
-                Method::Flat => None,
+                MethodId::Ntg => Some(LOCATION_STEP_PRIOR),
+                MethodId::Flat => None,
             },
             model_seed: 0,
             optim: OptimConfig {
@@ -1524,10 +976,10 @@ mod tests {
         }
     }
 
-    fn weights(model: &CollectModel) -> Vec<f32> {
+    fn weights(model: &Model) -> Vec<f32> {
         match model {
-            CollectModel::Ntg(m) => to_vec(m.edges.w.weight.val()).unwrap(),
-            CollectModel::Flat(p) => to_vec(p.out.weight.val()).unwrap(),
+            Model::Ntg(m) => to_vec(m.edges.w.weight.val()).unwrap(),
+            Model::Flat(p) => to_vec(p.out.weight.val()).unwrap(),
         }
     }
 
@@ -1535,11 +987,11 @@ mod tests {
     fn train_then_evaluate_both_methods_end_to_end() {
         let dir = tempfile::tempdir().unwrap();
         let device = ntg_model::cpu_device().autodiff();
-        for method in [Method::Ntg, Method::Flat] {
+        for method in [MethodId::Ntg, MethodId::Flat] {
             let config = config(method, 1);
-            let run = open_or_create(&dir.path().join(method.name()), &config).unwrap();
+            let run = RunDir::open_or_create(&dir.path().join(method.name()), &config).unwrap();
             let model = train_run(&run, &config, &device, |_| {}).unwrap();
-            assert!(metrics_seconds(&run).unwrap() > 0.0);
+            assert!(run.epoch_seconds().unwrap() > 0.0);
             let eval = evaluate(&model, method, ObsKind::State, &[1, 3], 2).unwrap();
             assert_eq!(eval.episodes.len(), 4);
             assert_eq!(eval.points.len(), 2);
@@ -1548,7 +1000,7 @@ mod tests {
             for e in &eval.episodes {
                 assert!(e.steps >= 1 && e.steps == e.trace.len());
                 assert!(!e.demo_actions.is_empty());
-                assert_eq!(e.transcription.is_empty(), method == Method::Flat);
+                assert_eq!(e.transcription.is_empty(), method == MethodId::Flat);
             }
             // The saved model is the trained one.
             let loaded = load_model(&run, &config).unwrap();
@@ -1558,7 +1010,7 @@ mod tests {
                 tasks_per_n: 4,
                 ..config.clone()
             };
-            assert!(open_or_create(run.root(), &other).is_err());
+            assert!(RunDir::open_or_create(run.root(), &other).is_err());
         }
     }
 
@@ -1566,12 +1018,13 @@ mod tests {
     fn resuming_replays_the_same_steps() {
         let dir = tempfile::tempdir().unwrap();
         let device = ntg_model::cpu_device().autodiff();
-        for method in [Method::Ntg, Method::Flat] {
-            let straight = open_or_create(&dir.path().join("a"), &config(method, 2)).unwrap();
+        for method in [MethodId::Ntg, MethodId::Flat] {
+            let straight =
+                RunDir::open_or_create(&dir.path().join("a"), &config(method, 2)).unwrap();
             let a = train_run(&straight, &config(method, 2), &device, |_| {}).unwrap();
             // One epoch, then "resume" the same folder with two.
             let split = dir.path().join("b");
-            let first = open_or_create(&split, &config(method, 1)).unwrap();
+            let first = RunDir::open_or_create(&split, &config(method, 1)).unwrap();
             train_run(&first, &config(method, 1), &device, |_| {}).unwrap();
             let b = train_run(&first, &config(method, 2), &device, |_| {}).unwrap();
             assert_eq!(weights(&a), weights(&b), "{method:?}");
@@ -1586,7 +1039,7 @@ mod tests {
         let train: Vec<Task> = training_tasks(&CollectRunConfig {
             tasks_per_n: 50,
             train_objects: vec![2, 4],
-            ..config(Method::Ntg, 1)
+            ..config(MethodId::Ntg, 1)
         })
         .unwrap();
         assert_eq!(train.len(), 100);
@@ -1608,26 +1061,26 @@ mod tests {
 
     #[test]
     fn bad_configurations_are_errors() {
-        let mut c = config(Method::Flat, 1);
+        let mut c = config(MethodId::Flat, 1);
         c.location_step_prior = Some(0.3);
         assert!(c.validate().unwrap_err().to_string().contains("step prior"));
-        let mut c = config(Method::Ntg, 1);
+        let mut c = config(MethodId::Ntg, 1);
         c.interpreter = InterpreterKind::Luong;
         assert!(c.validate().unwrap_err().to_string().contains("step prior"));
-        let mut c = config(Method::Ntg, 1);
+        let mut c = config(MethodId::Ntg, 1);
         c.location_step_prior = Some(f32::NAN);
         assert!(c.validate().is_err());
-        let mut c = config(Method::Flat, 1);
+        let mut c = config(MethodId::Flat, 1);
         c.demos_per_task = 1;
         assert!(c.validate().unwrap_err().to_string().contains("2 demos"));
-        let mut c = config(Method::Ntg, 1);
+        let mut c = config(MethodId::Ntg, 1);
         c.train_objects = vec![6];
         assert!(c.validate().is_err());
-        let mut c = config(Method::Ntg, 1);
+        let mut c = config(MethodId::Ntg, 1);
         c.domain = "blocks".into();
         assert!(c.validate().is_err());
         // Asking for more training tasks than the split has.
-        let mut c = config(Method::Ntg, 1);
+        let mut c = config(MethodId::Ntg, 1);
         c.train_objects = vec![1];
         c.tasks_per_n = 41;
         let err = format!("{:#}", training_tasks(&c).unwrap_err());
@@ -1638,13 +1091,13 @@ mod tests {
     fn runs_without_memory_or_end_still_train_and_evaluate() {
         let dir = tempfile::tempdir().unwrap();
         let device = ntg_model::cpu_device().autodiff();
-        for method in [Method::Ntg, Method::Flat] {
+        for method in [MethodId::Ntg, MethodId::Flat] {
             let config = CollectRunConfig {
                 learn_end: false,
                 memory: false,
                 ..config(method, 1)
             };
-            let run = open_or_create(&dir.path().join(method.name()), &config).unwrap();
+            let run = RunDir::open_or_create(&dir.path().join(method.name()), &config).unwrap();
             let model = train_run(&run, &config, &device, |_| {}).unwrap();
             let eval = evaluate(&model, method, ObsKind::State, &[2], 2).unwrap();
             assert_eq!(eval.episodes.len(), 2);
@@ -1653,23 +1106,9 @@ mod tests {
 
     #[test]
     fn configurations_saved_before_the_memory_load_without_it() {
-        let mut json = serde_json::to_value(config(Method::Ntg, 1)).unwrap();
+        let mut json = serde_json::to_value(config(MethodId::Ntg, 1)).unwrap();
         json.as_object_mut().unwrap().remove("memory");
         let old: CollectRunConfig = serde_json::from_value(json).unwrap();
         assert!(!old.memory);
-    }
-
-    #[test]
-    fn metrics_errors_name_the_file() {
-        let dir = tempfile::tempdir().unwrap();
-        let run = RunDir::create(dir.path()).unwrap();
-        std::fs::write(run.metrics_path(), "{\"seconds\": 1.5}\nnot json\n").unwrap();
-        let err = format!("{:#}", metrics_seconds(&run).unwrap_err());
-        assert!(
-            err.contains("metrics.jsonl") && err.contains("line 2"),
-            "{err}"
-        );
-        std::fs::write(run.metrics_path(), "{\"seconds\": 1.5}\n{\"seconds\": 2}\n").unwrap();
-        assert_eq!(metrics_seconds(&run).unwrap(), 3.5);
     }
 }

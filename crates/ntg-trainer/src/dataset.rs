@@ -221,6 +221,20 @@ impl DemoDataset {
         Ok(())
     }
 
+    /// The dataset cached in `dir` if there is one; otherwise `build`'s,
+    /// saved there first.
+    pub fn load_or_build(
+        dir: &Path,
+        build: impl FnOnce() -> anyhow::Result<Self>,
+    ) -> anyhow::Result<Self> {
+        if dir.join("index.json").is_file() {
+            return Self::load(dir);
+        }
+        let dataset = build()?;
+        dataset.save(dir)?;
+        Ok(dataset)
+    }
+
     /// Reads a dataset written by [`DemoDataset::save`], checking that the
     /// index and the observation file agree.
     pub fn load(dir: &Path) -> anyhow::Result<Self> {

@@ -12,26 +12,15 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use clap::ValueEnum;
 use serde::{Deserialize, Serialize};
 
 use crate::blocks::{self, BlocksRunConfig, ObsKind, Variant};
 use crate::figure::{Panel, Point, Series, write_figure};
+use crate::fit::OptimConfig;
 use crate::run_dir::RunDir;
 use crate::stats::SuccessRate;
-use crate::train::OptimConfig;
 
-/// Experiment scale.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Profile {
-    /// Seconds per figure: for tests and CI.
-    Smoke,
-    /// Every figure at reduced scale: minutes on 2 CPU cores.
-    Quick,
-    /// The paper's scale (100 demos per task, up to 1000 tasks): hours.
-    Paper,
-}
+pub use crate::spec::Profile;
 
 /// The scale of one panel of fig. "ntp_exp".
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -69,16 +58,6 @@ pub const STATE_HIDDEN_LAYERS: usize = 3;
 /// Whether reproduced runs' state encoders read pairwise cube-position
 /// differences.
 pub const PAIRWISE: bool = true;
-
-/// Whether reproduced runs at `profile` decay the learning rate (half
-/// cosine to a tenth). At 1000 tasks x 20 demos x 20 epochs it lifted
-/// unseen-demo transcription from 0.92 to 0.998 token accuracy and success
-/// from 0.55 to 0.825; in the quick profile's short runs (≤ 1900 steps) it
-/// left the models undertrained (success at 1000 tasks 0.02 against 0.23
-/// at a constant rate), so only the paper profile uses it.
-pub fn cosine_decay(profile: Profile) -> bool {
-    profile == Profile::Paper
-}
 
 /// Validation tasks of reproduced runs at `profile`: the model is scored
 /// on them about [`VALIDATIONS_PER_RUN`] times per run and the best
@@ -261,29 +240,12 @@ pub fn reproduce(
                     learning_rate: 3e-3,
                     seed: 0,
                     token_dropout: 0.0,
-                    cosine_decay: cosine_decay(profile),
+                    cosine_decay: profile.cosine_decay(),
                     gcn_from_other_demo: false,
                 },
             };
-            let dir = runs.join(format!(
-                "ntp_exp-{}-{n}",
-                serde_json::to_value(obs)?.as_str().unwrap_or("obs")
-            ));
-            let run = if dir.join("config.json").is_file() {
-                let run = RunDir::open(&dir)?;
-                let saved: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
-                if saved != config {
-                    anyhow::bail!(
-                        "{} holds a run with another configuration; move it away or delete it",
-                        dir.display()
-                    );
-                }
-                run
-            } else {
-                let run = RunDir::create(&dir)?;
-                RunDir::write_json(&run.config_path(), &config)?;
-                run
-            };
+            let dir = runs.join(format!("ntp_exp-{}-{n}", obs.name()));
+            let run = RunDir::open_or_create(&dir, &config)?;
             eprintln!(
                 "ntp_exp ({obs:?}, {n} tasks x {} demos, {epochs} epochs): training -> {}",
                 scale.demos_per_task,
@@ -296,20 +258,10 @@ pub fn reproduce(
                     m.epoch, m.loss, m.token_accuracy, m.step_accuracy
                 )
             })?;
-            let train_seconds = epoch_seconds(&run)?;
-            let eval_path = run
-                .eval_dir()
-                .join(format!("full-{}.json", scale.test_tasks));
-            let result = match cached_eval(&run, &eval_path)? {
-                Some(result) => result,
-                None => {
-                    let result =
-                        blocks::evaluate(&model, obs, true, scale.test_tasks, Variant::Full)?;
-                    std::fs::create_dir_all(run.eval_dir())?;
-                    RunDir::write_json(&eval_path, &result)?;
-                    result
-                }
-            };
+            let train_seconds = run.epoch_seconds()?;
+            let result = run.cached_eval(&format!("full-{}.json", scale.test_tasks), || {
+                blocks::evaluate(&model, obs, true, scale.test_tasks, Variant::Full)
+            })?;
             eprintln!(
                 "  success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}",
                 scale.test_tasks,
@@ -323,7 +275,7 @@ pub fn reproduce(
                 train_tasks: n,
                 demos_per_task: scale.demos_per_task,
                 epochs,
-                selected_epoch: crate::train::selected_epoch(&run)?.map(|r| r.epoch),
+                selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
                 permute_objects: config.permute_objects,
                 success: result.success,
                 goal_fraction: result.mean_goal_fraction,
@@ -359,31 +311,6 @@ pub fn reproduce(
     )
     .with_context(|| format!("writing {}", out.join("REPORT.md").display()))?;
     Ok(results)
-}
-
-/// Total seconds of the epochs logged in a run's `metrics.jsonl`.
-fn epoch_seconds(run: &RunDir) -> anyhow::Result<f64> {
-    let path = run.metrics_path();
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    let mut total = 0.0;
-    for line in text.lines().filter(|l| !l.trim().is_empty()) {
-        let m: crate::train::EpochMetrics = serde_json::from_str(line)
-            .with_context(|| format!("{}: invalid line", path.display()))?;
-        total += f64::from(m.seconds);
-    }
-    Ok(total)
-}
-
-/// The evaluation saved at `path`, if it was written after the run's last
-/// checkpoint (so it belongs to the final weights).
-fn cached_eval(run: &RunDir, path: &Path) -> anyhow::Result<Option<blocks::EvalResult>> {
-    let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
-    let checkpoint = run.checkpoint_dir().join("progress.json");
-    match (modified(path), modified(&checkpoint)) {
-        (Some(eval), Some(ckpt)) if eval >= ckpt => Ok(Some(RunDir::read_json(path)?)),
-        _ => Ok(None),
-    }
 }
 
 fn write_ntp_exp_figure(results: &Results, stem: &Path) -> anyhow::Result<()> {
@@ -493,28 +420,6 @@ fn report(results: &Results, seconds: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn cosine_decay_runs_from_the_rate_to_a_tenth() {
-        let optim = OptimConfig {
-            epochs: 1,
-            batch_size: 1,
-            learning_rate: 1e-2,
-            seed: 0,
-            token_dropout: 0.0,
-            cosine_decay: true,
-            gcn_from_other_demo: false,
-        };
-        assert!((optim.learning_rate_at(0, 101) - 1e-2).abs() < 1e-12);
-        assert!((optim.learning_rate_at(50, 101) - 5.5e-3).abs() < 1e-9);
-        assert!((optim.learning_rate_at(100, 101) - 1e-3).abs() < 1e-12);
-        let constant = OptimConfig {
-            cosine_decay: false,
-            gcn_from_other_demo: false,
-            ..optim
-        };
-        assert_eq!(constant.learning_rate_at(100, 101), 1e-2);
-    }
 
     #[test]
     fn small_training_sets_get_epochs_up_to_the_minimum_steps() {

@@ -99,6 +99,73 @@ impl RunDir {
         }
     }
 
+    /// What `ntg reproduce` does with a figure's run folder: opens the
+    /// run at `root` if it holds `config` (to reuse or resume it), creates
+    /// it if absent, and errors if it holds another configuration (or one
+    /// of an older format).
+    pub fn open_or_create<C>(root: &Path, config: &C) -> anyhow::Result<Self>
+    where
+        C: Serialize + DeserializeOwned + PartialEq,
+    {
+        if root.join("config.json").is_file() {
+            let run = RunDir::open(root)?;
+            let saved: Option<C> = RunDir::read_json(&run.config_path()).ok();
+            if saved.as_ref() != Some(config) {
+                bail!(
+                    "{} holds a run with another configuration{}; move it away or delete it",
+                    root.display(),
+                    if saved.is_none() {
+                        " (or of an older format)"
+                    } else {
+                        ""
+                    }
+                );
+            }
+            Ok(run)
+        } else {
+            let run = RunDir::create(root)?;
+            RunDir::write_json(&run.config_path(), config)?;
+            Ok(run)
+        }
+    }
+
+    /// The evaluation saved as `eval/NAME`, if it was written after the
+    /// run's last checkpoint (so it belongs to the final weights);
+    /// otherwise `evaluate` runs and its result is saved there.
+    pub fn cached_eval<T>(
+        &self,
+        name: &str,
+        evaluate: impl FnOnce() -> anyhow::Result<T>,
+    ) -> anyhow::Result<T>
+    where
+        T: Serialize + DeserializeOwned,
+    {
+        let path = self.eval_dir().join(name);
+        let modified = |p: &Path| fs::metadata(p).and_then(|m| m.modified()).ok();
+        let checkpoint = self.checkpoint_dir().join("progress.json");
+        if let (Some(eval), Some(ckpt)) = (modified(&path), modified(&checkpoint))
+            && eval >= ckpt
+        {
+            return RunDir::read_json(&path);
+        }
+        let result = evaluate()?;
+        fs::create_dir_all(self.eval_dir())
+            .with_context(|| format!("creating {}", self.eval_dir().display()))?;
+        RunDir::write_json(&path, &result)?;
+        Ok(result)
+    }
+
+    /// Seconds spent in training epochs: the sum of the `seconds` of every
+    /// line of `metrics.jsonl` (so a reused run reports its original cost).
+    pub fn epoch_seconds(&self) -> anyhow::Result<f64> {
+        #[derive(serde::Deserialize)]
+        struct Seconds {
+            seconds: f64,
+        }
+        let lines: Vec<Seconds> = crate::fit::read_jsonl(&self.metrics_path())?;
+        Ok(lines.iter().map(|l| l.seconds).sum())
+    }
+
     /// The folder itself.
     pub fn root(&self) -> &Path {
         &self.root
@@ -241,5 +308,48 @@ mod tests {
             RunDir::read_json::<serde_json::Value>(&run.config_path()).unwrap_err()
         );
         assert!(err.contains("config.json"), "{err}");
+    }
+
+    #[test]
+    fn epoch_seconds_sum_the_metrics_and_errors_name_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::create(dir.path()).unwrap();
+        std::fs::write(run.metrics_path(), "{\"seconds\": 1.5}\nnot json\n").unwrap();
+        let err = format!("{:#}", run.epoch_seconds().unwrap_err());
+        assert!(
+            err.contains("metrics.jsonl") && err.contains("line 2"),
+            "{err}"
+        );
+        std::fs::write(run.metrics_path(), "{\"seconds\": 1.5}\n{\"seconds\": 2}\n").unwrap();
+        assert_eq!(run.epoch_seconds().unwrap(), 3.5);
+    }
+
+    #[test]
+    fn open_or_create_reuses_the_same_configuration_only() {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path().join("run");
+        let config = serde_json::json!({"epochs": 3});
+        RunDir::open_or_create(&root, &config).unwrap();
+        RunDir::open_or_create(&root, &config).unwrap();
+        let err = RunDir::open_or_create(&root, &serde_json::json!({"epochs": 4}))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("another configuration"), "{err}");
+    }
+
+    #[test]
+    fn cached_evaluations_are_reused_until_the_next_checkpoint() {
+        let tmp = tempfile::tempdir().unwrap();
+        let run = RunDir::create(tmp.path()).unwrap();
+        fs::create_dir_all(run.checkpoint_dir()).unwrap();
+        RunDir::write_json(&run.checkpoint_dir().join("progress.json"), &1).unwrap();
+        let first: u32 = run.cached_eval("e.json", || Ok(7)).unwrap();
+        let again: u32 = run.cached_eval("e.json", || Ok(8)).unwrap();
+        assert_eq!((first, again), (7, 7));
+        // A newer checkpoint makes the saved evaluation stale.
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        RunDir::write_json(&run.checkpoint_dir().join("progress.json"), &2).unwrap();
+        let fresh: u32 = run.cached_eval("e.json", || Ok(9)).unwrap();
+        assert_eq!(fresh, 9);
     }
 }

@@ -6,8 +6,8 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use burn::module::Module;
 use ntg_model::NtgModel;
 use ntg_trainer::blocks::{BlocksRunConfig, ObsKind, train_run};
+use ntg_trainer::fit::OptimConfig;
 use ntg_trainer::run_dir::RunDir;
-use ntg_trainer::train::OptimConfig;
 
 fn config() -> BlocksRunConfig {
     BlocksRunConfig {
@@ -82,7 +82,7 @@ fn killed_and_resumed_run_matches_uninterrupted_run() {
     let validation = |run: &RunDir| std::fs::read_to_string(run.validation_path()).unwrap();
     assert_eq!(validation(&straight).lines().count(), 3);
     assert_eq!(validation(&killed), validation(&straight));
-    let selected = |run: &RunDir| ntg_trainer::train::selected_epoch(run).unwrap().unwrap();
+    let selected = |run: &RunDir| ntg_trainer::fit::selected_epoch(run).unwrap().unwrap();
     assert_eq!(selected(&killed), selected(&straight));
     // Compare the final and the selected weights parameter by parameter
     // (the checkpoint file itself may carry per-save metadata).

@@ -1,6 +1,6 @@
 //! The end-to-end smoke test of the block-stacking experiment: train NTG on
 //! a few hundred seen tasks for about a minute, then build a policy from one
-//! demo of each of 40 unseen tasks and roll it out (failures on).
+//! demo of each of 200 unseen tasks and roll it out (failures on).
 //!
 //! At this scale whole tasks are rarely completed (the paper needs hundreds
 //! of tasks and many more updates for that), so the comparison is on
@@ -10,8 +10,13 @@
 //! a clear margin, and must not complete fewer whole tasks.
 
 use ntg_trainer::blocks::{BlocksRunConfig, ObsKind, Variant, evaluate, train_run};
+use ntg_trainer::fit::OptimConfig;
 use ntg_trainer::run_dir::RunDir;
-use ntg_trainer::train::OptimConfig;
+
+/// Unseen test tasks evaluated. With 40, the margin was a coin toss across
+/// machines: on an AVX-512 machine (whose float kernels round differently)
+/// the same training scored 0.173 against 0.124, just under the margin.
+const TEST_TASKS: usize = 200;
 
 #[test]
 fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
@@ -47,10 +52,17 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
     let device = ntg_model::cpu_device().autodiff();
     let model = train_run(&run, &config, &device, |_| {}).unwrap();
 
-    let ntg = evaluate(&model, ObsKind::State, true, 40, Variant::Full).unwrap();
-    let uniform = evaluate(&model, ObsKind::State, true, 40, Variant::NoEdgeClassifier).unwrap();
+    let ntg = evaluate(&model, ObsKind::State, true, TEST_TASKS, Variant::Full).unwrap();
+    let uniform = evaluate(
+        &model,
+        ObsKind::State,
+        true,
+        TEST_TASKS,
+        Variant::NoEdgeClassifier,
+    )
+    .unwrap();
     eprintln!(
-        "NTG: goals met {:.3}, success {}/40; uniform edge: goals met {:.3}, success {}/40",
+        "NTG: goals met {:.3}, success {}/{TEST_TASKS}; uniform edge: goals met {:.3}, success {}/{TEST_TASKS}",
         ntg.mean_goal_fraction,
         ntg.success.successes,
         uniform.mean_goal_fraction,

@@ -6,10 +6,9 @@
 use burn::module::Module;
 use ntg_model::NtgModel;
 use ntg_trainer::blocks::{BlocksRunConfig, ObsKind, Recipe, build_dataset, new_model};
+use ntg_trainer::fit::{OptimConfig, ValidationRecord, ValidationScore, selected_epoch};
+use ntg_trainer::method::ntg::{NtgTraining, TrainExtras, train_with};
 use ntg_trainer::run_dir::RunDir;
-use ntg_trainer::train::{
-    OptimConfig, TrainExtras, ValidationRecord, ValidationScore, selected_epoch, train_with,
-};
 
 /// A tiny run of the paper's recipe, without failures or validation.
 fn config() -> BlocksRunConfig {
@@ -170,7 +169,10 @@ fn detached_gcn_learns_only_from_its_own_loss() {
             &config,
             &run,
             TrainExtras {
-                detach_gcn_from_edges,
+                training: NtgTraining {
+                    detach_gcn_from_edges,
+                    ..NtgTraining::default()
+                },
                 ..TrainExtras::default()
             },
         );
@@ -211,8 +213,11 @@ fn the_renaming_filter_is_consulted_for_every_renamed_demo() {
         &device,
         |_| {},
         TrainExtras {
-            permute_objects: Some(&symmetry),
-            accept_renaming: Some(&refuse_all),
+            training: NtgTraining {
+                permute_objects: Some(&symmetry),
+                accept_renaming: Some(&refuse_all),
+                ..NtgTraining::default()
+            },
             ..TrainExtras::default()
         },
     )
@@ -223,7 +228,7 @@ fn the_renaming_filter_is_consulted_for_every_renamed_demo() {
     );
 
     let accept_all = |_: usize, _: &[usize]| true;
-    let run = |name: &str, accept: Option<ntg_trainer::train::RenamingFilter<'_>>| {
+    let run = |name: &str, accept: Option<ntg_trainer::symmetry::RenamingFilter<'_>>| {
         let model = train_with(
             new_model(&config, &device).unwrap(),
             &dataset,
@@ -232,8 +237,11 @@ fn the_renaming_filter_is_consulted_for_every_renamed_demo() {
             &device,
             |_| {},
             TrainExtras {
-                permute_objects: Some(&symmetry),
-                accept_renaming: accept,
+                training: NtgTraining {
+                    permute_objects: Some(&symmetry),
+                    accept_renaming: accept,
+                    ..NtgTraining::default()
+                },
                 ..TrainExtras::default()
             },
         )

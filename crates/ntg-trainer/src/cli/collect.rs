@@ -6,9 +6,8 @@
 //! - `ntg collect tasks --objects N --count K --split test`: lists distinct
 //!   tasks of one side of the fixed train/test split.
 //!
-//! `ntg train --domain collect …` and `ntg eval --run DIR` on a collect run
-//! are implemented here ([`train`], [`eval`]) and dispatched from
-//! [`super::train`].
+//! `ntg train --domain collect` reads [`CollectTrainArgs`] (in
+//! [`super::train`]).
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -19,9 +18,7 @@ use env_collect::{CollectConfig, Split, TaskSplitter, export};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::collect::{self, CollectRunConfig};
-use crate::run_dir::RunDir;
-use crate::train::OptimConfig;
+use crate::collect;
 
 /// Subcommands of `ntg collect`.
 #[derive(Debug, Subcommand)]
@@ -43,8 +40,8 @@ pub enum CollectCommand {
 #[command(next_help_heading = "Object collection (--domain collect)")]
 pub struct CollectTrainArgs {
     /// Which model to train.
-    #[arg(long, value_enum, default_value_t = collect::Method::Ntg)]
-    pub method: collect::Method,
+    #[arg(long, value_enum, default_value_t = crate::method::MethodId::Ntg)]
+    pub method: crate::method::MethodId,
     /// Numbers of target objects of the training tasks.
     #[arg(long, value_delimiter = ',', default_values_t = [2, 4])]
     pub objects: Vec<usize>,
@@ -81,8 +78,8 @@ impl CollectTrainArgs {
         match (self.location_step_prior, self.method) {
             (Some(0.0), _) => None,
             (Some(w), _) => Some(w),
-            (None, collect::Method::Ntg) => self.interpreter.default_step_prior(),
-            (None, collect::Method::Flat) => None,
+            (None, crate::method::MethodId::Ntg) => self.interpreter.default_step_prior(),
+            (None, crate::method::MethodId::Flat) => None,
         }
     }
 }
@@ -204,93 +201,6 @@ pub fn demo(args: &DemoArgs, out: &mut impl Write) -> anyhow::Result<()> {
     if let Some(sheet) = &written.contact_sheet {
         writeln!(out, "wrote {}", sheet.display())?;
     }
-    Ok(())
-}
-
-/// `ntg train --domain collect`: trains NTG or the Flat Policy on tasks
-/// with `--objects` targets (`--train-tasks` distinct tasks per N).
-pub fn train(args: &super::train::TrainArgs) -> anyhow::Result<()> {
-    let c = &args.collect;
-    let config = CollectRunConfig {
-        domain: "collect".into(),
-        method: c.method,
-        obs: args.obs,
-        train_objects: c.objects.clone(),
-        tasks_per_n: args.train_tasks,
-        demos_per_task: args.demos_per_task,
-        segments: !c.no_segments,
-        learn_end: c.learn_end,
-        memory: c.memory,
-        interpreter: c.interpreter,
-        location_step_prior: c.location_step_prior(),
-        model_seed: args.seed,
-        optim: OptimConfig {
-            epochs: args.epochs,
-            batch_size: args.batch_size,
-            learning_rate: args.lr.unwrap_or(crate::blocks::PAPER_LEARNING_RATE),
-            seed: args.seed,
-            token_dropout: 0.0,
-            cosine_decay: args.cosine_decay,
-            gcn_from_other_demo: false,
-        },
-    };
-    config.validate()?;
-    let run = RunDir::start_or_resume(&args.out, &config, args.resume, "")?;
-    eprintln!(
-        "training {} ({:?} observations) on N = {:?}, {} tasks per N x {} demos, {} epochs -> {}",
-        config.method.name(),
-        config.obs,
-        config.train_objects,
-        config.tasks_per_n,
-        config.demos_per_task,
-        config.optim.epochs,
-        run.root().display()
-    );
-    let device = ntg_model::cpu_device().autodiff();
-    collect::train_run(&run, &config, &device, |p| eprintln!("{}", p.line()))?;
-    eprintln!("done: weights in {}", run.checkpoint_dir().display());
-    Ok(())
-}
-
-/// `ntg eval` on a collect run: success per N = 1..5 on `--test-tasks`
-/// unseen test episodes each; writes `eval/collect-<K>.json`.
-pub fn eval(
-    run: &RunDir,
-    config: &CollectRunConfig,
-    args: &super::train::EvalArgs,
-) -> anyhow::Result<()> {
-    if args.split != super::train::EvalSplit::Test {
-        anyhow::bail!(
-            "--split validation is for block-stacking runs; object collection evaluates its test episodes"
-        );
-    }
-    let model = collect::load_model(run, config)?;
-    let result = collect::evaluate(
-        &model,
-        config.method,
-        config.obs,
-        &collect::EVAL_OBJECTS,
-        args.test_tasks,
-    )?;
-    std::fs::create_dir_all(run.eval_dir())?;
-    let path = run
-        .eval_dir()
-        .join(format!("collect-{}.json", args.test_tasks));
-    RunDir::write_json(&path, &result)?;
-    for p in &result.points {
-        let s = p.success;
-        println!(
-            "{} N = {}: success {}/{} = {:.3} (95% CI {:.3}-{:.3})",
-            config.method.name(),
-            p.objects,
-            s.successes,
-            s.trials,
-            s.rate,
-            s.ci_low,
-            s.ci_high
-        );
-    }
-    println!("records in {}", path.display());
     Ok(())
 }
 

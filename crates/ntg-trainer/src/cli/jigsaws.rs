@@ -75,8 +75,8 @@ pub struct NllArgs {
     #[arg(long, value_name = "S")]
     pub model_seed: Option<u64>,
     /// Experiment scale (epochs).
-    #[arg(long, value_enum, default_value_t = crate::reproduce::Profile::Quick)]
-    pub profile: crate::reproduce::Profile,
+    #[arg(long, value_enum, default_value_t = crate::spec::Profile::Quick)]
+    pub profile: crate::spec::Profile,
     /// Training epochs (default: the profile's).
     #[arg(long, value_name = "N")]
     pub epochs: Option<usize>,
@@ -423,7 +423,7 @@ mod tests {
             jigsaws_root: Some(root.clone()),
             synth_seed: 0,
             model_seed: None,
-            profile: crate::reproduce::Profile::Smoke,
+            profile: crate::spec::Profile::Smoke,
             epochs: Some(1),
             seed_table: false,
             out: out.clone(),
@@ -492,7 +492,7 @@ mod tests {
             jigsaws_root: Some(dir.path().join("missing")),
             synth_seed: 0,
             model_seed: None,
-            profile: crate::reproduce::Profile::Smoke,
+            profile: crate::spec::Profile::Smoke,
             epochs: None,
             seed_table: false,
             out: dir.path().join("out"),

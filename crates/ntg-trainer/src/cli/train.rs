@@ -7,8 +7,8 @@ use clap::{Args, ValueEnum};
 use ntg_model::NtgModel;
 
 use crate::blocks::{self, BlocksRunConfig, ObsKind, Recipe, Variant};
+use crate::fit::OptimConfig;
 use crate::run_dir::RunDir;
-use crate::train::OptimConfig;
 
 /// Task domains `ntg train` knows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -154,7 +154,7 @@ impl TrainArgs {
 /// Runs `ntg train`.
 pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
     if args.domain == Domain::Collect {
-        return super::collect::train(args);
+        return train_collect(args);
     }
     let config = args.config();
     if !args.resume {
@@ -189,7 +189,7 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
         run.root().display()
     );
     blocks::train_run(&run, &config, &device, |m| eprintln!("{}", m.log_line()))?;
-    match crate::train::selected_epoch(&run)? {
+    match crate::fit::selected_epoch(&run)? {
         Some(best) => eprintln!(
             "done: epoch {} scored best on the validation tasks (success {:.3}, goals met {:.3}); its weights are in {}",
             best.epoch,
@@ -199,6 +199,93 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
         ),
         None => eprintln!("done: weights in {}", run.checkpoint_dir().display()),
     }
+    Ok(())
+}
+
+/// `ntg train --domain collect`: trains NTG or the Flat Policy on tasks
+/// with `--objects` targets (`--train-tasks` distinct tasks per N).
+fn train_collect(args: &TrainArgs) -> anyhow::Result<()> {
+    let c = &args.collect;
+    let config = crate::collect::CollectRunConfig {
+        domain: "collect".into(),
+        method: c.method,
+        obs: args.obs,
+        train_objects: c.objects.clone(),
+        tasks_per_n: args.train_tasks,
+        demos_per_task: args.demos_per_task,
+        segments: !c.no_segments,
+        learn_end: c.learn_end,
+        memory: c.memory,
+        interpreter: c.interpreter,
+        location_step_prior: c.location_step_prior(),
+        model_seed: args.seed,
+        optim: OptimConfig {
+            epochs: args.epochs,
+            batch_size: args.batch_size,
+            learning_rate: args.lr.unwrap_or(crate::blocks::PAPER_LEARNING_RATE),
+            seed: args.seed,
+            token_dropout: 0.0,
+            cosine_decay: args.cosine_decay,
+            gcn_from_other_demo: false,
+        },
+    };
+    config.validate()?;
+    let run = RunDir::start_or_resume(&args.out, &config, args.resume, "")?;
+    eprintln!(
+        "training {} ({:?} observations) on N = {:?}, {} tasks per N x {} demos, {} epochs -> {}",
+        config.method.name(),
+        config.obs,
+        config.train_objects,
+        config.tasks_per_n,
+        config.demos_per_task,
+        config.optim.epochs,
+        run.root().display()
+    );
+    let device = ntg_model::cpu_device().autodiff();
+    crate::collect::train_run(&run, &config, &device, |p| eprintln!("{}", p.line()))?;
+    eprintln!("done: weights in {}", run.checkpoint_dir().display());
+    Ok(())
+}
+
+/// `ntg eval` on a collect run: success per N = 1..5 on `--test-tasks`
+/// unseen test episodes each; writes `eval/collect-<K>.json`.
+fn eval_collect(
+    run: &RunDir,
+    config: &crate::collect::CollectRunConfig,
+    args: &EvalArgs,
+) -> anyhow::Result<()> {
+    if args.split != EvalSplit::Test {
+        anyhow::bail!(
+            "--split validation is for block-stacking runs; object collection evaluates its test episodes"
+        );
+    }
+    let model = crate::collect::load_model(run, config)?;
+    let result = crate::collect::evaluate(
+        &model,
+        config.method,
+        config.obs,
+        &crate::collect::EVAL_OBJECTS,
+        args.test_tasks,
+    )?;
+    std::fs::create_dir_all(run.eval_dir())?;
+    let path = run
+        .eval_dir()
+        .join(format!("collect-{}.json", args.test_tasks));
+    RunDir::write_json(&path, &result)?;
+    for p in &result.points {
+        let s = p.success;
+        println!(
+            "{} N = {}: success {}/{} = {:.3} (95% CI {:.3}-{:.3})",
+            config.method.name(),
+            p.objects,
+            s.successes,
+            s.trials,
+            s.rate,
+            s.ci_low,
+            s.ci_high
+        );
+    }
+    println!("records in {}", path.display());
     Ok(())
 }
 
@@ -244,7 +331,7 @@ pub fn load_trained(
     edge_threshold: Option<f32>,
     device: &burn::tensor::Device,
 ) -> anyhow::Result<NtgModel> {
-    let dir = match crate::train::selected_epoch(run)? {
+    let dir = match crate::fit::selected_epoch(run)? {
         Some(_) => run.best_dir(),
         None => run.checkpoint_dir(),
     };
@@ -264,7 +351,7 @@ pub fn load_trained(
 pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     let run = RunDir::open(&args.run)?;
     if let Ok(config) = RunDir::read_json::<crate::collect::CollectRunConfig>(&run.config_path()) {
-        return super::collect::eval(&run, &config, args);
+        return eval_collect(&run, &config, args);
     }
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     let device = ntg_model::cpu_device();
@@ -315,8 +402,8 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
 #[derive(Debug, Args)]
 pub struct ReproduceArgs {
     /// Experiment scale.
-    #[arg(long, value_enum, default_value_t = crate::reproduce::Profile::Quick)]
-    pub profile: crate::reproduce::Profile,
+    #[arg(long, value_enum, default_value_t = crate::spec::Profile::Quick)]
+    pub profile: crate::spec::Profile,
     /// Where run folders go (finished runs are reused).
     #[arg(long, default_value = "runs/figures")]
     pub runs: PathBuf,

@@ -253,15 +253,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::{DemoDataset, ObsDtype};
-use crate::reproduce::Profile;
+use crate::fit::OptimConfig;
+use crate::method::ntg::{EpochMetrics, train};
 use crate::run_dir::RunDir;
-use crate::train::{EpochMetrics, OptimConfig, train};
-
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-use ntg_model::{ids_tensor, rows_tensor, successor_mask};
-use rand::SeedableRng;
-use rand::seq::SliceRandom;
-use rand_chacha::ChaCha8Rng;
+use crate::spec::Profile;
 
 mod graph;
 mod prior;

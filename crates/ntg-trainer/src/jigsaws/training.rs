@@ -10,181 +10,6 @@ struct RunConfig {
     methods: Vec<Method>,
 }
 
-fn open_run(dir: &Path, config: &RunConfig) -> anyhow::Result<RunDir> {
-    if dir.join("config.json").is_file() {
-        let run = RunDir::open(dir)?;
-        // A run of an older format (e.g. one method per run) is another
-        // configuration too.
-        let saved: Option<RunConfig> = RunDir::read_json(&run.config_path()).ok();
-        if saved.as_ref() != Some(config) {
-            bail!(
-                "{} holds a run with another configuration{}; move it away or delete it",
-                dir.display(),
-                if saved.is_none() {
-                    " (or of an older format)"
-                } else {
-                    ""
-                }
-            );
-        }
-        Ok(run)
-    } else {
-        let run = RunDir::create(dir)?;
-        RunDir::write_json(&run.config_path(), config)?;
-        Ok(run)
-    }
-}
-
-fn read_metrics(run: &RunDir) -> anyhow::Result<Vec<EpochMetrics>> {
-    let path = run.metrics_path();
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    text.lines()
-        .filter(|l| !l.trim().is_empty())
-        .map(|l| {
-            serde_json::from_str(l).with_context(|| format!("{}: invalid line", path.display()))
-        })
-        .collect()
-}
-
-/// The "no graph" model's trainer: the node localizer on every
-/// observation's node, and the edge classifier, given `N⁰` (the GCN's
-/// task-independent initial embeddings, trained along), on every
-/// observation's next action with a softmax over every successor in the
-/// **fully connected** graph, as its policy uses it. No demo interpreter
-/// and no graph completion are trained (their metrics are logged as 0).
-/// Adam; demos shuffled per epoch with a generator seeded by
-/// `(seed, epoch)` as in [`train`]. It trains in memory (seconds); the
-/// selected model is saved by [`train_method`].
-pub struct NoGraphTrainer {
-    model: NtgModel,
-    optimizer: ModuleOptimizer,
-    demos: Vec<Demonstration<Vec<f32>>>,
-    dim: usize,
-    epochs_done: usize,
-}
-
-impl NoGraphTrainer {
-    /// A trainer for `model` (on an autodiff device) on `dataset`.
-    pub fn new(model: NtgModel, dataset: &DemoDataset) -> anyhow::Result<NoGraphTrainer> {
-        ensure!(
-            !dataset.demos().is_empty(),
-            "the dataset has no demonstrations"
-        );
-        let demos = (0..dataset.demos().len())
-            .map(|i| dataset.demonstration(i))
-            .collect::<anyhow::Result<_>>()?;
-        Ok(NoGraphTrainer {
-            model,
-            optimizer: AdamConfig::new().init(),
-            demos,
-            dim: dataset.obs_dim(),
-            epochs_done: 0,
-        })
-    }
-
-    /// The model as trained so far.
-    pub fn model(&self) -> &NtgModel {
-        &self.model
-    }
-
-    /// Trains until `epochs` epochs are done, calling `on_epoch` after each.
-    pub fn train_to(
-        &mut self,
-        epochs: usize,
-        optim: &OptimConfig,
-        device: &Device,
-        mut on_epoch: impl FnMut(&EpochMetrics) -> anyhow::Result<()>,
-    ) -> anyhow::Result<()> {
-        ensure!(optim.batch_size > 0, "batch size must be positive");
-        let n = self.model.num_nodes();
-        let full = Ctg::fully_connected(n);
-        for epoch in self.epochs_done..epochs {
-            let started = std::time::Instant::now();
-            let mut order: Vec<usize> = (0..self.demos.len()).collect();
-            let mut rng = ChaCha8Rng::seed_from_u64(
-                optim.seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-            );
-            order.shuffle(&mut rng);
-            let mut sums = [0.0f32; 5];
-            let mut steps = 0;
-            for chunk in order.chunks(optim.batch_size) {
-                let mut rows: Vec<&[f32]> = Vec::new();
-                let mut nodes = Vec::new();
-                let mut next = Vec::new();
-                for &i in chunk {
-                    let d = &self.demos[i];
-                    rows.extend(d.observations().iter().map(Vec::as_slice));
-                    nodes.extend(d.node_labels());
-                    next.extend(d.next_actions());
-                }
-                let model = &self.model;
-                let obs = rows_tensor(&rows, self.dim, device)?;
-                let node_ids = ids_tensor(&nodes, n, device)?;
-                let next_ids = ids_tensor(&next, n, device)?;
-                let loc = model
-                    .localizer
-                    .loss(model.localizer.forward(obs.clone())?, node_ids.clone())?;
-                let graphs = vec![&full; rows.len()];
-                let mask = successor_mask(&graphs, &nodes, Some(&next), n, device)?;
-                let logits = model.edges.forward(
-                    obs,
-                    node_ids,
-                    model.gcn.initial_embeddings(rows.len()),
-                    model.localizer.node_embeddings(),
-                    mask,
-                )?;
-                let edge = model.edges.loss(logits, next_ids)?;
-                let total = loc.loss.clone() + edge.loss.clone();
-                let values = [
-                    first(total.clone())?,
-                    first(loc.loss)?,
-                    loc.accuracy,
-                    first(edge.loss)?,
-                    edge.accuracy,
-                ];
-                let grads = GradientsParams::from_grads(total.backward(), model);
-                self.model = self
-                    .optimizer
-                    .step(optim.learning_rate, self.model.clone(), grads);
-                for (s, v) in sums.iter_mut().zip(values) {
-                    *s += v;
-                }
-                steps += 1;
-            }
-            let mean = |i: usize| sums[i] / steps as f32;
-            let metrics = EpochMetrics {
-                epoch,
-                loss: mean(0),
-                interpreter_loss: 0.0,
-                token_accuracy: 0.0,
-                gcn_loss: 0.0,
-                edge_f1: None,
-                localizer_loss: mean(1),
-                localizer_accuracy: mean(2),
-                edge_loss: mean(3),
-                step_accuracy: mean(4),
-                seconds: started.elapsed().as_secs_f32(),
-            };
-            ensure!(
-                metrics.loss.is_finite(),
-                "training diverged at epoch {epoch} (loss {})",
-                metrics.loss
-            );
-            self.epochs_done = epoch + 1;
-            on_epoch(&metrics)?;
-        }
-        Ok(())
-    }
-}
-
-fn first(t: burn::tensor::Tensor<1>) -> anyhow::Result<f32> {
-    Ok(ntg_model::nn::to_vec(t)?
-        .first()
-        .copied()
-        .unwrap_or(f32::NAN))
-}
-
 /// Mean validation NLL of `scorer`'s policies: each held-out group scored
 /// leave-one-out within itself, the conditioning demos' scores averaged
 /// over all groups. `None` without validation groups.
@@ -285,7 +110,7 @@ pub fn train_method(
         ensure!(head.is_some(), "the full method needs the no-graph model");
         ensure!(!weights.is_empty(), "the full method needs a prior weight");
     }
-    let run = open_run(
+    let run = RunDir::open_or_create(
         dir,
         &RunConfig {
             experiment: config.clone(),
@@ -322,39 +147,24 @@ pub fn train_method(
         type Best = (f64, usize, NtgModel, usize, Vec<f64>);
         let mut best: Vec<Option<Best>> = vec![None; methods.len()];
         let mut curves = vec![Vec::new(); methods.len()];
-        let mut trainer = if no_graph {
-            // In-memory trainer: start the metrics log afresh.
-            let _ = std::fs::remove_file(run.metrics_path());
-            Some(NoGraphTrainer::new(fresh.clone(), &data.train)?)
-        } else {
-            None
-        };
         for &mark in &marks {
-            let model = match &mut trainer {
-                Some(trainer) => {
-                    trainer.train_to(mark, &config.optim, device, |m| {
-                        on_epoch(m);
-                        run.append_metrics(m)
-                    })?;
-                    trainer.model().clone()
-                }
-                None => {
-                    // `train` resumes from the run's checkpoint, so training
-                    // in stages takes exactly the steps of one long run.
-                    let optim = OptimConfig {
-                        epochs: mark,
-                        ..config.optim.clone()
-                    };
-                    train(
-                        fresh.clone(),
-                        &data.train,
-                        &optim,
-                        &run,
-                        device,
-                        &mut on_epoch,
-                    )?
-                }
+            // `train` resumes from the run's checkpoint, so training in
+            // stages takes exactly the steps of one long run. The no-graph
+            // model's ablation (no demo interpreter, no GCN) makes NTG's
+            // step train only the localizer and the edge classifier, the
+            // latter over the fully connected graph with `N⁰`.
+            let optim = OptimConfig {
+                epochs: mark,
+                ..config.optim.clone()
             };
+            let model = train(
+                fresh.clone(),
+                &data.train,
+                &optim,
+                &run,
+                device,
+                &mut on_epoch,
+            )?;
             for (i, &method) in methods.iter().enumerate() {
                 // (value, index of the best weight, value per weight).
                 let value: Option<(f64, usize, Vec<f64>)> = match (method, head) {
@@ -420,7 +230,7 @@ pub fn train_method(
             })
             .collect::<anyhow::Result<_>>()?
     };
-    let metrics = read_metrics(&run)?;
+    let metrics: Vec<EpochMetrics> = crate::fit::read_jsonl(&run.metrics_path())?;
     Ok(methods
         .iter()
         .zip(selected)

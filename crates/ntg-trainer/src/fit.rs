@@ -1,0 +1,397 @@
+//! The one epoch loop of ntg-trainer: every method of every domain trains
+//! through [`fit`].
+//!
+//! A method supplies a [`TrainStep`] (the loss of one batch of example
+//! indices, and how an epoch's mean step values become its metrics line);
+//! a domain optionally supplies a [`Validator`] (rollouts on held-out
+//! tasks). `fit` owns everything else: shuffling, the learning-rate
+//! schedule, Adam, the progress bar, `metrics.jsonl`, validation and
+//! best-epoch selection into `best/`, checkpoints and resuming.
+//!
+//! Determinism and resuming: epoch `e` shuffles with a generator seeded by
+//! `(seed, e)` alone, and the step gets that generator (after the shuffle)
+//! and its `(epoch, step)` to draw anything else it needs, so a run resumed
+//! from the checkpoint of epoch `e - 1` takes exactly the same steps as an
+//! uninterrupted one. Nothing random needs saving.
+
+use std::path::Path;
+
+use anyhow::{Context, bail};
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Tensor};
+use ntg_model::{EdgeCounts, FlatPolicy, NtgModel, load_optimizer, save_optimizer};
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+
+use crate::run_dir::RunDir;
+
+/// Optimisation settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OptimConfig {
+    /// Passes over the dataset.
+    pub epochs: usize,
+    /// Examples (demonstrations) per step.
+    pub batch_size: usize,
+    /// Adam learning rate.
+    pub learning_rate: f64,
+    /// Seed of the shuffling (and of every other draw of training).
+    pub seed: u64,
+    /// NTG: probability that the demo interpreter's decoder reads `<start>`
+    /// instead of the previous action in training (regularises it towards
+    /// reading the demo; 0 = plain teacher forcing).
+    #[serde(default)]
+    pub token_dropout: f32,
+    /// NTG: the GCN reads another demo of the same task than the one the
+    /// edge classifier imitates (drawn from a seeded generator; the demo
+    /// itself when its task has no other). Otherwise the GCN's node
+    /// embeddings carry where the imitated demo itself ends or retries, and
+    /// the edge classifier learns to copy that instead of reading the
+    /// observation.
+    #[serde(default)]
+    pub gcn_from_other_demo: bool,
+    /// Decay the learning rate along a half cosine from `learning_rate` to
+    /// a tenth of it over the run (per step); off = constant.
+    #[serde(default)]
+    pub cosine_decay: bool,
+}
+
+impl OptimConfig {
+    /// The learning rate at `step` of `total_steps`.
+    pub fn learning_rate_at(&self, step: usize, total_steps: usize) -> f64 {
+        if !self.cosine_decay || total_steps <= 1 {
+            return self.learning_rate;
+        }
+        let progress = step.min(total_steps - 1) as f64 / (total_steps - 1) as f64;
+        let floor = 0.1 * self.learning_rate;
+        floor + (self.learning_rate - floor) * 0.5 * (1.0 + (std::f64::consts::PI * progress).cos())
+    }
+}
+
+/// A model [`fit`] can train and checkpoint.
+pub trait TrainedModel: Module + Clone {
+    /// Saves the weights and configuration into `dir`.
+    fn save_to(&self, dir: &Path) -> anyhow::Result<()>;
+    /// Loads what [`TrainedModel::save_to`] wrote.
+    fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self>;
+}
+
+impl TrainedModel for NtgModel {
+    fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
+        Ok(self.save(dir)?)
+    }
+    fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
+        Ok(NtgModel::load(dir, device)?)
+    }
+}
+
+impl TrainedModel for FlatPolicy {
+    fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
+        Ok(self.save(dir)?)
+    }
+    fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
+        Ok(FlatPolicy::load(dir, device)?)
+    }
+}
+
+/// Where a step is in the run, and the epoch's generator to draw from.
+pub struct StepContext<'a> {
+    /// Epoch index (from 0).
+    pub epoch: usize,
+    /// Step index within the epoch (from 0).
+    pub step: usize,
+    /// The run's shuffling seed ([`OptimConfig::seed`]).
+    pub seed: u64,
+    /// The epoch's generator, after it shuffled the examples; steps draw
+    /// from it in order.
+    pub rng: &'a mut ChaCha8Rng,
+}
+
+/// What one optimisation step reports: the loss to minimise, scalars to
+/// average over the epoch, and GCN edge counts (summed over the epoch).
+pub struct StepReport {
+    /// The loss; its gradients update the model.
+    pub loss: Tensor<1>,
+    /// Values averaged over the epoch's steps; the first is the loss.
+    pub values: Vec<f32>,
+    /// GCN edge counts (zero for models without a GCN).
+    pub edges: EdgeCounts,
+}
+
+/// One method's training step: the loss on a batch of examples (indices
+/// into the method's dataset), and the metrics line of an epoch.
+pub trait TrainStep<M> {
+    /// What `metrics.jsonl` records per epoch.
+    type Metrics: Serialize;
+    /// Number of training examples.
+    fn num_examples(&self) -> usize;
+    /// The loss of examples `batch` under `model`.
+    fn step(&self, model: &M, batch: &[usize], ctx: StepContext<'_>) -> anyhow::Result<StepReport>;
+    /// The epoch's metrics from the mean of each step value, the summed
+    /// edge counts and the epoch's seconds.
+    fn epoch_metrics(
+        &self,
+        epoch: usize,
+        means: &[f32],
+        edges: &EdgeCounts,
+        seconds: f32,
+    ) -> Self::Metrics;
+}
+
+/// A model's score on held-out validation tasks; higher is better, compared
+/// by success rate, then by the fraction of goals met.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ValidationScore {
+    /// Fraction of validation tasks completed.
+    pub success: f64,
+    /// Mean fraction of each validation task's goals met at the end.
+    pub goal_fraction: f64,
+}
+
+impl ValidationScore {
+    /// Whether `self` is strictly better than `other`.
+    pub fn beats(&self, other: &ValidationScore) -> bool {
+        (self.success, self.goal_fraction) > (other.success, other.goal_fraction)
+    }
+}
+
+/// One line of `validation.jsonl`, and the contents of `best/selection.json`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ValidationRecord {
+    /// Epoch index (from 0).
+    pub epoch: usize,
+    /// The score after that epoch.
+    #[serde(flatten)]
+    pub score: ValidationScore,
+}
+
+/// Scores a model (on the training device) on held-out tasks after an
+/// epoch. It must be deterministic: a resumed run re-scores nothing, it
+/// reads earlier scores back from the run folder.
+pub trait Validator<M> {
+    /// The score of `model`.
+    fn validate(&mut self, model: &M) -> anyhow::Result<ValidationScore>;
+}
+
+impl<M, F: FnMut(&M) -> anyhow::Result<ValidationScore>> Validator<M> for F {
+    fn validate(&mut self, model: &M) -> anyhow::Result<ValidationScore> {
+        self(model)
+    }
+}
+
+/// Model selection of a [`fit`]: a validator, and how often it runs.
+pub struct Selection<'a, M> {
+    /// Scores the model.
+    pub validator: &'a mut dyn Validator<M>,
+    /// Validate after every this many epochs (and after the last); 0 and 1
+    /// mean every epoch.
+    pub every: usize,
+}
+
+/// The epoch `run`'s `best/` folder holds, if validation selected one.
+pub fn selected_epoch(run: &RunDir) -> anyhow::Result<Option<ValidationRecord>> {
+    let path = run.best_dir().join("selection.json");
+    if path.is_file() {
+        Ok(Some(RunDir::read_json(&path)?))
+    } else {
+        Ok(None)
+    }
+}
+
+/// Progress saved with each checkpoint.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct Progress {
+    epochs_done: usize,
+}
+
+/// The generator of epoch `epoch`: seeded by `(seed, epoch)` alone.
+pub fn epoch_rng(seed: u64, epoch: usize) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed ^ (epoch as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
+}
+
+/// Trains `model` (on an autodiff device) for the epochs of `optim` not yet
+/// done in `run`, resuming from its checkpoint if there is one. After each
+/// epoch: the metrics line goes to `metrics.jsonl` (and `on_epoch`), the
+/// model, the optimizer state and the progress to the checkpoint. With a
+/// `selection`, the model is scored at its epochs (before checkpointing, so
+/// a run killed in between redoes the epoch and finds `best/` untouched or
+/// holding this very epoch), the score logged to `validation.jsonl`, the
+/// best epoch's weights kept in `best/` (ties keep the earlier) and
+/// returned instead of the last.
+pub fn fit<M, S>(
+    mut model: M,
+    step: &S,
+    optim: &OptimConfig,
+    run: &RunDir,
+    device: &Device,
+    mut selection: Option<Selection<'_, M>>,
+    mut on_epoch: impl FnMut(&S::Metrics),
+) -> anyhow::Result<M>
+where
+    M: TrainedModel,
+    S: TrainStep<M>,
+{
+    let num_examples = step.num_examples();
+    if num_examples == 0 {
+        bail!("the dataset has no demonstrations");
+    }
+    if optim.batch_size == 0 {
+        bail!("batch size must be positive");
+    }
+    let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
+    let ckpt = run.checkpoint_dir();
+    let progress_path = ckpt.join("progress.json");
+    let mut start = 0;
+    if progress_path.is_file() {
+        let progress: Progress = RunDir::read_json(&progress_path)?;
+        model = M::load_from(&ckpt, device)
+            .with_context(|| format!("resuming from {}", ckpt.display()))?;
+        optimizer = load_optimizer(optimizer, ckpt.join("optimizer.bpk"))
+            .with_context(|| format!("resuming from {}", ckpt.display()))?;
+        start = progress.epochs_done;
+    }
+    let steps_per_epoch = num_examples.div_ceil(optim.batch_size);
+    let total_steps = steps_per_epoch * optim.epochs;
+    for epoch in start..optim.epochs {
+        let started = std::time::Instant::now();
+        let mut rng = epoch_rng(optim.seed, epoch);
+        let mut order: Vec<usize> = (0..num_examples).collect();
+        order.shuffle(&mut rng);
+        let mut sums: Vec<f32> = Vec::new();
+        let mut edges = EdgeCounts::default();
+        let bar = crate::dataset::progress_bar(steps_per_epoch as u64, &format!("epoch {epoch}"));
+        for (k, batch) in order.chunks(optim.batch_size).enumerate() {
+            let ctx = StepContext {
+                epoch,
+                step: k,
+                seed: optim.seed,
+                rng: &mut rng,
+            };
+            let report = step.step(&model, batch, ctx)?;
+            if sums.is_empty() {
+                sums = vec![0.0; report.values.len()];
+            }
+            for (s, v) in sums.iter_mut().zip(&report.values) {
+                *s += v;
+            }
+            edges.true_positives += report.edges.true_positives;
+            edges.false_positives += report.edges.false_positives;
+            edges.false_negatives += report.edges.false_negatives;
+            let grads = GradientsParams::from_grads(report.loss.backward(), &model);
+            let rate = optim.learning_rate_at(epoch * steps_per_epoch + k, total_steps);
+            model = optimizer.step(rate, model, grads);
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        let means: Vec<f32> = sums.iter().map(|s| s / steps_per_epoch as f32).collect();
+        let loss = means.first().copied().unwrap_or(f32::NAN);
+        if !loss.is_finite() {
+            bail!("training diverged at epoch {epoch} (loss {loss})");
+        }
+        let metrics = step.epoch_metrics(epoch, &means, &edges, started.elapsed().as_secs_f32());
+        let validate_now =
+            |every: usize| (epoch + 1) % every.max(1) == 0 || epoch + 1 == optim.epochs;
+        let mut validation = None;
+        if let Some(sel) = selection.as_mut().filter(|s| validate_now(s.every)) {
+            let score = sel.validator.validate(&model)?;
+            let record = ValidationRecord { epoch, score };
+            let improves = match selected_epoch(run)? {
+                None => true,
+                Some(best) => best.epoch >= epoch || score.beats(&best.score),
+            };
+            if improves {
+                let best = run.best_dir();
+                model.save_to(&best)?;
+                RunDir::write_json(&best.join("selection.json"), &record)?;
+            }
+            validation = Some(record);
+        }
+        model.save_to(&ckpt)?;
+        save_optimizer(&optimizer, ckpt.join("optimizer.bpk"))?;
+        RunDir::write_json(
+            &progress_path,
+            &Progress {
+                epochs_done: epoch + 1,
+            },
+        )?;
+        run.append_metrics(&metrics)?;
+        if let Some(record) = validation {
+            RunDir::append_jsonl(&run.validation_path(), &record)?;
+        }
+        on_epoch(&metrics);
+    }
+    if selection.is_some()
+        && let Some(best) = selected_epoch(run)?
+    {
+        return M::load_from(&run.best_dir(), device).with_context(|| {
+            format!(
+                "loading the weights of epoch {} selected on validation tasks",
+                best.epoch
+            )
+        });
+    }
+    Ok(model)
+}
+
+/// The first value of a one-element tensor (NaN if empty).
+pub fn scalar(t: Tensor<1>) -> anyhow::Result<f32> {
+    Ok(ntg_model::nn::to_vec(t)?
+        .first()
+        .copied()
+        .unwrap_or(f32::NAN))
+}
+
+/// Reads every line of a JSON-lines file, naming the file and line of the
+/// first that does not parse.
+pub fn read_jsonl<T: DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            serde_json::from_str(l)
+                .with_context(|| format!("{}: line {} is not valid", path.display(), i + 1))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cosine_decay_runs_from_the_rate_to_a_tenth() {
+        let optim = OptimConfig {
+            epochs: 1,
+            batch_size: 1,
+            learning_rate: 1e-2,
+            seed: 0,
+            token_dropout: 0.0,
+            cosine_decay: true,
+            gcn_from_other_demo: false,
+        };
+        assert!((optim.learning_rate_at(0, 101) - 1e-2).abs() < 1e-12);
+        assert!((optim.learning_rate_at(50, 101) - 5.5e-3).abs() < 1e-9);
+        assert!((optim.learning_rate_at(100, 101) - 1e-3).abs() < 1e-12);
+        let constant = OptimConfig {
+            cosine_decay: false,
+            ..optim
+        };
+        assert_eq!(constant.learning_rate_at(100, 101), 1e-2);
+    }
+
+    #[test]
+    fn jsonl_errors_name_the_file_and_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.jsonl");
+        std::fs::write(&path, "{\"epochs_done\": 1}\n\nnot json\n").unwrap();
+        let err = format!("{:#}", read_jsonl::<Progress>(&path).unwrap_err());
+        assert!(err.contains("m.jsonl") && err.contains("line 3"), "{err}");
+        std::fs::write(&path, "{\"epochs_done\": 1}\n{\"epochs_done\": 2}\n").unwrap();
+        assert_eq!(read_jsonl::<Progress>(&path).unwrap().len(), 2);
+    }
+}

@@ -1,0 +1,162 @@
+//! The Flat Policy (Duan et al. 2017) as a training method: each example
+//! imitates one demonstration conditioned on another demonstration of the
+//! same task (drawn from the epoch's generator), as in the paper's
+//! baseline.
+
+use std::collections::BTreeMap;
+
+use anyhow::bail;
+use burn::tensor::Device;
+use ctg_graph::Vocabulary;
+use ntg_model::{EdgeCounts, FlatBatch, FlatExample, FlatPolicy, executed_actions};
+use rand::seq::IndexedRandom;
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::DemoDataset;
+use crate::fit::{StepContext, StepReport, TrainStep, scalar};
+
+/// Metrics of one Flat Policy epoch, as logged to `metrics.jsonl`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FlatEpochMetrics {
+    /// Epoch index (from 0).
+    pub epoch: usize,
+    /// Mean cross-entropy of the next action.
+    pub loss: f32,
+    /// Fraction of steps whose next action it picks.
+    pub step_accuracy: f32,
+    /// Wall-clock seconds of the epoch.
+    pub seconds: f32,
+}
+
+impl FlatEpochMetrics {
+    /// One human-readable log line.
+    pub fn log_line(&self) -> String {
+        format!(
+            "epoch {:>3}: loss {:.3} | steps {:.3} | {:.1}s",
+            self.epoch, self.loss, self.step_accuracy, self.seconds
+        )
+    }
+}
+
+/// What the Flat Policy's training imitates besides the next actions.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct FlatTraining {
+    /// Also imitate the final `<end>` decision.
+    pub learn_end: bool,
+    /// The attention query also reads the set of actions taken so far
+    /// ([`ntg_model::executed_actions`]).
+    pub memory: bool,
+}
+
+/// The Flat Policy's [`TrainStep`] on a dataset of demonstrations.
+pub struct FlatStep<'a> {
+    dataset: &'a DemoDataset,
+    by_task: BTreeMap<usize, Vec<usize>>,
+    training: FlatTraining,
+    device: Device,
+}
+
+impl<'a> FlatStep<'a> {
+    /// The step for `policy`'s vocabulary on `dataset`; every task needs at
+    /// least two demonstrations.
+    pub fn new(
+        policy: &FlatPolicy,
+        dataset: &'a DemoDataset,
+        training: FlatTraining,
+        device: &Device,
+    ) -> anyhow::Result<Self> {
+        dataset.check_num_nodes(policy.num_nodes(), "policy")?;
+        let mut by_task: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+        for (i, d) in dataset.demos().iter().enumerate() {
+            by_task.entry(d.task).or_default().push(i);
+        }
+        if let Some((task, _)) = by_task.iter().find(|(_, v)| v.len() < 2) {
+            bail!(
+                "task {task} has a single demonstration; training pairs a demo with another of its task"
+            );
+        }
+        Ok(FlatStep {
+            dataset,
+            by_task,
+            training,
+            device: device.clone(),
+        })
+    }
+
+    fn rows(&self, i: usize) -> Vec<Vec<f32>> {
+        let d = &self.dataset.demos()[i];
+        d.rows().map(|r| self.dataset.row(r)).collect()
+    }
+}
+
+impl TrainStep<FlatPolicy> for FlatStep<'_> {
+    type Metrics = FlatEpochMetrics;
+
+    fn num_examples(&self) -> usize {
+        self.dataset.demos().len()
+    }
+
+    fn step(
+        &self,
+        policy: &FlatPolicy,
+        chunk: &[usize],
+        ctx: StepContext<'_>,
+    ) -> anyhow::Result<StepReport> {
+        let n = policy.num_nodes();
+        let FlatTraining { learn_end, memory } = self.training;
+        let owned: Vec<_> = chunk
+            .iter()
+            .map(|&i| {
+                let entry = &self.dataset.demos()[i];
+                let mut next = entry.actions.clone();
+                let mut queries = self.rows(i);
+                if learn_end {
+                    next.push(Vocabulary::END);
+                } else {
+                    queries.pop();
+                }
+                let others: Vec<usize> = self.by_task[&entry.task]
+                    .iter()
+                    .copied()
+                    .filter(|&j| j != i)
+                    .collect();
+                let cond = *others.choose(ctx.rng).unwrap_or(&i);
+                (self.rows(cond), queries, next)
+            })
+            .collect();
+        let examples: Vec<FlatExample<'_, Vec<f32>>> = owned
+            .iter()
+            .map(|(d, q, t)| (&d[..], &q[..], &t[..]))
+            .collect();
+        let mut batch = FlatBatch::new(&examples, self.dataset.obs_dim(), n, &self.device)?;
+        if memory {
+            // Before query `t` the agent has taken the first `t` actions.
+            let memories: Vec<Vec<Vec<f32>>> = owned
+                .iter()
+                .map(|(_, q, t)| (0..q.len()).map(|k| executed_actions(n, &t[..k])).collect())
+                .collect();
+            batch = batch.with_memory(&memories, n)?;
+        }
+        let out = policy.loss(&batch)?;
+        Ok(StepReport {
+            values: vec![scalar(out.loss.clone())?, out.accuracy],
+            loss: out.loss,
+            edges: EdgeCounts::default(),
+        })
+    }
+
+    fn epoch_metrics(
+        &self,
+        epoch: usize,
+        means: &[f32],
+        _: &EdgeCounts,
+        seconds: f32,
+    ) -> FlatEpochMetrics {
+        FlatEpochMetrics {
+            epoch,
+            loss: means[0],
+            step_accuracy: means[1],
+            seconds,
+        }
+    }
+}

@@ -1,0 +1,656 @@
+//! NTG as a training method: the four networks trained jointly with Adam on
+//! the paper's targets (section 4.3), one [`TrainStep`] for every domain.
+//!
+//! For each demonstration, the demo interpreter transcribes its
+//! observations into its action sequence; the GCN completes a path graph
+//! into its task's ground-truth CTG (the union of all demonstrated paths of
+//! that task); the localizer maps each observation to the node it sits at
+//! (the last action taken); and the edge classifier, given the observation,
+//! its node and the GCN's embeddings, predicts the next action among the
+//! node's CTG successors. The four losses are summed and one Adam step
+//! updates all. A model with [`NtgConfig::soft_edges`] trains the edge
+//! classifier as its policy uses it: a softmax over every node of the
+//! fully connected graph, each logit raised by `ln C` of the graph the GCN
+//! completed from its input path (that path's edges at 1, floored at
+//! [`ntg_model::SOFT_EDGE_FLOOR`], no gradient into the GCN through `C`).
+//!
+//! What a domain may add ([`NtgTraining`], all off in the paper's method):
+//! the GCN reading another demo of the task than the one imitated, decoder
+//! token dropout, random stretches of demos for the interpreter, the final
+//! `<end>` decision left out, an execution memory, recovery steps weighted
+//! up, the GCN kept out of the edge loss, and object renaming.
+
+use std::collections::BTreeMap;
+
+use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
+use ctg_graph::{ActionId, Ctg, Vocabulary};
+use ntg_model::{
+    DemoBatch, EdgeCounts, NtgConfig, NtgModel, adjacency_tensor, ids_tensor, pending_nodes,
+    rows_tensor, successor_mask,
+};
+use rand::seq::IndexedRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::DemoDataset;
+use crate::fit::{
+    OptimConfig, Selection, StepContext, StepReport, TrainStep, Validator, fit, scalar,
+};
+use crate::run_dir::RunDir;
+use crate::symmetry::{ObjectSymmetry, Relabeling, RenamingFilter};
+
+/// Metrics of one NTG epoch, as logged to `metrics.jsonl`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpochMetrics {
+    /// Epoch index (from 0).
+    pub epoch: usize,
+    /// Mean total loss.
+    pub loss: f32,
+    /// Demo interpreter loss.
+    pub interpreter_loss: f32,
+    /// Demo interpreter token accuracy (teacher forced).
+    pub token_accuracy: f32,
+    /// GCN binary cross-entropy.
+    pub gcn_loss: f32,
+    /// GCN edge F1 against the task graphs (threshold 0.5); `None` when no
+    /// edges were predicted (the GCN switched off, or a model without one).
+    #[serde(default)]
+    pub edge_f1: Option<f32>,
+    /// Localizer cross-entropy.
+    pub localizer_loss: f32,
+    /// Localizer accuracy.
+    pub localizer_accuracy: f32,
+    /// Edge classifier cross-entropy.
+    pub edge_loss: f32,
+    /// Edge classifier accuracy: the fraction of steps whose next action it
+    /// picks (step accuracy).
+    pub step_accuracy: f32,
+    /// Wall-clock seconds of the epoch.
+    pub seconds: f32,
+}
+
+impl EpochMetrics {
+    /// One human-readable log line.
+    pub fn log_line(&self) -> String {
+        format!(
+            "epoch {:>3}: loss {:.3} | tokens {:.3} | edge F1 {} | localizer {:.3} | steps {:.3} | {:.1}s",
+            self.epoch,
+            self.loss,
+            self.token_accuracy,
+            self.edge_f1_text(),
+            self.localizer_accuracy,
+            self.step_accuracy,
+            self.seconds
+        )
+    }
+
+    /// The edge F1 for logs: three decimals, or `n/a` without a GCN.
+    pub fn edge_f1_text(&self) -> String {
+        self.edge_f1
+            .map_or_else(|| "n/a".to_owned(), |f| format!("{f:.3}"))
+    }
+}
+
+/// The edge F1 of an epoch's counts, `None` if nothing was counted (no GCN
+/// output was compared: the task graphs are never empty).
+pub fn edge_f1_of(counts: &EdgeCounts) -> Option<f32> {
+    let counted = counts.true_positives + counts.false_positives + counts.false_negatives;
+    (counted > 0).then(|| counts.f1())
+}
+
+/// The ground-truth CTG of every task in `dataset`: the union of the paths
+/// of that task's demonstrations.
+pub fn task_graphs(dataset: &DemoDataset) -> anyhow::Result<BTreeMap<usize, Ctg>> {
+    let n = dataset.vocabulary().len();
+    let mut graphs: BTreeMap<usize, Ctg> = BTreeMap::new();
+    for d in dataset.demos() {
+        graphs
+            .entry(d.task)
+            .or_insert_with(|| Ctg::empty(n))
+            .add_path(&d.actions)?;
+    }
+    Ok(graphs)
+}
+
+/// Which demo's path the GCN completes for each imitated demo.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum GcnSource {
+    /// The imitated demo itself (the paper).
+    #[default]
+    Own,
+    /// Another demo of the same task (the demo itself when its task has no
+    /// other), from a generator seeded by the run seed, epoch and step
+    /// ([`OptimConfig::gcn_from_other_demo`], block stacking).
+    OtherSeeded,
+    /// Another demo of the same task drawn from the epoch's generator
+    /// (object collection, where the draw predates the seeded one; the
+    /// domain requires two demos per task).
+    OtherFromEpoch,
+}
+
+/// What NTG training adds to the paper's four losses; the default is the
+/// paper's method.
+#[derive(Default, Clone, Copy)]
+pub struct NtgTraining<'a> {
+    /// Which demo the GCN reads. Trained on its own demo's path, the edge
+    /// classifier can read off the GCN's embeddings where that very demo
+    /// ends or retries, instead of reading the observation.
+    pub gcn_source: GcnSource,
+    /// Probability that the decoder reads `<start>` instead of the previous
+    /// action ([`OptimConfig::token_dropout`]).
+    pub token_dropout: f32,
+    /// The interpreter also learns from one random contiguous stretch of
+    /// each demo (any stretch of a demonstration, with the actions inside
+    /// it, is itself a demonstration), drawn from the epoch's generator.
+    pub segments: bool,
+    /// Leave the final `<end>` decision out of the edge classifier's loss
+    /// (a last frame that cannot show whether the task is done).
+    pub skip_end: bool,
+    /// The edge classifier reads the task-graph nodes not yet executed
+    /// ([`ntg_model::pending_nodes`] of the GCN's input path).
+    pub memory: bool,
+    /// Weight, in the edge classifier's loss, of the steps whose next
+    /// action repeats one the demo already took (recovery after a failure).
+    /// Recovery steps are rare, so with weight 1 the classifier learns to
+    /// move on. Values ≤ 1 mean 1. Not in the paper.
+    pub retry_weight: f32,
+    /// Stop the edge classifier's loss from flowing into the GCN: the GCN
+    /// then learns only to complete task graphs. Trained jointly, a large
+    /// edge loss costs the GCN edges (measured: edge F1 0.93 → 0.78). Not
+    /// in the paper.
+    pub detach_gcn_from_edges: bool,
+    /// Rename the objects of every training demo by a fresh random
+    /// permutation (seeded by the run seed, epoch and step) through this
+    /// symmetry. Not in the paper.
+    pub permute_objects: Option<&'a ObjectSymmetry>,
+    /// With `permute_objects`: which renamings of a demo of dataset task
+    /// `task` may be trained on; the others are drawn again. Block stacking
+    /// refuses those that turn a training task into a held-out one. `None`
+    /// accepts every renaming.
+    pub accept_renaming: Option<RenamingFilter<'a>>,
+    /// Sum the losses as interpreter + localizer + edge + GCN instead of
+    /// interpreter + localizer + GCN + edge. The sum is the same; the order
+    /// decides in which order burn accumulates the gradients of parameters
+    /// that several losses share, which changes weights in the last bits.
+    /// Object collection's runs were trained in this order, and keep it so
+    /// that they reproduce bit for bit.
+    pub gcn_loss_last: bool,
+}
+
+/// NTG's [`TrainStep`] on a dataset of demonstrations.
+pub struct NtgStep<'a> {
+    dataset: &'a DemoDataset,
+    graphs: BTreeMap<usize, Ctg>,
+    demos_of_task: BTreeMap<usize, Vec<usize>>,
+    training: NtgTraining<'a>,
+    device: Device,
+}
+
+impl<'a> NtgStep<'a> {
+    /// The step for `model`'s vocabulary on `dataset`, or an error naming
+    /// what does not fit.
+    pub fn new(
+        model: &NtgModel,
+        dataset: &'a DemoDataset,
+        training: NtgTraining<'a>,
+        device: &Device,
+    ) -> anyhow::Result<Self> {
+        dataset.check_num_nodes(model.num_nodes(), "model")?;
+        if let Some(s) = training.permute_objects {
+            s.validate(dataset.vocabulary().len(), dataset.obs_dim())?;
+        }
+        let mut demos_of_task: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+        for (i, e) in dataset.demos().iter().enumerate() {
+            demos_of_task.entry(e.task).or_default().push(i);
+        }
+        Ok(NtgStep {
+            dataset,
+            graphs: task_graphs(dataset)?,
+            demos_of_task,
+            training,
+            device: device.clone(),
+        })
+    }
+
+    /// The other demos of demo `i`'s task.
+    fn others(&self, i: usize) -> Vec<usize> {
+        self.demos_of_task[&self.dataset.demos()[i].task]
+            .iter()
+            .copied()
+            .filter(|&j| j != i)
+            .collect()
+    }
+
+    /// The demo whose path the GCN reads, for each demo of `chunk`.
+    fn gcn_sources(&self, chunk: &[usize], step_seed: u64, rng: &mut ChaCha8Rng) -> Vec<usize> {
+        match self.training.gcn_source {
+            GcnSource::Own => chunk.to_vec(),
+            GcnSource::OtherSeeded => {
+                let mut rng = ChaCha8Rng::seed_from_u64(step_seed ^ 0x005E_ED0F_07E4);
+                chunk
+                    .iter()
+                    .map(|&i| {
+                        let others = self.others(i);
+                        if others.is_empty() {
+                            i
+                        } else {
+                            others[rng.random_range(0..others.len())]
+                        }
+                    })
+                    .collect()
+            }
+            GcnSource::OtherFromEpoch => chunk
+                .iter()
+                .map(|&i| *self.others(i).choose(rng).unwrap_or(&i))
+                .collect(),
+        }
+    }
+
+    /// The renaming of each demo's objects, if any.
+    fn relabelings(
+        &self,
+        chunk: &[usize],
+        step_seed: u64,
+    ) -> anyhow::Result<Option<(&'a ObjectSymmetry, Vec<Relabeling>)>> {
+        let Some(s) = self.training.permute_objects else {
+            return Ok(None);
+        };
+        let n = self.dataset.vocabulary().len();
+        let mut rng = ChaCha8Rng::seed_from_u64(step_seed ^ 0x0B1E_C75E_ED00);
+        let drawn = chunk
+            .iter()
+            .map(|&i| match self.training.accept_renaming {
+                None => Ok(s.random(n, &mut rng)),
+                Some(accept) => {
+                    let task = self.dataset.demos()[i].task;
+                    s.random_accepted(n, &mut rng, |perm| accept(task, perm))
+                }
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        Ok(Some((s, drawn)))
+    }
+}
+
+/// The `[B, L]` decoder-input dropout mask (true = read `<start>`), or
+/// `None` at rate 0.
+fn token_dropout_mask(
+    rate: f32,
+    seed: u64,
+    batch: &DemoBatch,
+    device: &Device,
+) -> Option<Tensor<2, Bool>> {
+    if rate <= 0.0 {
+        return None;
+    }
+    let [b, l] = batch.targets.dims();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let values: Vec<bool> = (0..b * l)
+        .map(|i| i % l != 0 && rng.random::<f32>() < rate)
+        .collect();
+    Some(Tensor::from_data(TensorData::new(values, [b, l]), device))
+}
+
+impl TrainStep<NtgModel> for NtgStep<'_> {
+    type Metrics = EpochMetrics;
+
+    fn num_examples(&self) -> usize {
+        self.dataset.demos().len()
+    }
+
+    fn step(
+        &self,
+        model: &NtgModel,
+        chunk: &[usize],
+        ctx: StepContext<'_>,
+    ) -> anyhow::Result<StepReport> {
+        let t = &self.training;
+        let (dataset, device) = (self.dataset, &self.device);
+        let n = model.num_nodes();
+        let dim = dataset.obs_dim();
+        let step_seed = ctx.seed ^ (ctx.epoch as u64) << 32 ^ ctx.step as u64;
+
+        // Everything random of the step.
+        let gcn_sources = self.gcn_sources(chunk, step_seed, ctx.rng);
+        let segments: Vec<(usize, usize)> = if t.segments {
+            chunk
+                .iter()
+                .map(|&i| {
+                    let k = dataset.demos()[i].actions.len();
+                    let start = ctx.rng.random_range(0..k);
+                    (start, ctx.rng.random_range(start + 1..=k))
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let relabelings = self.relabelings(chunk, step_seed)?;
+        let relabel = |b: usize| relabelings.as_ref().map(|(s, r)| (*s, &r[b]));
+        let sequence = |b: usize, actions: &[ActionId]| match relabel(b) {
+            Some((_, r_b)) => r_b.sequence(actions),
+            None => actions.to_vec(),
+        };
+
+        let entries: Vec<_> = chunk.iter().map(|&i| &dataset.demos()[i]).collect();
+        let demo_rows: Vec<Vec<Vec<f32>>> = entries
+            .iter()
+            .enumerate()
+            .map(|(b, e)| {
+                e.rows()
+                    .map(|r| match relabel(b) {
+                        Some((s, r_b)) => s.apply_to_row(r_b, &dataset.row(r)),
+                        None => dataset.row(r),
+                    })
+                    .collect()
+            })
+            .collect();
+        let demo_actions: Vec<Vec<ActionId>> = entries
+            .iter()
+            .enumerate()
+            .map(|(b, e)| sequence(b, &e.actions))
+            .collect();
+
+        // Demo interpreter: each demo whole, and (with segments) one
+        // contiguous stretch of it: actions `start..end` with the frames
+        // `start..=end` around them.
+        let mut pairs: Vec<(&[Vec<f32>], &[ActionId])> = demo_rows
+            .iter()
+            .zip(&demo_actions)
+            .map(|(rows, actions)| (rows.as_slice(), actions.as_slice()))
+            .collect();
+        for ((rows, actions), &(start, end)) in demo_rows.iter().zip(&demo_actions).zip(&segments) {
+            pairs.push((&rows[start..=end], &actions[start..end]));
+        }
+        let ablation = model.config().ablation.clone();
+        let interp = if ablation.demo_interpreter {
+            let batch = DemoBatch::new(&pairs, dim, n, device)?;
+            let mask = token_dropout_mask(t.token_dropout, step_seed, &batch, device);
+            Some(model.interpreter.loss_with_token_dropout(&batch, mask)?)
+        } else {
+            None
+        };
+
+        // GCN: a demo's path graph (this demo's, or another of its task's)
+        // -> the task's graph.
+        let paths: Vec<Ctg> = gcn_sources
+            .iter()
+            .enumerate()
+            .map(|(b, &i)| Ctg::from_path(n, &sequence(b, &dataset.demos()[i].actions)))
+            .collect::<Result<_, _>>()?;
+        let targets: Vec<Ctg> = entries
+            .iter()
+            .enumerate()
+            .map(|(b, e)| match relabel(b) {
+                Some((_, r_b)) => r_b.graph(&self.graphs[&e.task]),
+                None => Ok(self.graphs[&e.task].clone()),
+            })
+            .collect::<anyhow::Result<_>>()?;
+        let target_refs: Vec<&Ctg> = targets.iter().collect();
+        let path_refs: Vec<&Ctg> = paths.iter().collect();
+        let adjacency = adjacency_tensor(&path_refs, n, device)?;
+        let (gcn_loss, ne_gcn, edges, soft_weights) = if ablation.gcn {
+            let target_adj = adjacency_tensor(&target_refs, n, device)?;
+            let out = model.gcn.forward(adjacency.clone())?;
+            let loss = model.gcn.loss(&out, target_adj.clone())?;
+            let edges = EdgeCounts::count_tensors(out.adjacency.clone(), target_adj, 0.5)?;
+            // Soft edges: the weights `C` of the graph each row's policy
+            // would use (see `NtgConfig::soft_edges`), not trained through.
+            let soft = model.config().uses_soft_edges().then(|| {
+                let c = out.adjacency.clone().detach();
+                if model.config().keep_demo_edges {
+                    c.max_pair(adjacency)
+                } else {
+                    c
+                }
+            });
+            (Some(loss), Some(out.embeddings), edges, soft)
+        } else {
+            (None, None, EdgeCounts::default(), None)
+        };
+
+        // Localizer: every observation. Edge classifier: every observation
+        // with a next action (the final `<end>` unless `skip_end`), with a
+        // memory of the task-graph nodes not executed before it.
+        let retry_weight = t.retry_weight.max(1.0);
+        let (mut obs, mut nodes) = (Vec::new(), Vec::new());
+        let (mut e_obs, mut e_nodes, mut e_next, mut e_demo, mut e_graphs) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut e_weights, mut e_memory): (Vec<f32>, Vec<Vec<f32>>) = (Vec::new(), Vec::new());
+        for (b, (actions, rows)) in demo_actions.iter().zip(&demo_rows).enumerate() {
+            let labels = std::iter::once(Vocabulary::START).chain(actions.iter().copied());
+            let nexts = actions.iter().copied().chain([Vocabulary::END]);
+            for (i, ((o, node), nx)) in rows.iter().zip(labels).zip(nexts).enumerate() {
+                obs.push(o);
+                nodes.push(node);
+                if t.skip_end && nx == Vocabulary::END {
+                    continue;
+                }
+                let repeats = actions[..i.min(actions.len())].contains(&nx);
+                e_weights.push(if repeats { retry_weight } else { 1.0 });
+                e_obs.push(o);
+                e_nodes.push(node);
+                e_next.push(nx);
+                e_demo.push(b as i64);
+                e_graphs.push(target_refs[b]);
+                if t.memory {
+                    e_memory.push(pending_nodes(&paths[b], &actions[..i]));
+                }
+            }
+        }
+        let obs_tensor = rows_tensor(&obs, dim, device)?;
+        let loc_logits = model.localizer.forward(obs_tensor.clone())?;
+        let loc = model
+            .localizer
+            .loss(loc_logits, ids_tensor(&nodes, n, device)?)?;
+        let r = e_obs.len();
+        let e_obs_tensor = if r == obs.len() {
+            obs_tensor
+        } else {
+            rows_tensor(&e_obs, dim, device)?
+        };
+        let e_node_ids = ids_tensor(&e_nodes, n, device)?;
+        let index = Tensor::<1, Int>::from_data(TensorData::new(e_demo, [r]), device);
+        // Each row's graph embeddings: the GCN's output for its demo, or
+        // without a GCN its task-independent initial embeddings `N⁰`.
+        let row_ne_gcn = match ne_gcn {
+            Some(ne) if t.detach_gcn_from_edges => ne.detach().select(0, index.clone()),
+            Some(ne) => ne.select(0, index.clone()),
+            None if t.detach_gcn_from_edges => model.gcn.initial_embeddings(r).detach(),
+            None => model.gcn.initial_embeddings(r),
+        };
+        // Soft edges, and a model without a demo interpreter (whose graph
+        // is fully connected), score every node.
+        let full = Ctg::fully_connected(n);
+        let mask = if soft_weights.is_some() || !ablation.demo_interpreter {
+            successor_mask(&vec![&full; r], &e_nodes, Some(&e_next), n, device)?
+        } else {
+            successor_mask(&e_graphs, &e_nodes, Some(&e_next), n, device)?
+        };
+        let memory = if t.memory {
+            Some(rows_tensor(&e_memory, n, device)?)
+        } else {
+            None
+        };
+        let mut edge_logits = model.edges.forward_with_memory(
+            e_obs_tensor,
+            e_node_ids.clone(),
+            row_ne_gcn,
+            model.localizer.node_embeddings(),
+            mask,
+            memory,
+        )?;
+        if let Some(c) = soft_weights {
+            // ln C of each row's node: rows of C [R, N, N] gathered at the
+            // node. Edges the fully connected graph lacks stay masked.
+            let gather = e_node_ids.reshape([r, 1, 1]).expand([r, 1, n]);
+            let c_rows = c.select(0, index).gather(1, gather).reshape([r, n]);
+            edge_logits = edge_logits + c_rows.clamp(ntg_model::SOFT_EDGE_FLOOR, 1.0).log();
+        }
+        let weights = Tensor::<1>::from_data(TensorData::new(e_weights, [r]), device);
+        let edge =
+            model
+                .edges
+                .weighted_loss(edge_logits, ids_tensor(&e_next, n, device)?, weights)?;
+
+        let mut total = match &interp {
+            Some(i) => i.loss.clone() + loc.loss.clone(),
+            None => loc.loss.clone(),
+        };
+        let gcn_value = match &gcn_loss {
+            Some(l) => scalar(l.clone())?,
+            None => 0.0,
+        };
+        match gcn_loss {
+            Some(l) if t.gcn_loss_last => total = total + edge.loss.clone() + l,
+            Some(l) => total = total + l + edge.loss.clone(),
+            None => total = total + edge.loss.clone(),
+        }
+        Ok(StepReport {
+            values: vec![
+                scalar(total.clone())?,
+                interp
+                    .as_ref()
+                    .map_or(Ok(0.0), |i| scalar(i.loss.clone()))?,
+                interp.as_ref().map_or(0.0, |i| i.accuracy),
+                gcn_value,
+                scalar(loc.loss)?,
+                loc.accuracy,
+                scalar(edge.loss)?,
+                edge.accuracy,
+            ],
+            loss: total,
+            edges,
+        })
+    }
+
+    fn epoch_metrics(
+        &self,
+        epoch: usize,
+        m: &[f32],
+        edges: &EdgeCounts,
+        seconds: f32,
+    ) -> EpochMetrics {
+        EpochMetrics {
+            epoch,
+            loss: m[0],
+            interpreter_loss: m[1],
+            token_accuracy: m[2],
+            gcn_loss: m[3],
+            edge_f1: edge_f1_of(edges),
+            localizer_loss: m[4],
+            localizer_accuracy: m[5],
+            edge_loss: m[6],
+            step_accuracy: m[7],
+            seconds,
+        }
+    }
+}
+
+/// Optional parts of [`train_with`]: model selection and what training adds
+/// to the paper's method.
+#[derive(Default)]
+pub struct TrainExtras<'a> {
+    /// Scores every `validate_every` epochs and selects the best.
+    pub validator: Option<&'a mut dyn Validator<NtgModel>>,
+    /// Validate after every this many epochs (and after the last); 0 and 1
+    /// mean every epoch.
+    pub validate_every: usize,
+    /// What training adds to the paper's method. Its `gcn_source` and
+    /// `token_dropout` are taken from the [`OptimConfig`] by [`train_with`].
+    pub training: NtgTraining<'a>,
+}
+
+/// Trains `model` (on an autodiff device) for the epochs not yet done,
+/// checkpointing into `run` after each and appending metrics (see
+/// [`fit`]). Returns the trained model.
+pub fn train(
+    model: NtgModel,
+    dataset: &DemoDataset,
+    optim: &OptimConfig,
+    run: &RunDir,
+    device: &Device,
+    on_epoch: impl FnMut(&EpochMetrics),
+) -> anyhow::Result<NtgModel> {
+    train_with(
+        model,
+        dataset,
+        optim,
+        run,
+        device,
+        on_epoch,
+        TrainExtras::default(),
+    )
+}
+
+/// [`train`] with extras. With a validator it also scores the model, logs
+/// the score to `validation.jsonl`, keeps the best epoch's weights in
+/// `best/` (ties keep the earlier epoch) and returns those instead of the
+/// last. The GCN reads another demo of the task when
+/// `optim.gcn_from_other_demo` (seeded per step), and the decoder drops
+/// tokens at `optim.token_dropout`.
+pub fn train_with(
+    model: NtgModel,
+    dataset: &DemoDataset,
+    optim: &OptimConfig,
+    run: &RunDir,
+    device: &Device,
+    on_epoch: impl FnMut(&EpochMetrics),
+    extras: TrainExtras<'_>,
+) -> anyhow::Result<NtgModel> {
+    let training = NtgTraining {
+        gcn_source: if optim.gcn_from_other_demo {
+            GcnSource::OtherSeeded
+        } else {
+            GcnSource::Own
+        },
+        token_dropout: optim.token_dropout,
+        ..extras.training
+    };
+    let step = NtgStep::new(&model, dataset, training, device)?;
+    let selection = extras.validator.map(|validator| Selection {
+        validator,
+        every: extras.validate_every,
+    });
+    fit(model, &step, optim, run, device, selection, on_epoch)
+}
+
+/// A fresh model for `config` on `device`, or an error naming the problem.
+pub fn new_model(config: NtgConfig, device: &Device) -> anyhow::Result<NtgModel> {
+    Ok(NtgModel::new(config, device)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn edge_f1_is_absent_when_nothing_was_counted() {
+        assert_eq!(edge_f1_of(&EdgeCounts::default()), None);
+        let counts = EdgeCounts {
+            true_positives: 3,
+            false_positives: 1,
+            false_negatives: 2,
+        };
+        assert_eq!(edge_f1_of(&counts), Some(6.0 / 9.0));
+        let mut m = EpochMetrics {
+            epoch: 0,
+            loss: 1.0,
+            interpreter_loss: 0.0,
+            token_accuracy: 0.0,
+            gcn_loss: 0.0,
+            edge_f1: None,
+            localizer_loss: 0.0,
+            localizer_accuracy: 0.0,
+            edge_loss: 0.0,
+            step_accuracy: 0.0,
+            seconds: 0.0,
+        };
+        assert_eq!(m.edge_f1_text(), "n/a");
+        m.edge_f1 = Some(0.5);
+        assert_eq!(m.edge_f1_text(), "0.500");
+        // Metrics logged before the field was optional still read.
+        let old = r#"{"epoch":0,"loss":1.0,"interpreter_loss":0.0,"token_accuracy":0.0,"gcn_loss":0.0,"edge_f1":1.0,"localizer_loss":0.0,"localizer_accuracy":0.0,"edge_loss":0.0,"step_accuracy":0.0,"seconds":0.0}"#;
+        let parsed: EpochMetrics = serde_json::from_str(old).unwrap();
+        assert_eq!(parsed.edge_f1, Some(1.0));
+    }
+}
