@@ -14,10 +14,9 @@
 //! `xtask`. Experiments are data (configs) run through one code path, not
 //! code copied per figure.
 
-pub mod blocks;
 pub mod cli;
-pub mod collect;
 pub mod dataset;
+pub mod domain;
 pub mod evaluate;
 pub mod figure;
 pub mod fit;
@@ -30,3 +29,5 @@ pub mod stats;
 pub mod svg;
 pub mod symmetry;
 pub mod trace;
+
+pub use domain::{blocks, collect};

@@ -74,3 +74,72 @@ impl Model {
         }
     }
 }
+
+/// A model conditioned on one demonstration: a reactive policy over
+/// observation rows, the same for every domain.
+#[allow(clippy::large_enum_variant)] // one per episode; boxing buys nothing
+pub enum Agent {
+    /// NTG's graph executor over the demo's completed task graph.
+    Ntg(ntg_model::NtgPolicy),
+    /// The Flat Policy, attending over the demo.
+    Flat {
+        /// The conditioned policy.
+        policy: ntg_model::ConditionedFlatPolicy,
+        /// Whether it reads the actions taken so far.
+        memory: bool,
+        /// Vocabulary size.
+        num_nodes: usize,
+    },
+}
+
+impl Model {
+    /// The policy conditioned on the demo with observation rows `demo`.
+    pub fn condition(
+        &self,
+        demo: &[Vec<f32>],
+        vocabulary: &ctg_graph::Vocabulary,
+    ) -> anyhow::Result<Agent> {
+        Ok(match self {
+            Model::Ntg(m) => Agent::Ntg(ntg_model::NtgPolicy::from_demo(m, demo, vocabulary)?),
+            Model::Flat(p) => Agent::Flat {
+                policy: p.condition(demo)?,
+                memory: p.memory_dim() > 0,
+                num_nodes: p.num_nodes(),
+            },
+        })
+    }
+}
+
+impl Agent {
+    /// The greedy next action for the observation row `row`, the agent
+    /// having taken `executed` so far in the episode (read only by policies
+    /// with an execution memory).
+    pub fn act(
+        &self,
+        row: &[f32],
+        executed: &[ctg_graph::ActionId],
+    ) -> anyhow::Result<ctg_graph::ActionId> {
+        Ok(match self {
+            Agent::Ntg(policy) => {
+                policy.set_executed(executed);
+                policy.action_distribution(row)?.most_likely()
+            }
+            Agent::Flat {
+                policy,
+                memory,
+                num_nodes,
+            } => {
+                let m = memory.then(|| ntg_model::executed_actions(*num_nodes, executed));
+                policy.next_action_with_memory(row, m.as_deref())?
+            }
+        })
+    }
+
+    /// NTG's transcription of the demo (empty for the Flat Policy).
+    pub fn transcription(&self) -> &[ctg_graph::ActionId] {
+        match self {
+            Agent::Ntg(policy) => policy.demo_actions(),
+            Agent::Flat { .. } => &[],
+        }
+    }
+}

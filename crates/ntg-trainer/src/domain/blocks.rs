@@ -9,7 +9,6 @@
 //! and `VALIDATION_ROLLOUT_SEED_BASE + i` in the same way.
 
 use anyhow::{Context, bail};
-use burn::module::Module;
 use burn::tensor::Device;
 use clap::ValueEnum;
 use ctg_graph::{ActionId, record_demonstration};
@@ -18,8 +17,9 @@ use ntg_model::{AblationConfig, EncoderConfig, NtgConfig, NtgModel, NtgPolicy};
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
-use crate::evaluate::in_parallel;
+use crate::domain::{self, Domain, Episode, EpisodeRecord};
 use crate::fit::{OptimConfig, ValidationScore};
+use crate::method::Model;
 use crate::method::ntg::{EpochMetrics, NtgTraining, TrainExtras, train_with};
 use crate::run_dir::RunDir;
 pub use crate::spec::ObsKind;
@@ -256,7 +256,7 @@ pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::R
         BlocksExpert::new,
         |o| featurize(o, kind),
         DatasetSpec {
-            vocabulary: env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat),
+            vocabulary: flat_vocabulary(),
             obs_dim: obs_dim(kind),
             dtype: match kind {
                 ObsKind::State => ObsDtype::F32,
@@ -270,7 +270,7 @@ pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::R
 /// The untrained model of a block-stacking run (seeded by
 /// `config.model_seed`).
 pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<NtgModel> {
-    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+    let vocab = flat_vocabulary();
     let mut model_config = NtgConfig::for_domain(vocab.len(), encoder(config.obs, 1, false));
     // The localizer and edge classifier judge a single observation, so
     // relations between cubes (is something on the cube under the
@@ -417,7 +417,7 @@ pub fn renamed_configuration(task: &StackTask, perm: &[usize]) -> Vec<Vec<usize>
 /// distribution treat all cubes alike, so a demo with its cubes renamed is
 /// a demo of the renamed task.
 pub fn object_symmetry() -> ObjectSymmetry {
-    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+    let vocab = flat_vocabulary();
     let family = |verb: &str| -> Vec<ActionId> {
         (0..env_blocks::world::NUM_OBJECTS)
             .map(|i| {
@@ -459,31 +459,6 @@ impl Seeds {
     };
 }
 
-/// One evaluated test task.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct TaskRecord {
-    /// Index in the standard test set.
-    pub index: usize,
-    /// Task id.
-    pub task: String,
-    /// Whether every goal constraint held at the end.
-    pub success: bool,
-    /// Actions taken (`<end>` included if chosen).
-    pub steps: usize,
-    /// Goal constraints (`on_top(src, target)`) that held at the end.
-    #[serde(default)]
-    pub goals_met: usize,
-    /// Goal constraints of the task.
-    #[serde(default)]
-    pub goals: usize,
-    /// The executed actions, by name.
-    pub trace: Vec<String>,
-    /// The demo interpreter's transcription of the conditioning demo.
-    pub transcription: Vec<String>,
-    /// The expert's actual action sequence in the conditioning demo.
-    pub demo_actions: Vec<String>,
-}
-
 /// The result of evaluating a model on test tasks.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EvalResult {
@@ -497,7 +472,7 @@ pub struct EvalResult {
     #[serde(default)]
     pub mean_goal_fraction: f64,
     /// Per-task records.
-    pub tasks: Vec<TaskRecord>,
+    pub tasks: Vec<EpisodeRecord>,
 }
 
 /// Policy variants for evaluation.
@@ -542,7 +517,7 @@ impl Variant {
 
 /// Records the conditioning demo of test task `index` (seed
 /// `DEMO_SEED_BASE + index`) in `env` and builds the policy from it: the
-/// first half of every evaluation and trace.
+/// first half of every evaluation episode, for `ntg trace`.
 pub fn conditioned_policy(
     model: &NtgModel,
     env: &mut BlocksEnv,
@@ -550,16 +525,7 @@ pub fn conditioned_policy(
     index: usize,
     obs: ObsKind,
 ) -> anyhow::Result<(ctg_graph::Demonstration<BlocksObservation>, NtgPolicy)> {
-    policy_from_demo_seed(model, env, task, DEMO_SEED_BASE + index as u64, obs)
-}
-
-fn policy_from_demo_seed(
-    model: &NtgModel,
-    env: &mut BlocksEnv,
-    task: &StackTask,
-    seed: u64,
-    obs: ObsKind,
-) -> anyhow::Result<(ctg_graph::Demonstration<BlocksObservation>, NtgPolicy)> {
+    let seed = DEMO_SEED_BASE + index as u64;
     let demo = record_demonstration(env, &mut BlocksExpert::new(), seed)
         .with_context(|| format!("demo of task {}", task.id))?;
     let rows: Vec<Vec<f32>> = demo
@@ -567,9 +533,63 @@ fn policy_from_demo_seed(
         .iter()
         .map(|o| featurize(o, obs))
         .collect();
-    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
-    let policy = NtgPolicy::from_demo(model, &rows, &vocab)?;
+    let policy = NtgPolicy::from_demo(model, &rows, &flat_vocabulary())?;
     Ok((demo, policy))
+}
+
+/// Block stacking as a [`Domain`]: the observation kind, and whether grasps
+/// and drops fail at random.
+#[derive(Debug, Clone)]
+pub struct BlocksDomain {
+    obs: ObsKind,
+    env_config: EnvConfig,
+    vocabulary: ctg_graph::Vocabulary,
+}
+
+impl BlocksDomain {
+    /// The domain seen through `obs`, with stochastic failures on or off.
+    pub fn new(obs: ObsKind, failures: bool) -> Self {
+        BlocksDomain {
+            obs,
+            env_config: env_config(obs, failures),
+            vocabulary: flat_vocabulary(),
+        }
+    }
+}
+
+impl Domain for BlocksDomain {
+    type Task = StackTask;
+    type Env = BlocksEnv;
+    type Expert = BlocksExpert;
+
+    fn vocabulary(&self) -> &ctg_graph::Vocabulary {
+        &self.vocabulary
+    }
+    fn env(&self, task: &StackTask) -> anyhow::Result<BlocksEnv> {
+        Ok(BlocksEnv::stacking(task.clone(), self.env_config)?)
+    }
+    fn expert(&self) -> BlocksExpert {
+        BlocksExpert::new()
+    }
+    fn featurize(&self, observation: &BlocksObservation) -> Vec<f32> {
+        featurize(observation, self.obs)
+    }
+    fn task_name(&self, task: &StackTask) -> String {
+        task.id.clone()
+    }
+    fn goals(&self, task: &StackTask, env: &BlocksEnv) -> (usize, usize) {
+        let met = task
+            .goals
+            .iter()
+            .filter(|g| env.world().on_top(g.src, g.target))
+            .count();
+        (met, task.goals.len())
+    }
+}
+
+/// The flat action vocabulary of block stacking (the CTG's nodes).
+pub fn flat_vocabulary() -> ctg_graph::Vocabulary {
+    env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat)
 }
 
 /// Evaluates `model` on the first `test_tasks` unseen tasks: one demo per
@@ -607,51 +627,28 @@ pub fn evaluate_tasks(
     seeds: Seeds,
     variant: Variant,
 ) -> anyhow::Result<EvalResult> {
-    let mut model = model.valid();
+    let mut model = model.clone();
     model.config.ablation = variant.ablation();
-    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
-    let env_cfg = env_config(obs, failures);
-    let names = |ids: &[ActionId]| -> Vec<String> {
-        ids.iter()
-            .map(|&a| vocab.name(a).unwrap_or("?").to_owned())
-            .collect()
-    };
-    let records: Vec<TaskRecord> = in_parallel(tasks, "rollouts", |i, task| {
-        let mut env = BlocksEnv::stacking(task.clone(), env_cfg)?;
-        let (demo, policy) =
-            policy_from_demo_seed(&model, &mut env, task, seeds.demo + i as u64, obs)?;
-        let mapped = policy.mapped(|o: &BlocksObservation| featurize(o, obs));
-        let (mut nodes, mut edges) = (&mapped, &mapped);
-        let rollout = policy
-            .executor()
-            .run(&mut env, &mut nodes, &mut edges, seeds.rollout + i as u64)
-            .with_context(|| format!("rollout of task {}", task.id))?;
-        let goals_met = task
-            .goals
-            .iter()
-            .filter(|g| env.world().on_top(g.src, g.target))
-            .count();
-        let trace: Vec<ActionId> = rollout.steps.iter().map(|s| s.action).collect();
-        Ok(TaskRecord {
+    let episodes: Vec<Episode<StackTask>> = tasks
+        .iter()
+        .enumerate()
+        .map(|(i, task)| Episode {
+            group: 0,
             index: i,
-            task: task.id.clone(),
-            success: rollout.success,
-            steps: rollout.steps.len(),
-            goals_met,
-            goals: task.goals.len(),
-            trace: names(&trace),
-            transcription: names(policy.demo_actions()),
-            demo_actions: names(demo.actions()),
+            task: task.clone(),
+            demo_seed: seeds.demo + i as u64,
+            rollout_seed: seeds.rollout + i as u64,
         })
-    })?;
+        .collect();
+    let records = domain::evaluate(
+        &BlocksDomain::new(obs, failures),
+        &Model::Ntg(model),
+        &episodes,
+    )?;
     Ok(EvalResult {
         variant: variant.name().to_owned(),
-        success: SuccessRate::from_outcomes(records.iter().map(|r| r.success)),
-        mean_goal_fraction: records
-            .iter()
-            .map(|r| r.goals_met as f64 / r.goals.max(1) as f64)
-            .sum::<f64>()
-            / records.len().max(1) as f64,
+        success: domain::success_rate(&records),
+        mean_goal_fraction: domain::mean_goal_fraction(&records),
         tasks: records,
     })
 }
@@ -723,7 +720,7 @@ mod tests {
     #[test]
     fn renaming_cubes_moves_columns_actions_and_graph_edges_together() {
         let sym = object_symmetry();
-        let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+        let vocab = flat_vocabulary();
         let n = vocab.len();
         sym.validate(n, env_blocks::STATE_DIM).unwrap();
         // A -> C, B -> A, C -> B, the rest fixed.

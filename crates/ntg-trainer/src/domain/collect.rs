@@ -21,18 +21,16 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, ensure};
 use burn::tensor::Device;
 use clap::ValueEnum;
-use ctg_graph::{ActionId, Environment, record_demonstration};
+
 use env_collect::{CollectConfig, CollectEnv, CollectExpert, CollectObservation, Split, Task};
-use ntg_model::{
-    EncoderConfig, FlatPolicyConfig, NtgConfig, NtgModel, NtgPolicy, executed_actions,
-};
+use ntg_model::{EncoderConfig, FlatPolicyConfig, NtgConfig, NtgModel};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
-use crate::evaluate::in_parallel;
+use crate::domain::{self, Domain, Episode, EpisodeRecord};
 use crate::figure::{Panel, Point, Series, write_figure};
 use crate::fit::{OptimConfig, fit};
 use crate::method::flat::{FlatEpochMetrics, FlatStep, FlatTraining};
@@ -375,27 +373,6 @@ pub fn load_model(run: &RunDir, config: &CollectRunConfig) -> anyhow::Result<Mod
         .with_context(|| format!("{} has no trained model yet", run.root().display()))
 }
 
-/// One evaluated test episode.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct EpisodeRecord {
-    /// Number of target objects.
-    pub objects: usize,
-    /// Episode index among those with this N.
-    pub index: usize,
-    /// The task, e.g. `Apple->Fridge Egg->Sink`.
-    pub task: String,
-    /// Whether every target was in its receptacle at the end.
-    pub success: bool,
-    /// Actions taken (`<end>` included if chosen).
-    pub steps: usize,
-    /// The executed actions, by name.
-    pub trace: Vec<String>,
-    /// NTG only: the demo interpreter's transcription of the demo.
-    pub transcription: Vec<String>,
-    /// The expert's actual actions in the conditioning demo.
-    pub demo_actions: Vec<String>,
-}
-
 /// Success at one N.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NPoint {
@@ -420,10 +397,10 @@ pub struct CollectEval {
     pub episodes: Vec<EpisodeRecord>,
 }
 
-/// The test episodes with `n` objects: `(task, demo seed, rollout seed)`;
-/// tasks cycle through the test side's tasks with `n` objects in a seeded
-/// order (there are few with N = 1, so those repeat with other scenes).
-pub fn test_episodes(n: usize, episodes: usize) -> anyhow::Result<Vec<(Task, u64, u64)>> {
+/// The test episodes with `n` objects (group `n`); tasks cycle through the
+/// test side's tasks with `n` objects in a seeded order (there are few with
+/// N = 1, so those repeat with other scenes).
+pub fn test_episodes(n: usize, episodes: usize) -> anyhow::Result<Vec<Episode<Task>>> {
     let splitter = env_collect::TaskSplitter::default();
     let mut pool = splitter.tasks_with(n, Some(Split::Test))?;
     ensure!(!pool.is_empty(), "no test task with {n} objects");
@@ -431,93 +408,53 @@ pub fn test_episodes(n: usize, episodes: usize) -> anyhow::Result<Vec<(Task, u64
     Ok((0..episodes)
         .map(|i| {
             let k = 1000 * n as u64 + i as u64;
-            (
-                pool[i % pool.len()].clone(),
-                DEMO_SEED_BASE + k,
-                ROLLOUT_SEED_BASE + k,
-            )
+            Episode {
+                group: n,
+                index: i,
+                task: pool[i % pool.len()].clone(),
+                demo_seed: DEMO_SEED_BASE + k,
+                rollout_seed: ROLLOUT_SEED_BASE + k,
+            }
         })
         .collect())
 }
 
-fn names(ids: &[ActionId]) -> Vec<String> {
-    let vocab = env_collect::vocabulary();
-    ids.iter()
-        .map(|&a| vocab.name(a).unwrap_or("?").to_owned())
-        .collect()
+/// Object collection as a [`Domain`], seen through an observation kind.
+#[derive(Debug, Clone)]
+pub struct CollectDomain {
+    obs: ObsKind,
 }
 
-fn run_episode(
-    model: &Model,
-    obs: ObsKind,
-    n: usize,
-    index: usize,
-    (task, demo_seed, rollout_seed): &(Task, u64, u64),
-) -> anyhow::Result<EpisodeRecord> {
-    let mut env = CollectEnv::new(task.clone(), env_config(obs))?;
-    let demo = record_demonstration(&mut env, &mut CollectExpert, *demo_seed)
-        .with_context(|| format!("demo of test task {task}"))?;
-    let rows: Vec<Vec<f32>> = demo
-        .observations()
-        .iter()
-        .map(|o| featurize(o, obs))
-        .collect();
-    let (trace, transcription, success) = match model {
-        Model::Ntg(model) => {
-            // The executor's greedy rollout (`GraphExecutor::run`), telling
-            // the policy before each step which actions it has taken (a
-            // no-op without a memory).
-            let policy = NtgPolicy::from_demo(model, &rows, env_collect::vocabulary())?;
-            let mapped = policy.mapped(|o: &CollectObservation| featurize(o, obs));
-            let executor = policy.executor();
-            let (mut o, _) = env.reset(*rollout_seed)?;
-            let mut trace = Vec::new();
-            loop {
-                policy.set_executed(&trace);
-                let action = executor
-                    .action_distribution(&mut &mapped, &mut &mapped, &o)
-                    .with_context(|| format!("rollout of test task {task}"))?
-                    .most_likely();
-                trace.push(action);
-                let step = env.step(action)?;
-                let done = step.is_done();
-                o = step.observation;
-                if done {
-                    break;
-                }
-            }
-            (trace, names(policy.demo_actions()), env.is_success())
-        }
-        Model::Flat(policy) => {
-            let memory = policy.memory_dim() > 0;
-            let n = policy.num_nodes();
-            let policy = policy.condition(&rows)?;
-            let (mut o, _) = env.reset(*rollout_seed)?;
-            let mut trace = Vec::new();
-            loop {
-                let m = memory.then(|| executed_actions(n, &trace));
-                let action = policy.next_action_with_memory(&featurize(&o, obs), m.as_deref())?;
-                trace.push(action);
-                let step = env.step(action)?;
-                let done = step.is_done();
-                o = step.observation;
-                if done {
-                    break;
-                }
-            }
-            (trace, Vec::new(), env.is_success())
-        }
-    };
-    Ok(EpisodeRecord {
-        objects: n,
-        index,
-        task: task.to_string(),
-        success,
-        steps: trace.len(),
-        trace: names(&trace),
-        transcription,
-        demo_actions: names(demo.actions()),
-    })
+impl CollectDomain {
+    /// The domain seen through `obs` (frames are rendered only for `vid`).
+    pub fn new(obs: ObsKind) -> Self {
+        CollectDomain { obs }
+    }
+}
+
+impl Domain for CollectDomain {
+    type Task = Task;
+    type Env = CollectEnv;
+    type Expert = CollectExpert;
+
+    fn vocabulary(&self) -> &ctg_graph::Vocabulary {
+        env_collect::vocabulary()
+    }
+    fn env(&self, task: &Task) -> anyhow::Result<CollectEnv> {
+        Ok(CollectEnv::new(task.clone(), env_config(self.obs))?)
+    }
+    fn expert(&self) -> CollectExpert {
+        CollectExpert
+    }
+    fn featurize(&self, observation: &CollectObservation) -> Vec<f32> {
+        featurize(observation, self.obs)
+    }
+    fn task_name(&self, task: &Task) -> String {
+        task.to_string()
+    }
+    fn goals(&self, task: &Task, env: &CollectEnv) -> (usize, usize) {
+        (env.delivered(), task.num_objects())
+    }
 }
 
 /// Evaluates `model` on `episodes` unseen test episodes for each N in
@@ -529,26 +466,19 @@ pub fn evaluate(
     objects: &[usize],
     episodes: usize,
 ) -> anyhow::Result<CollectEval> {
-    let mut jobs = Vec::new();
+    let mut all = Vec::new();
     for &n in objects {
-        for (i, ep) in test_episodes(n, episodes)?.into_iter().enumerate() {
-            jobs.push((n, i, ep));
-        }
+        all.extend(test_episodes(n, episodes)?);
     }
-    let model = model.valid();
-    let records: Vec<EpisodeRecord> = in_parallel(&jobs, "rollouts", |_, (n, i, ep)| {
-        run_episode(&model, obs, *n, *i, ep)
-    })?;
+    let records = domain::evaluate(&CollectDomain::new(obs), model, &all)?;
     let points = objects
         .iter()
         .map(|&n| NPoint {
             objects: n,
-            success: SuccessRate::from_outcomes(
-                records.iter().filter(|r| r.objects == n).map(|r| r.success),
-            ),
+            success: domain::success_rate(records.iter().filter(|r| r.group == n)),
             ended: records
                 .iter()
-                .filter(|r| r.objects == n && r.trace.last().map(String::as_str) == Some("<end>"))
+                .filter(|r| r.group == n && r.trace.last().map(String::as_str) == Some("<end>"))
                 .count(),
         })
         .collect();
@@ -1046,16 +976,17 @@ mod tests {
         for n in EVAL_OBJECTS {
             let eps = test_episodes(n, 30).unwrap();
             assert_eq!(eps, test_episodes(n, 30).unwrap());
-            for (task, demo_seed, rollout_seed) in &eps {
-                assert_eq!(task.num_objects(), n);
-                assert_eq!(splitter.split_of(task), Split::Test);
-                assert!(!train.contains(task));
-                assert_ne!(demo_seed, rollout_seed);
+            for e in &eps {
+                assert_eq!((e.task.num_objects(), e.group), (n, n));
+                assert_eq!(splitter.split_of(&e.task), Split::Test);
+                assert!(!train.contains(&e.task));
+                assert_ne!(e.demo_seed, e.rollout_seed);
             }
         }
         // Few test tasks with one object: they repeat, in other scenes.
         let ones = test_episodes(1, 30).unwrap();
-        let distinct: std::collections::BTreeSet<u32> = ones.iter().map(|e| e.0.code()).collect();
+        let distinct: std::collections::BTreeSet<u32> =
+            ones.iter().map(|e| e.task.code()).collect();
         assert!(distinct.len() < 30);
     }
 

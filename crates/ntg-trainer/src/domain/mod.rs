@@ -1,0 +1,194 @@
+//! Task domains, one file each, registered in [`DomainId`]: block stacking
+//! ([`blocks`]) and object collection ([`collect`]). (JIGSAWS is a dataset
+//! scored by NLL, not rolled out: see [`crate::jigsaws`].)
+//!
+//! A domain is a small adapter behind [`Domain`]: its environment and
+//! expert, how an observation becomes a row, a task's name and how many of
+//! its goals hold. Everything else is shared: [`evaluate`] is the one
+//! evaluation loop (every episode records its conditioning demo, conditions
+//! any method's model on it and rolls the policy out in another scene, in
+//! parallel), and [`crate::fit::fit`] the one training loop.
+//!
+//! Adding a domain: a new file here implementing [`Domain`] (with its task
+//! split, seeds, dataset and run configuration), and one variant in
+//! [`DomainId`].
+
+use anyhow::Context;
+use clap::ValueEnum;
+use ctg_graph::{Environment, Expert, Vocabulary, record_demonstration};
+use serde::{Deserialize, Serialize};
+
+use crate::evaluate::in_parallel;
+use crate::method::Model;
+use crate::stats::SuccessRate;
+
+pub mod blocks;
+pub mod collect;
+
+/// The registered domains.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum DomainId {
+    /// Block stacking (the paper's main experiment, fig. "ntp_exp").
+    Blocks,
+    /// Object collection (fig. "thor_all" (b)).
+    Collect,
+}
+
+impl DomainId {
+    /// Name in run folders and files.
+    pub fn name(self) -> &'static str {
+        match self {
+            DomainId::Blocks => "blocks",
+            DomainId::Collect => "collect",
+        }
+    }
+}
+
+/// What the shared loops need to know of a domain.
+pub trait Domain: Sync {
+    /// A task of the domain.
+    type Task: Sync;
+    /// Its environment.
+    type Env: Environment;
+    /// Its scripted expert.
+    type Expert: Expert<Self::Env>;
+    /// The flat action vocabulary (the CTG's nodes).
+    fn vocabulary(&self) -> &Vocabulary;
+    /// A fresh environment for `task`.
+    fn env(&self, task: &Self::Task) -> anyhow::Result<Self::Env>;
+    /// A fresh expert.
+    fn expert(&self) -> Self::Expert;
+    /// The observation as the networks' flat row.
+    fn featurize(&self, observation: &<Self::Env as Environment>::Observation) -> Vec<f32>;
+    /// The task's name in records.
+    fn task_name(&self, task: &Self::Task) -> String;
+    /// How many of the task's goals hold in `env` at the end of an
+    /// episode, and how many it has.
+    fn goals(&self, task: &Self::Task, env: &Self::Env) -> (usize, usize);
+}
+
+/// One evaluation episode: a task, the seed of its conditioning demo and
+/// the seed of the scene the policy acts in.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Episode<T> {
+    /// The group the episode is reported in (object collection: the number
+    /// of objects N; block stacking: 0).
+    pub group: usize,
+    /// Index of the episode within its group.
+    pub index: usize,
+    /// The task.
+    pub task: T,
+    /// Seed of the expert's conditioning demonstration.
+    pub demo_seed: u64,
+    /// Seed of the rollout scene.
+    pub rollout_seed: u64,
+}
+
+/// One evaluated episode.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeRecord {
+    /// The episode's group (see [`Episode::group`]).
+    #[serde(default)]
+    pub group: usize,
+    /// Index of the episode within its group.
+    pub index: usize,
+    /// The task.
+    pub task: String,
+    /// Whether the task was done at the end.
+    pub success: bool,
+    /// Actions taken (`<end>` included if chosen).
+    pub steps: usize,
+    /// Goals that held at the end (block stacking: `on_top` constraints;
+    /// object collection: objects delivered).
+    #[serde(default)]
+    pub goals_met: usize,
+    /// Goals of the task.
+    #[serde(default)]
+    pub goals: usize,
+    /// The executed actions, by name.
+    pub trace: Vec<String>,
+    /// NTG only: the demo interpreter's transcription of the demo.
+    pub transcription: Vec<String>,
+    /// The expert's actual actions in the conditioning demo.
+    pub demo_actions: Vec<String>,
+}
+
+/// The success rate of `records`, with its 95% Wilson interval.
+pub fn success_rate<'a>(records: impl IntoIterator<Item = &'a EpisodeRecord>) -> SuccessRate {
+    SuccessRate::from_outcomes(records.into_iter().map(|r| r.success))
+}
+
+/// The mean over `records` of the fraction of each task's goals met.
+pub fn mean_goal_fraction(records: &[EpisodeRecord]) -> f64 {
+    records
+        .iter()
+        .map(|r| r.goals_met as f64 / r.goals.max(1) as f64)
+        .sum::<f64>()
+        / records.len().max(1) as f64
+}
+
+/// The one evaluation loop: for every episode, in parallel, the expert
+/// records the conditioning demo in the task's environment, `model` is
+/// conditioned on it, and the policy acts greedily in the rollout scene
+/// until the episode ends (`<end>` or the step limit).
+pub fn evaluate<D: Domain>(
+    domain: &D,
+    model: &Model,
+    episodes: &[Episode<D::Task>],
+) -> anyhow::Result<Vec<EpisodeRecord>> {
+    let model = model.valid();
+    in_parallel(episodes, "rollouts", |_, episode| {
+        run_episode(domain, &model, episode)
+    })
+}
+
+fn run_episode<D: Domain>(
+    domain: &D,
+    model: &Model,
+    episode: &Episode<D::Task>,
+) -> anyhow::Result<EpisodeRecord> {
+    let name = domain.task_name(&episode.task);
+    let mut env = domain.env(&episode.task)?;
+    let demo = record_demonstration(&mut env, &mut domain.expert(), episode.demo_seed)
+        .with_context(|| format!("demo of task {name}"))?;
+    let rows: Vec<Vec<f32>> = demo
+        .observations()
+        .iter()
+        .map(|o| domain.featurize(o))
+        .collect();
+    let agent = model.condition(&rows, domain.vocabulary())?;
+    let (mut observation, _) = env.reset(episode.rollout_seed)?;
+    let mut trace = Vec::new();
+    loop {
+        let action = agent
+            .act(&domain.featurize(&observation), &trace)
+            .with_context(|| format!("rollout of task {name}"))?;
+        trace.push(action);
+        let step = env.step(action)?;
+        let done = step.is_done();
+        observation = step.observation;
+        if done {
+            break;
+        }
+    }
+    let (goals_met, goals) = domain.goals(&episode.task, &env);
+    let vocab = domain.vocabulary();
+    let names = |ids: &[ctg_graph::ActionId]| -> Vec<String> {
+        ids.iter()
+            .map(|&a| vocab.name(a).unwrap_or("?").to_owned())
+            .collect()
+    };
+    Ok(EpisodeRecord {
+        group: episode.group,
+        index: episode.index,
+        task: name,
+        success: env.is_success(),
+        steps: trace.len(),
+        goals_met,
+        goals,
+        trace: names(&trace),
+        transcription: names(agent.transcription()),
+        demo_actions: names(demo.actions()),
+    })
+}
