@@ -18,6 +18,7 @@ pub mod cli;
 pub mod dataset;
 pub mod domain;
 pub mod evaluate;
+pub mod experiment;
 pub mod figure;
 pub mod fit;
 pub mod jigsaws;

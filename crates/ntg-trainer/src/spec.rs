@@ -49,15 +49,4 @@ impl Profile {
             Profile::Paper => "paper",
         }
     }
-
-    /// Whether reproduced runs at this profile decay the learning rate
-    /// (half cosine to a tenth). At 1000 tasks x 20 demos x 20 epochs it
-    /// lifted unseen-demo transcription from 0.92 to 0.998 token accuracy
-    /// and success from 0.55 to 0.825; in the quick profile's short runs
-    /// (≤ 1900 steps) it left the models undertrained (success at 1000
-    /// tasks 0.02 against 0.23 at a constant rate), so only the paper
-    /// profile uses it.
-    pub fn cosine_decay(self) -> bool {
-        self == Profile::Paper
-    }
 }

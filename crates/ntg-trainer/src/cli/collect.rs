@@ -19,6 +19,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::collect;
+use crate::experiment::thor_all;
 
 /// Subcommands of `ntg collect`.
 #[derive(Debug, Subcommand)]
@@ -210,11 +211,13 @@ pub fn figure(args: &FigureArgs, out: &mut impl Write) -> anyhow::Result<()> {
     let started = std::time::Instant::now();
     let profile = serde_json::to_value(args.profile)?;
     let runs = args.runs.join(profile.as_str().unwrap_or("profile"));
-    let result = collect::thor_all(args.profile, &runs)?;
+    let experiment: thor_all::ThorAllExperiment =
+        crate::experiment::load("thor_all", crate::experiment::Source::BuiltIn)?;
+    let result = thor_all::run(&experiment, args.profile, &runs)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    collect::write_thor_all_figure(&result, &args.out.join("thor_all"))?;
-    write!(out, "{}", collect::report_section(&result))?;
+    thor_all::write_figure(&result, &args.out.join("thor_all"))?;
+    write!(out, "{}", thor_all::report_section(&result))?;
     writeln!(
         out,
         "wrote {} in {:.0} s",

@@ -414,6 +414,11 @@ pub struct ReproduceArgs {
     /// stand-in.
     #[arg(long, value_name = "DIR")]
     pub jigsaws_root: Option<PathBuf>,
+    /// Read the figures' experiment files (`ntp_exp.toml`,
+    /// `thor_all.toml`) from this folder instead of the copies built in
+    /// (`crates/ntg-trainer/experiments/`).
+    #[arg(long, value_name = "DIR")]
+    pub experiments: Option<PathBuf>,
 }
 
 /// Runs `ntg reproduce`.
@@ -423,8 +428,16 @@ pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
             .as_str()
             .unwrap_or("profile"),
     );
-    let results =
-        crate::reproduce::reproduce(args.profile, &runs, &args.out, args.jigsaws_root.as_deref())?;
+    let results = crate::reproduce::reproduce(
+        args.profile,
+        &runs,
+        &args.out,
+        args.jigsaws_root.as_deref(),
+        match &args.experiments {
+            Some(dir) => crate::experiment::Source::Dir(dir),
+            None => crate::experiment::Source::BuiltIn,
+        },
+    )?;
     println!(
         "wrote {} (figure ntp_exp: {} points)",
         args.out.display(),
