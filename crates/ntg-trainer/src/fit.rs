@@ -24,10 +24,15 @@ use ntg_model::{EdgeCounts, FlatPolicy, NtgModel, load_optimizer, save_optimizer
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
-use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use crate::run_dir::RunDir;
+
+/// The paper's Adam learning rate (block stacking's [`Recipe::Paper`], and
+/// the default of the other domains' `ntg train`).
+///
+/// [`Recipe::Paper`]: crate::blocks::Recipe::Paper
+pub const PAPER_LEARNING_RATE: f64 = 1e-3;
 
 /// Optimisation settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -344,21 +349,6 @@ pub fn scalar(t: Tensor<1>) -> anyhow::Result<f32> {
         .unwrap_or(f32::NAN))
 }
 
-/// Reads every line of a JSON-lines file, naming the file and line of the
-/// first that does not parse.
-pub fn read_jsonl<T: DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| {
-            serde_json::from_str(l)
-                .with_context(|| format!("{}: line {} is not valid", path.display(), i + 1))
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -382,16 +372,5 @@ mod tests {
             ..optim
         };
         assert_eq!(constant.learning_rate_at(100, 101), 1e-2);
-    }
-
-    #[test]
-    fn jsonl_errors_name_the_file_and_line() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("m.jsonl");
-        std::fs::write(&path, "{\"epochs_done\": 1}\n\nnot json\n").unwrap();
-        let err = format!("{:#}", read_jsonl::<Progress>(&path).unwrap_err());
-        assert!(err.contains("m.jsonl") && err.contains("line 3"), "{err}");
-        std::fs::write(&path, "{\"epochs_done\": 1}\n{\"epochs_done\": 2}\n").unwrap();
-        assert_eq!(read_jsonl::<Progress>(&path).unwrap().len(), 2);
     }
 }

@@ -1,13 +1,23 @@
 //! Wires the environments and networks of ntg-rs together, and holds the
 //! `ntg` command-line tool.
 //!
-//! What is here: the `ntg` CLI ([`cli`]); demo datasets generated in
-//! parallel and cached on disk ([`dataset`]); joint training of the four NTG
-//! networks with checkpoints and exact resume ([`train`]); the block-stacking
-//! experiment, evaluation on unseen tasks ([`blocks`]) and step-by-step
-//! traces ([`trace`]); success-rate statistics ([`stats`]); the paper's
-//! figures as experiment configs ([`reproduce`]), drawn as SVG + PNG
-//! ([`figure`]); task graphs rendered to SVG in-process ([`svg`]).
+//! What is here, in layers (each module uses only those above it):
+//! - [`spec`] (observation kinds, profiles), [`run_dir`] (run folders),
+//!   [`dataset`] (demo datasets generated in parallel and cached on disk),
+//!   [`stats`], [`symmetry`] (object renaming);
+//! - [`fit`]: the one epoch loop (checkpoints, exact resume, validation
+//!   and best-epoch selection) that every method trains through;
+//! - [`method`]: methods, one file each (NTG, the Flat Policy): a training
+//!   step and a model that can be conditioned on a demo;
+//! - [`domain`]: domains, one file each (block stacking, object
+//!   collection) behind one trait, and the one evaluation loop;
+//!   [`jigsaws`]: the JIGSAWS cross-task experiment, scored by NLL;
+//! - [`experiment`]: the paper's figures as experiment files
+//!   (`experiments/*.toml`), run and drawn ([`figure`], [`svg`]);
+//!   [`reproduce`] runs them all; [`trace`] executes one test task step by
+//!   step;
+//! - [`cli`]: the `ntg` command line, which parses arguments into run
+//!   configurations and calls the library.
 //!
 //! **Architecture invariant:** this is the only crate that knows every other
 //! crate (environments and networks); no other crate depends on it except

@@ -162,7 +162,7 @@ impl RunDir {
         struct Seconds {
             seconds: f64,
         }
-        let lines: Vec<Seconds> = crate::fit::read_jsonl(&self.metrics_path())?;
+        let lines: Vec<Seconds> = read_jsonl(&self.metrics_path())?;
         Ok(lines.iter().map(|l| l.seconds).sum())
     }
 
@@ -240,6 +240,21 @@ impl RunDir {
             .with_context(|| format!("writing {}", path.display()))?;
         Ok(())
     }
+}
+
+/// Reads every line of a JSON-lines file, naming the file and line of the
+/// first that does not parse.
+pub fn read_jsonl<T: DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| {
+            serde_json::from_str(l)
+                .with_context(|| format!("{}: line {} is not valid", path.display(), i + 1))
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -351,5 +366,15 @@ mod tests {
         RunDir::write_json(&run.checkpoint_dir().join("progress.json"), &2).unwrap();
         let fresh: u32 = run.cached_eval("e.json", || Ok(9)).unwrap();
         assert_eq!(fresh, 9);
+    }
+    #[test]
+    fn jsonl_errors_name_the_file_and_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.jsonl");
+        std::fs::write(&path, "{\"epochs_done\": 1}\n\nnot json\n").unwrap();
+        let err = format!("{:#}", read_jsonl::<serde_json::Value>(&path).unwrap_err());
+        assert!(err.contains("m.jsonl") && err.contains("line 3"), "{err}");
+        std::fs::write(&path, "{\"epochs_done\": 1}\n{\"epochs_done\": 2}\n").unwrap();
+        assert_eq!(read_jsonl::<serde_json::Value>(&path).unwrap().len(), 2);
     }
 }

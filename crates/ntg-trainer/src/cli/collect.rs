@@ -89,8 +89,8 @@ impl CollectTrainArgs {
 #[derive(Debug, Args)]
 pub struct FigureArgs {
     /// Experiment scale.
-    #[arg(long, value_enum, default_value_t = crate::reproduce::Profile::Quick)]
-    pub profile: crate::reproduce::Profile,
+    #[arg(long, value_enum, default_value_t = crate::spec::Profile::Quick)]
+    pub profile: crate::spec::Profile,
     /// Where run folders go (finished runs are reused).
     #[arg(long, default_value = "runs/figures")]
     pub runs: PathBuf,

@@ -222,7 +222,7 @@ fn train_collect(args: &TrainArgs) -> anyhow::Result<()> {
         optim: OptimConfig {
             epochs: args.epochs,
             batch_size: args.batch_size,
-            learning_rate: args.lr.unwrap_or(crate::blocks::PAPER_LEARNING_RATE),
+            learning_rate: args.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE),
             seed: args.seed,
             token_dropout: 0.0,
             cosine_decay: args.cosine_decay,
@@ -473,7 +473,7 @@ mod tests {
         );
         assert_eq!((c.edge_fusion_hidden, c.detach_gcn_from_edges), (0, false));
         assert!(!c.soft_edges && !c.exclude_held_out_renamings);
-        assert_eq!(c.optim.learning_rate, blocks::PAPER_LEARNING_RATE);
+        assert_eq!(c.optim.learning_rate, crate::fit::PAPER_LEARNING_RATE);
         assert!(!c.optim.cosine_decay && !c.optim.gcn_from_other_demo);
         // Flags add to the recipe.
         let c = config_of(&["--recipe", "paper", "--pairwise", "--lr", "0.01"]);

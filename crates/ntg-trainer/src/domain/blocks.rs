@@ -16,9 +16,9 @@ use env_blocks::{BlocksEnv, BlocksExpert, BlocksObservation, EnvConfig, StackTas
 use ntg_model::{AblationConfig, EncoderConfig, NtgConfig, NtgModel, NtgPolicy};
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
+use crate::dataset::DemoDataset;
 use crate::domain::{self, Domain, Episode, EpisodeRecord};
-use crate::fit::{OptimConfig, ValidationScore};
+use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore};
 use crate::method::Model;
 use crate::method::ntg::{EpochMetrics, NtgTraining, TrainExtras, train_with};
 use crate::run_dir::RunDir;
@@ -63,26 +63,16 @@ pub fn encoder(kind: ObsKind, state_hidden_layers: usize, pairwise: bool) -> Enc
 }
 
 /// The observation as a flat row: the state, or the frame in CHW order
-/// scaled to `[0, 1]`.
+/// scaled to `[0, 1]` (the same layout as object collection's frames).
 pub fn featurize(obs: &BlocksObservation, kind: ObsKind) -> Vec<f32> {
     match kind {
         ObsKind::State => obs.state().to_vec(),
-        ObsKind::Vid => match obs.frame() {
-            Some(frame) => {
-                let (w, h) = frame.dimensions();
-                let mut out = vec![0.0; 3 * (w * h) as usize];
-                for (x, y, p) in frame.enumerate_pixels() {
-                    let i = (y * w + x) as usize;
-                    for c in 0..3 {
-                        out[c * (w * h) as usize + i] = f32::from(p[c]) / 255.0;
-                    }
-                }
-                out
-            }
-            // Rendering is switched on for `Vid` by `env_config`; a missing
-            // frame gives a wrong-length row, which the model rejects.
-            None => Vec::new(),
-        },
+        // Rendering is switched on for `Vid` by `env_config`; a missing
+        // frame gives a wrong-length row, which the model rejects.
+        ObsKind::Vid => obs
+            .frame()
+            .map(env_collect::frame_to_chw)
+            .unwrap_or_default(),
     }
 }
 
@@ -189,9 +179,6 @@ pub enum Recipe {
     Paper,
 }
 
-/// The Adam learning rate of [`Recipe::Paper`] (and of the other domains).
-pub const PAPER_LEARNING_RATE: f64 = 1e-3;
-
 impl Recipe {
     /// The run configuration of this recipe for `obs` on `train_tasks` x
     /// `demos_per_task` demos (failures on), trained `epochs` epochs with
@@ -241,30 +228,15 @@ impl Recipe {
 
 /// Records the training demonstrations of a run, in parallel.
 pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::Result<DemoDataset> {
-    let pairs: Vec<(usize, u64)> = (0..config.train_tasks)
-        .flat_map(|t| {
-            (0..config.demos_per_task)
-                .map(move |j| (t, TRAIN_SEED_BASE + 1000 * t as u64 + j as u64))
-        })
-        .collect();
-    let env_cfg = env_config(config.obs, config.failures);
-    let kind = config.obs;
-    let bar = progress_bar(pairs.len() as u64, "demos");
-    generate(
-        &pairs,
-        |t| Ok(BlocksEnv::stacking(tasks[t].clone(), env_cfg)?),
-        BlocksExpert::new,
-        |o| featurize(o, kind),
-        DatasetSpec {
-            vocabulary: flat_vocabulary(),
-            obs_dim: obs_dim(kind),
-            dtype: match kind {
-                ObsKind::State => ObsDtype::F32,
-                ObsKind::Vid => ObsDtype::U8,
-            },
-        },
-        &bar,
-    )
+    let domain = BlocksDomain::new(config.obs, config.failures);
+    let tasks = tasks.get(..config.train_tasks).with_context(|| {
+        format!(
+            "{} training tasks asked for, {} given",
+            config.train_tasks,
+            tasks.len()
+        )
+    })?;
+    domain::record_demos(&domain, tasks, config.demos_per_task, TRAIN_SEED_BASE)
 }
 
 /// The untrained model of a block-stacking run (seeded by
@@ -570,6 +542,12 @@ impl Domain for BlocksDomain {
     }
     fn expert(&self) -> BlocksExpert {
         BlocksExpert::new()
+    }
+    fn obs_kind(&self) -> ObsKind {
+        self.obs
+    }
+    fn obs_dim(&self) -> usize {
+        obs_dim(self.obs)
     }
     fn featurize(&self, observation: &BlocksObservation) -> Vec<f32> {
         featurize(observation, self.obs)

@@ -27,7 +27,7 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
+use crate::dataset::DemoDataset;
 use crate::domain::{self, Domain, Episode, EpisodeRecord};
 use crate::fit::{OptimConfig, fit};
 use crate::method::flat::{FlatEpochMetrics, FlatStep, FlatTraining};
@@ -239,7 +239,7 @@ impl CollectRunConfig {
             optim: OptimConfig {
                 epochs,
                 batch_size: 32,
-                learning_rate: crate::blocks::PAPER_LEARNING_RATE,
+                learning_rate: crate::fit::PAPER_LEARNING_RATE,
                 seed,
                 token_dropout: 0.0,
                 cosine_decay: false,
@@ -303,30 +303,8 @@ pub fn training_tasks(config: &CollectRunConfig) -> anyhow::Result<Vec<Task>> {
 /// Records the training demonstrations of a run, in parallel.
 pub fn build_dataset(config: &CollectRunConfig) -> anyhow::Result<DemoDataset> {
     let tasks = training_tasks(config)?;
-    let pairs: Vec<(usize, u64)> = (0..tasks.len())
-        .flat_map(|t| {
-            (0..config.demos_per_task)
-                .map(move |j| (t, TRAIN_SEED_BASE + 1000 * t as u64 + j as u64))
-        })
-        .collect();
-    let env_cfg = env_config(config.obs);
-    let kind = config.obs;
-    let bar = progress_bar(pairs.len() as u64, "demos");
-    generate(
-        &pairs,
-        |t| Ok(CollectEnv::new(tasks[t].clone(), env_cfg)?),
-        || CollectExpert,
-        |o| featurize(o, kind),
-        DatasetSpec {
-            vocabulary: env_collect::vocabulary().clone(),
-            obs_dim: obs_dim(kind),
-            dtype: match kind {
-                ObsKind::State => ObsDtype::F32,
-                ObsKind::Vid => ObsDtype::U8,
-            },
-        },
-        &bar,
-    )
+    let domain = CollectDomain::new(config.obs);
+    domain::record_demos(&domain, &tasks, config.demos_per_task, TRAIN_SEED_BASE)
 }
 
 /// One line of training progress, either method.
@@ -487,6 +465,12 @@ impl Domain for CollectDomain {
     }
     fn expert(&self) -> CollectExpert {
         CollectExpert
+    }
+    fn obs_kind(&self) -> ObsKind {
+        self.obs
+    }
+    fn obs_dim(&self) -> usize {
+        obs_dim(self.obs)
     }
     fn featurize(&self, observation: &CollectObservation) -> Vec<f32> {
         featurize(observation, self.obs)

@@ -18,8 +18,10 @@ use clap::ValueEnum;
 use ctg_graph::{Environment, Expert, Vocabulary, record_demonstration};
 use serde::{Deserialize, Serialize};
 
+use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
 use crate::evaluate::in_parallel;
 use crate::method::Model;
+use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
 
 pub mod blocks;
@@ -59,6 +61,10 @@ pub trait Domain: Sync {
     fn env(&self, task: &Self::Task) -> anyhow::Result<Self::Env>;
     /// A fresh expert.
     fn expert(&self) -> Self::Expert;
+    /// What the networks see.
+    fn obs_kind(&self) -> ObsKind;
+    /// Values per observation row.
+    fn obs_dim(&self) -> usize;
     /// The observation as the networks' flat row.
     fn featurize(&self, observation: &<Self::Env as Environment>::Observation) -> Vec<f32>;
     /// The task's name in records.
@@ -126,6 +132,36 @@ pub fn mean_goal_fraction(records: &[EpisodeRecord]) -> f64 {
         .map(|r| r.goals_met as f64 / r.goals.max(1) as f64)
         .sum::<f64>()
         / records.len().max(1) as f64
+}
+
+/// Records `demos_per_task` expert demonstrations of each of `tasks` in
+/// parallel (demo `j` of task `t` with seed `seed_base + 1000 t + j`) into
+/// a dataset; frames are stored as bytes.
+pub fn record_demos<D: Domain>(
+    domain: &D,
+    tasks: &[D::Task],
+    demos_per_task: usize,
+    seed_base: u64,
+) -> anyhow::Result<DemoDataset> {
+    let pairs: Vec<(usize, u64)> = (0..tasks.len())
+        .flat_map(|t| (0..demos_per_task).map(move |j| (t, seed_base + 1000 * t as u64 + j as u64)))
+        .collect();
+    let bar = progress_bar(pairs.len() as u64, "demos");
+    generate(
+        &pairs,
+        |t| domain.env(&tasks[t]),
+        || domain.expert(),
+        |o| domain.featurize(o),
+        DatasetSpec {
+            vocabulary: domain.vocabulary().clone(),
+            obs_dim: domain.obs_dim(),
+            dtype: match domain.obs_kind() {
+                ObsKind::State => ObsDtype::F32,
+                ObsKind::Vid => ObsDtype::U8,
+            },
+        },
+        &bar,
+    )
 }
 
 /// The one evaluation loop: for every episode, in parallel, the expert

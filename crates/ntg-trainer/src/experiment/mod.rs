@@ -13,9 +13,11 @@
 use std::path::Path;
 
 use anyhow::{Context, bail};
-use serde::Serialize;
 use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
+
+use crate::spec::Profile;
 
 pub mod ntp_exp;
 pub mod thor_all;
@@ -25,6 +27,29 @@ pub const BUILT_IN: [(&str, &str); 2] = [
     ("ntp_exp", include_str!("../../experiments/ntp_exp.toml")),
     ("thor_all", include_str!("../../experiments/thor_all.toml")),
 ];
+
+/// One table per profile.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Profiles<P> {
+    /// `smoke`.
+    pub smoke: P,
+    /// `quick`.
+    pub quick: P,
+    /// `paper`.
+    pub paper: P,
+}
+
+impl<P> Profiles<P> {
+    /// The table of `profile`.
+    pub fn get(&self, profile: Profile) -> &P {
+        match profile {
+            Profile::Smoke => &self.smoke,
+            Profile::Quick => &self.quick,
+            Profile::Paper => &self.paper,
+        }
+    }
+}
 
 /// Where experiment files are read from.
 #[derive(Debug, Clone, Copy, Default)]

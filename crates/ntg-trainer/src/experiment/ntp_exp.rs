@@ -34,30 +34,7 @@ pub struct NtpExpExperiment {
     #[serde(default)]
     pub overrides: toml::Table,
     /// The scale of each profile.
-    pub profiles: Profiles<NtpExpProfile>,
-}
-
-/// One table per profile.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Profiles<P> {
-    /// `smoke`.
-    pub smoke: P,
-    /// `quick`.
-    pub quick: P,
-    /// `paper`.
-    pub paper: P,
-}
-
-impl<P> Profiles<P> {
-    /// The table of `profile`.
-    pub fn get(&self, profile: Profile) -> &P {
-        match profile {
-            Profile::Smoke => &self.smoke,
-            Profile::Quick => &self.quick,
-            Profile::Paper => &self.paper,
-        }
-    }
+    pub profiles: crate::experiment::Profiles<NtpExpProfile>,
 }
 
 /// The figure at one profile.

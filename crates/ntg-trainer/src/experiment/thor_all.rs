@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::collect::{CollectRunConfig, EVAL_OBJECTS, NPoint, evaluate, train_run};
 use crate::domain::DomainId;
-use crate::experiment::ntp_exp::Profiles;
+use crate::experiment::Profiles;
 use crate::figure::{Panel, Point, Series, write_figure as draw};
 use crate::method::MethodId;
 use crate::run_dir::RunDir;
@@ -56,7 +56,7 @@ pub struct ThorAllScale {
     #[serde(default)]
     pub memory: bool,
     /// NTG's training epochs (learning rate on a half cosine per step down
-    /// to a tenth, [`OptimConfig::cosine_decay`]: at a constant rate Adam
+    /// to a tenth, [`crate::fit::OptimConfig::cosine_decay`]: at a constant rate Adam
     /// blew the converged interpreter up late in training).
     pub ntg_epochs: usize,
     /// The Flat Policy's training epochs (constant learning rate: with the

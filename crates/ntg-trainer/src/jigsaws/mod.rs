@@ -32,12 +32,13 @@
 //!   completion: the edge classifier gets the GCN's task-independent
 //!   initial node embeddings `N⁰` instead of `NE_gcn`. It therefore sees
 //!   the current observation but nothing of the demonstration. It is
-//!   trained as its own model, as it is used ([`NoGraphTrainer`]): node
-//!   localizer and edge classifier (with `N⁰`) on every training step, the
-//!   edge classifier's softmax over every action the fully connected graph
-//!   allows, so it is not a network handicapped at test time. (The shared
-//!   trainer would mask the edge loss to the training tasks' graphs, leaving
-//!   the logits of every other transition untrained.)
+//!   trained as its own model, as it is used: NTG's training step with this
+//!   ablation ([`crate::method::ntg::NtgStep`]) trains the node localizer
+//!   and the edge classifier (with `N⁰`) on every training step, the edge
+//!   classifier's softmax over every action the fully connected graph
+//!   allows, so it is not a network handicapped at test time (masked to the
+//!   training tasks' graphs, the logits of every other transition would
+//!   stay untrained).
 //! - **full NTG, own head** ([`Method::FullOwnHead`], the paper's
 //!   wiring): demo interpreter → path CTG → GCN completion → the policy over
 //!   the completed graph ([`NtgPolicy::from_demo`]) with the full model's
@@ -254,7 +255,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::{DemoDataset, ObsDtype};
 use crate::fit::OptimConfig;
-use crate::method::ntg::{EpochMetrics, train};
+use crate::method::ntg::{EpochMetrics, TrainExtras, train_with};
 use crate::run_dir::RunDir;
 use crate::spec::Profile;
 

@@ -175,8 +175,16 @@ fn no_graph_model_learns_the_next_gesture() {
             .unwrap();
         let tmp = tempfile::tempdir().unwrap();
         let run = RunDir::create(tmp.path()).unwrap();
-        let model =
-            crate::method::ntg::train(model, &data.train, &optim, &run, &device, |_| {}).unwrap();
+        let model = crate::method::ntg::train_with(
+            model,
+            &data.train,
+            &optim,
+            &run,
+            &device,
+            |_| {},
+            Default::default(),
+        )
+        .unwrap();
         let after = validation_nll(Scorer::Own(Method::NoGraph, &model), &data, 0.01)
             .unwrap()
             .unwrap();

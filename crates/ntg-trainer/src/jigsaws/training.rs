@@ -148,7 +148,7 @@ pub fn train_method(
         let mut best: Vec<Option<Best>> = vec![None; methods.len()];
         let mut curves = vec![Vec::new(); methods.len()];
         for &mark in &marks {
-            // `train` resumes from the run's checkpoint, so training in
+            // `train_with` resumes from the run's checkpoint, so training in
             // stages takes exactly the steps of one long run. The no-graph
             // model's ablation (no demo interpreter, no GCN) makes NTG's
             // step train only the localizer and the edge classifier, the
@@ -157,13 +157,14 @@ pub fn train_method(
                 epochs: mark,
                 ..config.optim.clone()
             };
-            let model = train(
+            let model = train_with(
                 fresh.clone(),
                 &data.train,
                 &optim,
                 &run,
                 device,
                 &mut on_epoch,
+                TrainExtras::default(),
             )?;
             for (i, &method) in methods.iter().enumerate() {
                 // (value, index of the best weight, value per weight).
@@ -230,7 +231,7 @@ pub fn train_method(
             })
             .collect::<anyhow::Result<_>>()?
     };
-    let metrics: Vec<EpochMetrics> = crate::fit::read_jsonl(&run.metrics_path())?;
+    let metrics: Vec<EpochMetrics> = crate::run_dir::read_jsonl(&run.metrics_path())?;
     Ok(methods
         .iter()
         .zip(selected)

@@ -8,7 +8,7 @@
 //! (the last action taken); and the edge classifier, given the observation,
 //! its node and the GCN's embeddings, predicts the next action among the
 //! node's CTG successors. The four losses are summed and one Adam step
-//! updates all. A model with [`NtgConfig::soft_edges`] trains the edge
+//! updates all. A model with [`ntg_model::NtgConfig::soft_edges`] trains the edge
 //! classifier as its policy uses it: a softmax over every node of the
 //! fully connected graph, each logit raised by `ln C` of the graph the GCN
 //! completed from its input path (that path's edges at 1, floored at
@@ -25,8 +25,8 @@ use std::collections::BTreeMap;
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use ctg_graph::{ActionId, Ctg, Vocabulary};
 use ntg_model::{
-    DemoBatch, EdgeCounts, NtgConfig, NtgModel, adjacency_tensor, ids_tensor, pending_nodes,
-    rows_tensor, successor_mask,
+    DemoBatch, EdgeCounts, NtgModel, adjacency_tensor, ids_tensor, pending_nodes, rows_tensor,
+    successor_mask,
 };
 use rand::seq::IndexedRandom;
 use rand::{Rng, SeedableRng};
@@ -562,27 +562,7 @@ pub struct TrainExtras<'a> {
 
 /// Trains `model` (on an autodiff device) for the epochs not yet done,
 /// checkpointing into `run` after each and appending metrics (see
-/// [`fit`]). Returns the trained model.
-pub fn train(
-    model: NtgModel,
-    dataset: &DemoDataset,
-    optim: &OptimConfig,
-    run: &RunDir,
-    device: &Device,
-    on_epoch: impl FnMut(&EpochMetrics),
-) -> anyhow::Result<NtgModel> {
-    train_with(
-        model,
-        dataset,
-        optim,
-        run,
-        device,
-        on_epoch,
-        TrainExtras::default(),
-    )
-}
-
-/// [`train`] with extras. With a validator it also scores the model, logs
+/// [`fit`]), and returns it. With a validator it also scores the model, logs
 /// the score to `validation.jsonl`, keeps the best epoch's weights in
 /// `best/` (ties keep the earlier epoch) and returns those instead of the
 /// last. The GCN reads another demo of the task when
@@ -612,11 +592,6 @@ pub fn train_with(
         every: extras.validate_every,
     });
     fit(model, &step, optim, run, device, selection, on_epoch)
-}
-
-/// A fresh model for `config` on `device`, or an error naming the problem.
-pub fn new_model(config: NtgConfig, device: &Device) -> anyhow::Result<NtgModel> {
-    Ok(NtgModel::new(config, device)?)
 }
 
 #[cfg(test)]
