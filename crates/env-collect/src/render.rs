@@ -73,6 +73,13 @@ fn to_rgb(c: Color) -> Rgb<u8> {
     Rgb([c[0] as u8, c[1] as u8, c[2] as u8])
 }
 
+/// Fills the axis-aligned rectangle `[x0, y0, x1, y1)` (pixel centres
+/// inside it) with `color`.
+fn fill_rect(img: &mut RgbImage, color: Color, [x0, y0, x1, y1]: [f32; 4]) {
+    let inside = move |x: f32, y: f32| x >= x0 && x < x1 && y >= y0 && y < y1;
+    fill(img, [0.0, 0.0, 64.0, 64.0], color, inside);
+}
+
 /// Fills every pixel whose centre is in `bbox` (x0, y0, x1, y1) and inside
 /// the shape.
 fn fill(img: &mut RgbImage, bbox: [f32; 4], color: Color, inside: impl Fn(f32, f32) -> bool) {
@@ -409,42 +416,34 @@ pub fn draw_receptacle(img: &mut RgbImage, receptacle: Receptacle, backdrop: &Ba
         *px = to_rgb(if y < 56 { wall } else { floor });
     }
     let all = [0.0, 0.0, 64.0, 64.0];
-    let rect = |x0: f32, y0: f32, x1: f32, y1: f32| {
-        move |x: f32, y: f32| x >= x0 && x < x1 && y >= y0 && y < y1
-    };
     match receptacle {
         Receptacle::Fridge => {
-            fill(
+            fill_rect(
                 img,
-                all,
                 tinted([150.0, 152.0, 158.0], t),
-                rect(7.0, 0.0, 57.0, 64.0),
+                [7.0, 0.0, 57.0, 64.0],
             );
-            fill(
+            fill_rect(
                 img,
-                all,
                 tinted([242.0, 244.0, 248.0], t),
-                rect(8.0, 0.0, 56.0, 64.0),
+                [8.0, 0.0, 56.0, 64.0],
             );
-            fill(
+            fill_rect(
                 img,
-                all,
                 tinted([160.0, 162.0, 168.0], t),
-                rect(8.0, 12.0, 56.0, 13.0),
+                [8.0, 12.0, 56.0, 13.0],
             );
-            fill(img, all, [60.0, 60.0, 66.0], rect(42.0, 5.0, 52.0, 7.0));
-            fill(
+            fill_rect(img, [60.0, 60.0, 66.0], [42.0, 5.0, 52.0, 7.0]);
+            fill_rect(
                 img,
-                all,
                 tinted([196.0, 222.0, 242.0], t),
-                rect(12.0, 15.0, 52.0, 61.0),
+                [12.0, 15.0, 52.0, 61.0],
             );
             for sy in [30.0, 45.0] {
-                fill(
+                fill_rect(
                     img,
-                    all,
                     tinted([160.0, 184.0, 204.0], t),
-                    rect(12.0, sy, 52.0, sy + 1.0),
+                    [12.0, sy, 52.0, sy + 1.0],
                 );
             }
         }
@@ -454,11 +453,10 @@ pub fn draw_receptacle(img: &mut RgbImage, receptacle: Receptacle, backdrop: &Ba
                     *px = to_rgb(tinted([176.0, 170.0, 160.0], t));
                 }
             }
-            fill(
+            fill_rect(
                 img,
-                all,
                 tinted([172.0, 178.0, 186.0], t),
-                rect(0.0, 18.0, 64.0, 64.0),
+                [0.0, 18.0, 64.0, 64.0],
             );
             fill(img, all, tinted([88.0, 95.0, 108.0], t), |x, y| {
                 in_ellipse(x, y, 31.0, 40.0, 25.0, 15.0)
@@ -472,44 +470,23 @@ pub fn draw_receptacle(img: &mut RgbImage, receptacle: Receptacle, backdrop: &Ba
             });
         }
         Receptacle::Cabinet => {
-            fill(
-                img,
-                all,
-                tinted([122.0, 78.0, 42.0], t),
-                rect(4.0, 2.0, 60.0, 62.0),
-            );
-            fill(
-                img,
-                all,
-                tinted([62.0, 40.0, 24.0], t),
-                rect(9.0, 7.0, 55.0, 57.0),
-            );
-            fill(
-                img,
-                all,
-                tinted([140.0, 92.0, 52.0], t),
-                rect(9.0, 31.0, 55.0, 33.0),
-            );
+            fill_rect(img, tinted([122.0, 78.0, 42.0], t), [4.0, 2.0, 60.0, 62.0]);
+            fill_rect(img, tinted([62.0, 40.0, 24.0], t), [9.0, 7.0, 55.0, 57.0]);
+            fill_rect(img, tinted([140.0, 92.0, 52.0], t), [9.0, 31.0, 55.0, 33.0]);
             let knob = tinted([214.0, 186.0, 90.0], t);
             for ky in [18.0, 44.0] {
                 fill(img, all, knob, |x, y| in_ellipse(x, y, 6.5, ky, 1.6, 1.6));
             }
         }
         Receptacle::Microwave => {
-            fill(
+            fill_rect(img, tinted([52.0, 52.0, 58.0], t), [2.0, 10.0, 62.0, 54.0]);
+            fill_rect(img, [20.0, 20.0, 22.0], [5.0, 13.0, 45.0, 51.0]);
+            fill_rect(
                 img,
-                all,
-                tinted([52.0, 52.0, 58.0], t),
-                rect(2.0, 10.0, 62.0, 54.0),
-            );
-            fill(img, all, [20.0, 20.0, 22.0], rect(5.0, 13.0, 45.0, 51.0));
-            fill(
-                img,
-                all,
                 tinted([238.0, 206.0, 118.0], t),
-                rect(6.0, 14.0, 44.0, 50.0),
+                [6.0, 14.0, 44.0, 50.0],
             );
-            fill(img, all, [80.0, 210.0, 120.0], rect(48.0, 14.0, 59.0, 19.0));
+            fill_rect(img, [80.0, 210.0, 120.0], [48.0, 14.0, 59.0, 19.0]);
             for by in [24.0, 30.0, 36.0] {
                 for bx in [50.5, 56.5] {
                     fill(img, all, [150.0, 150.0, 156.0], |x, y| {
@@ -529,7 +506,7 @@ pub fn draw_receptacle(img: &mut RgbImage, receptacle: Receptacle, backdrop: &Ba
                 (16.0..61.0).contains(&y) && (x - 32.0).abs() <= half
             });
             for lx in [22.0, 32.0, 42.0] {
-                fill(img, all, scaled(green, 0.7), rect(lx, 24.0, lx + 1.0, 56.0));
+                fill_rect(img, scaled(green, 0.7), [lx, 24.0, lx + 1.0, 56.0]);
             }
             fill(img, all, tinted([26.0, 44.0, 32.0], t), |x, y| {
                 in_ellipse(x, y, 32.0, 16.0, 20.0, 5.0)

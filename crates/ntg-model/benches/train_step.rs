@@ -122,6 +122,7 @@ fn train_steps(c: &mut Criterion) {
                             ne_gcn.clone(),
                             model.localizer.node_embeddings().detach(),
                             mask.clone(),
+                            None,
                         )
                         .unwrap();
                     let out = model.edges.loss(logits, next_ids.clone()).unwrap();

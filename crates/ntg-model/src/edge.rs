@@ -131,22 +131,10 @@ impl EdgeClassifier {
     /// - `nodes` `[B]`: the current node `n` of each row (ids below `N`);
     /// - `ne_gcn` `[B, N, H_gcn]`: each row's task graph node embeddings;
     /// - `ne_loc` `[N, H_loc]`: localizer node embeddings;
-    /// - `successors` `[B, N]`: true at the CTG successors of `n`.
+    /// - `successors` `[B, N]`: true at the CTG successors of `n`;
+    /// - `memory` `[B, M]`: each row's execution memory, required when the
+    ///   classifier was built with a memory and refused otherwise.
     pub fn forward(
-        &self,
-        obs: Tensor<2>,
-        nodes: Tensor<1, Int>,
-        ne_gcn: Tensor<3>,
-        ne_loc: Tensor<2>,
-        successors: Tensor<2, Bool>,
-    ) -> Result<Tensor<2>> {
-        self.forward_with_memory(obs, nodes, ne_gcn, ne_loc, successors, None)
-    }
-
-    /// [`EdgeClassifier::forward`] with each row's execution memory `[B, M]`
-    /// (required when the classifier was built with a memory, refused
-    /// otherwise).
-    pub fn forward_with_memory(
         &self,
         obs: Tensor<2>,
         nodes: Tensor<1, Int>,
@@ -163,52 +151,25 @@ impl EdgeClassifier {
                 (nodes.dims(), ne_gcn.dims()),
             ));
         }
-        let index = nodes.reshape([b, 1, 1]).expand([b, 1, h]);
-        let rows = ne_gcn.gather(1, index).reshape([b, h]);
-        let encoded = self.encoder.forward(obs)?;
-        self.forward_rows_with_memory(encoded, rows, ne_loc, successors, memory)
-    }
-
-    /// Masked edge logits from encoded observations `[B, H_enc]`, the
-    /// current nodes' GCN embeddings `[B, H_gcn]`, `NE_loc` `[N, H_loc]` and
-    /// successor masks `[B, N]`.
-    pub fn forward_rows(
-        &self,
-        encoded: Tensor<2>,
-        node_gcn: Tensor<2>,
-        ne_loc: Tensor<2>,
-        successors: Tensor<2, Bool>,
-    ) -> Result<Tensor<2>> {
-        self.forward_rows_with_memory(encoded, node_gcn, ne_loc, successors, None)
-    }
-
-    /// [`EdgeClassifier::forward_rows`] with each row's execution memory
-    /// `[B, M]` (see [`EdgeClassifier::forward_with_memory`]).
-    pub fn forward_rows_with_memory(
-        &self,
-        encoded: Tensor<2>,
-        node_gcn: Tensor<2>,
-        ne_loc: Tensor<2>,
-        successors: Tensor<2, Bool>,
-        memory: Option<Tensor<2>>,
-    ) -> Result<Tensor<2>> {
-        let [b, _] = encoded.dims();
         self.check_memory(b, memory.as_ref())?;
         let loc_dim = self.w.weight.dims()[1];
-        if node_gcn.dims() != [b, self.gcn_dim]
+        if obs.dims()[0] != b
             || ne_loc.dims() != [self.num_nodes, loc_dim]
             || successors.dims() != [b, self.num_nodes]
         {
             return Err(ModelError::shape(
                 "edge classifier inputs",
                 format!(
-                    "NE_gcn rows [{b}, {}], NE_loc [{}, {loc_dim}], successors [{b}, {}]",
-                    self.gcn_dim, self.num_nodes, self.num_nodes
+                    "observations [{b}, D], NE_loc [{}, {loc_dim}], successors [{b}, {}]",
+                    self.num_nodes, self.num_nodes
                 ),
-                (node_gcn.dims(), ne_loc.dims(), successors.dims()),
+                (obs.dims(), ne_loc.dims(), successors.dims()),
             ));
         }
-        let logits = self.unmasked_logits(encoded, node_gcn, ne_loc, memory);
+        let index = nodes.reshape([b, 1, 1]).expand([b, 1, h]);
+        let rows = ne_gcn.gather(1, index).reshape([b, h]);
+        let encoded = self.encoder.forward(obs)?;
+        let logits = self.unmasked_logits(encoded, rows, ne_loc, memory);
         Ok(mask_logits(logits, successors))
     }
 

@@ -494,6 +494,7 @@ fn masked_edge_logits_never_choose_a_non_successor() {
             ne_gcn,
             model.localizer.node_embeddings(),
             masks,
+            None,
         )
         .unwrap();
     assert_eq!(logits.dims(), [b, N]);
@@ -955,7 +956,7 @@ fn the_edge_classifier_reads_its_memory_and_refuses_a_missing_one() {
     let ne_gcn = model.gcn.initial_embeddings(b);
     let all = Tensor::<2, Bool>::from_data(TensorData::new(vec![true; b * N], [b, N]), &dev);
     let forward = |m: &NtgModel, memory: Option<Vec<Vec<f32>>>| {
-        m.edges.forward_with_memory(
+        m.edges.forward(
             obs.clone(),
             nodes.clone(),
             ne_gcn.clone(),
@@ -1038,6 +1039,7 @@ fn only_the_fusion_layer_learns_a_node_dependent_observation_rule() {
                     model.gcn.initial_embeddings(b),
                     model.localizer.node_embeddings(),
                     Tensor::<2, Bool>::from_data(TensorData::new(mask.clone(), [b, N]), &dev),
+                    None,
                 )
                 .unwrap();
             let out = model
@@ -1172,6 +1174,7 @@ fn weighted_edge_loss_is_a_weighted_mean_over_rows() {
             model.gcn.initial_embeddings(b),
             model.localizer.node_embeddings(),
             all,
+            None,
         )
         .unwrap();
     let next = ids_tensor(&ids(&[3, 4, 5, 6, 2, 3]), N, &dev).unwrap();

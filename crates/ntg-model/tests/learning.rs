@@ -336,6 +336,7 @@ fn localizer_and_edge_classifier_replay_paths_with_revisits() {
                 ne_gcn,
                 model.localizer.node_embeddings(),
                 mask,
+                None,
             )
             .unwrap();
         let edge = model.edges.loss(edge_logits, next_ids).unwrap();

@@ -471,7 +471,7 @@ impl TrainStep<NtgModel> for NtgStep<'_> {
         } else {
             None
         };
-        let mut edge_logits = model.edges.forward_with_memory(
+        let mut edge_logits = model.edges.forward(
             e_obs_tensor,
             e_node_ids.clone(),
             row_ne_gcn,
