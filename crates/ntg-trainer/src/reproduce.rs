@@ -50,7 +50,7 @@ pub fn reproduce(
     let ntp_exp_file: ntp_exp::NtpExpExperiment = experiment::load("ntp_exp", experiments)?;
     let thor_all_file: thor_all::ThorAllExperiment = experiment::load("thor_all", experiments)?;
     // First, so a wrong --jigsaws-root fails before the long runs.
-    let jigsaws = crate::jigsaws::reproduce(profile, jigsaws_root, runs, out)?;
+    let jigsaws = crate::jigsaws::reproduce(profile, jigsaws_root, runs, out, experiments)?;
     let points = ntp_exp::run(&ntp_exp_file, profile, runs)?;
     let thor_all = thor_all::run(&thor_all_file, profile, runs)?;
     let results = Results {

@@ -128,7 +128,7 @@ fn nll(args: &NllArgs, out: &mut impl Write, err: &mut impl Write) -> anyhow::Re
             duration_scale: 1.0,
         },
     };
-    let mut config = JigsawsConfig::for_profile(args.profile, source);
+    let mut config = JigsawsConfig::for_profile(args.profile, source, Default::default())?;
     if let Some(epochs) = args.epochs {
         config.optim.epochs = epochs;
     }

@@ -161,7 +161,7 @@ fn one() -> usize {
 
 /// A set of training choices for block stacking: what `ntg train` starts
 /// from (`--recipe`). (`ntg reproduce`'s figure keeps its own
-/// configuration, see `reproduce.rs`.)
+/// configuration, see `experiments/ntp_exp.toml`.)
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Recipe {

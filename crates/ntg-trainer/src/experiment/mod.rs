@@ -8,7 +8,9 @@
 //! One module per figure turns its file into runs through the shared
 //! training and evaluation code ([`crate::fit`], [`crate::domain`]) and
 //! draws the result: [`ntp_exp`] (block stacking, success vs training
-//! tasks) and [`thor_all`] (object collection, success vs objects).
+//! tasks) and [`thor_all`] (object collection, success vs objects); fig.
+//! "jigsaws" reads `jigsaws.toml` through
+//! [`crate::jigsaws::JigsawsConfig::for_profile`].
 
 use std::path::Path;
 
@@ -23,9 +25,10 @@ pub mod ntp_exp;
 pub mod thor_all;
 
 /// The experiment files compiled in: `(name, contents)`.
-pub const BUILT_IN: [(&str, &str); 2] = [
+pub const BUILT_IN: [(&str, &str); 3] = [
     ("ntp_exp", include_str!("../../experiments/ntp_exp.toml")),
     ("thor_all", include_str!("../../experiments/thor_all.toml")),
+    ("jigsaws", include_str!("../../experiments/jigsaws.toml")),
 ];
 
 /// One table per profile.
@@ -49,6 +52,15 @@ impl<P> Profiles<P> {
             Profile::Paper => &self.paper,
         }
     }
+}
+
+/// A profile's table that only sets fields of the run configuration.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProfileOverrides {
+    /// Fields of the run configuration set at this profile.
+    #[serde(default)]
+    pub overrides: toml::Table,
 }
 
 /// Where experiment files are read from.

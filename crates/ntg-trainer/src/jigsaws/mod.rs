@@ -362,35 +362,37 @@ pub fn default_prior_weights() -> Vec<f64> {
 }
 
 impl JigsawsConfig {
-    /// The configuration of `profile` on `source`.
-    ///
-    /// Budgets (release build, 2 quiet CPU cores): smoke about 30 s, quick
-    /// about 2 minutes, paper longer.
-    pub fn for_profile(profile: Profile, source: DataSource) -> JigsawsConfig {
-        let (epochs, eval_every) = match profile {
-            Profile::Smoke => (2, 1),
-            Profile::Quick => (40, 4),
-            Profile::Paper => (100, 5),
-        };
-        JigsawsConfig {
-            source,
-            observation: ObservationConfig::default(),
-            model_seed: 0,
-            optim: OptimConfig {
-                epochs,
-                batch_size: 8,
-                learning_rate: 3e-3,
-                seed: 0,
-                token_dropout: 0.0,
-                cosine_decay: false,
-                gcn_from_other_demo: true,
-            },
-            smoothing: DEFAULT_SMOOTHING,
-            validation_every: 5,
-            eval_every,
-            soft_edges: true,
-            prior_weights: default_prior_weights(),
+    /// The configuration of `profile` on `source`, from the experiment
+    /// file `experiments/jigsaws.toml` (built in, or read from `DIR` with
+    /// `--experiments DIR`).
+    pub fn for_profile(
+        profile: Profile,
+        source: DataSource,
+        experiments: crate::experiment::Source<'_>,
+    ) -> anyhow::Result<JigsawsConfig> {
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct File {
+            config: toml::Table,
+            profiles: crate::experiment::Profiles<crate::experiment::ProfileOverrides>,
         }
+        let file: File = crate::experiment::load("jigsaws", experiments)?;
+        let mut base = serde_json::to_value(&file.config)?;
+        let object = base
+            .as_object_mut()
+            .context("experiments/jigsaws.toml: [config] is not a table")?;
+        object.insert("source".into(), serde_json::to_value(&source)?);
+        object.insert(
+            "observation".into(),
+            serde_json::to_value(ObservationConfig::default())?,
+        );
+        let base: JigsawsConfig =
+            serde_json::from_value(base).context("experiments/jigsaws.toml: invalid [config]")?;
+        crate::experiment::with_overrides(
+            &base,
+            &file.profiles.get(profile).overrides,
+            "experiments/jigsaws.toml",
+        )
     }
 
     fn validate(&self) -> anyhow::Result<()> {

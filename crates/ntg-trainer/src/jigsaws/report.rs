@@ -11,6 +11,7 @@ pub fn reproduce(
     root: Option<&Path>,
     runs: &Path,
     out: &Path,
+    experiments: crate::experiment::Source<'_>,
 ) -> anyhow::Result<JigsawsResult> {
     let source = match root {
         Some(path) => DataSource::Root {
@@ -21,7 +22,7 @@ pub fn reproduce(
             duration_scale: 1.0,
         },
     };
-    let config = JigsawsConfig::for_profile(profile, source);
+    let config = JigsawsConfig::for_profile(profile, source, experiments)?;
     let mut result = run_experiment(&config, runs, |line| eprintln!("{line}"))?;
     // The table multiplies the experiment's cost by ten: the paper profile
     // runs it; at the quick profile (whose whole run must fit 15 minutes

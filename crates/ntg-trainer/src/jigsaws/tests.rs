@@ -137,7 +137,7 @@ fn missing_tasks_and_bad_roots_are_clear_errors() {
     let err = format!("{:#}", load_source(&empty).unwrap_err());
     assert!(err.contains("no JIGSAWS task folder"), "{err}");
 
-    let mut config = JigsawsConfig::for_profile(Profile::Smoke, empty);
+    let mut config = JigsawsConfig::for_profile(Profile::Smoke, empty, Default::default()).unwrap();
     config.smoothing = 1.0;
     let err = run_experiment(&config, dir.path(), |_| {}).unwrap_err();
     assert!(err.to_string().contains("smoothing"), "{err}");
@@ -215,7 +215,9 @@ fn full_methods_share_one_run_and_select_the_prior_weight() {
             seed: 5,
             duration_scale: 0.3,
         },
-    );
+        Default::default(),
+    )
+    .unwrap();
     assert!(config.soft_edges && config.optim.gcn_from_other_demo);
     config.optim.epochs = 6;
     config.eval_every = 3;
@@ -422,7 +424,8 @@ fn seed_settings_change_one_seed_and_the_table_counts_wins() {
         seed: 0,
         duration_scale: 1.0,
     };
-    let base = JigsawsConfig::for_profile(Profile::Quick, synth.clone());
+    let base =
+        JigsawsConfig::for_profile(Profile::Quick, synth.clone(), Default::default()).unwrap();
     let all = SeedSetting::all(&synth);
     assert_eq!(all.len(), 9);
     let names: Vec<String> = all.iter().map(|s| s.name()).collect();
@@ -444,7 +447,7 @@ fn seed_settings_change_one_seed_and_the_table_counts_wins() {
             .iter()
             .all(|s| !matches!(s, SeedSetting::Data(_)))
     );
-    let on_disk = JigsawsConfig::for_profile(Profile::Quick, root);
+    let on_disk = JigsawsConfig::for_profile(Profile::Quick, root, Default::default()).unwrap();
     let err = SeedSetting::Data(1).apply(&on_disk).unwrap_err();
     assert!(err.to_string().contains("no data seed"), "{err}");
 
@@ -491,4 +494,42 @@ fn smoothed_nll_of_known_distributions() {
     // Certainty: −ln(1 − ε + ε/16).
     let (nll, _) = smoothed_nll(0.0, 0.01, 16);
     assert!((nll + (0.99 + 0.01 / 16.0f64).ln()).abs() < 1e-12);
+}
+
+/// The built-in `experiments/jigsaws.toml` gives the configurations the
+/// figure was measured with (built in code before the figure was a file).
+#[test]
+fn the_built_in_file_gives_the_configurations_the_figure_was_measured_with() {
+    let source = DataSource::Synthetic {
+        seed: 0,
+        duration_scale: 1.0,
+    };
+    for (profile, epochs, eval_every) in [
+        (Profile::Smoke, 2, 1),
+        (Profile::Quick, 40, 4),
+        (Profile::Paper, 100, 5),
+    ] {
+        let expected = JigsawsConfig {
+            source: source.clone(),
+            observation: ObservationConfig::default(),
+            model_seed: 0,
+            optim: OptimConfig {
+                epochs,
+                batch_size: 8,
+                learning_rate: 3e-3,
+                seed: 0,
+                token_dropout: 0.0,
+                cosine_decay: false,
+                gcn_from_other_demo: true,
+            },
+            smoothing: DEFAULT_SMOOTHING,
+            validation_every: 5,
+            eval_every,
+            soft_edges: true,
+            prior_weights: default_prior_weights(),
+        };
+        let config =
+            JigsawsConfig::for_profile(profile, source.clone(), Default::default()).unwrap();
+        assert_eq!(config, expected, "{profile:?}");
+    }
 }
