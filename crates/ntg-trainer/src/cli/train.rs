@@ -206,29 +206,23 @@ pub fn run_train(args: &TrainArgs) -> anyhow::Result<()> {
 /// with `--objects` targets (`--train-tasks` distinct tasks per N).
 fn train_collect(args: &TrainArgs) -> anyhow::Result<()> {
     let c = &args.collect;
-    let config = crate::collect::CollectRunConfig {
-        domain: "collect".into(),
-        method: c.method,
-        obs: args.obs,
-        train_objects: c.objects.clone(),
-        tasks_per_n: args.train_tasks,
-        demos_per_task: args.demos_per_task,
-        segments: !c.no_segments,
-        learn_end: c.learn_end,
-        memory: c.memory,
-        interpreter: c.interpreter,
-        location_step_prior: c.location_step_prior(),
-        model_seed: args.seed,
-        optim: OptimConfig {
-            epochs: args.epochs,
-            batch_size: args.batch_size,
-            learning_rate: args.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE),
-            seed: args.seed,
-            token_dropout: 0.0,
-            cosine_decay: args.cosine_decay,
-            gcn_from_other_demo: false,
-        },
-    };
+    let mut config = crate::collect::CollectRunConfig::new(
+        c.method,
+        args.obs,
+        c.objects.clone(),
+        args.train_tasks,
+        args.demos_per_task,
+        args.epochs,
+        args.seed,
+    );
+    config.segments = !c.no_segments;
+    config.learn_end = c.learn_end;
+    config.memory = c.memory;
+    config.interpreter = c.interpreter;
+    config.location_step_prior = c.location_step_prior();
+    config.optim.batch_size = args.batch_size;
+    config.optim.learning_rate = args.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE);
+    config.optim.cosine_decay = args.cosine_decay;
     config.validate()?;
     let run = RunDir::start_or_resume(&args.out, &config, args.resume, "")?;
     eprintln!(
