@@ -10,9 +10,9 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
+use crate::experiment::Source;
 use crate::experiment::ntp_exp::{self, NtpExpPoint};
 use crate::experiment::thor_all::{self, ThorAllResult};
-use crate::experiment::{self, Source};
 use crate::run_dir::RunDir;
 
 pub use crate::spec::Profile;
@@ -46,9 +46,14 @@ pub fn reproduce(
     experiments: Source<'_>,
 ) -> anyhow::Result<Results> {
     let started = Instant::now();
-    // Read every experiment file first, so a bad edit fails before the runs.
-    let ntp_exp_file: ntp_exp::NtpExpExperiment = experiment::load("ntp_exp", experiments)?;
-    let thor_all_file: thor_all::ThorAllExperiment = experiment::load("thor_all", experiments)?;
+    // Read and check every experiment file first, so a bad edit fails
+    // before the long runs.
+    let ntp_exp_file = ntp_exp::NtpExpExperiment::load(experiments)?;
+    ntp_exp_file.run_configs(profile)?;
+    let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
+    for &method in &thor_all_file.methods {
+        thor_all_file.run_config(profile, method)?;
+    }
     // First, so a wrong --jigsaws-root fails before the long runs.
     let jigsaws = crate::jigsaws::reproduce(profile, jigsaws_root, runs, out, experiments)?;
     let points = ntp_exp::run(&ntp_exp_file, profile, runs)?;

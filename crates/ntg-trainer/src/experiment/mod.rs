@@ -73,9 +73,10 @@ pub enum Source<'a> {
     Dir(&'a Path),
 }
 
-/// Reads and parses experiment `name` (e.g. `ntp_exp`) from `source`; errors
-/// name the file and the problem.
-pub fn load<T: DeserializeOwned>(name: &str, source: Source<'_>) -> anyhow::Result<T> {
+/// Reads and parses experiment `name` (e.g. `ntp_exp`) from `source`, and
+/// says where it came from (for messages); errors name the file and the
+/// problem.
+pub fn load<T: DeserializeOwned>(name: &str, source: Source<'_>) -> anyhow::Result<(T, String)> {
     let (text, origin) = match source {
         Source::BuiltIn => {
             let text = BUILT_IN
@@ -92,7 +93,8 @@ pub fn load<T: DeserializeOwned>(name: &str, source: Source<'_>) -> anyhow::Resu
             (text, path.display().to_string())
         }
     };
-    toml::from_str(&text).with_context(|| format!("{origin}: invalid experiment"))
+    let value = toml::from_str(&text).with_context(|| format!("{origin}: invalid experiment"))?;
+    Ok((value, origin))
 }
 
 /// `base` with the fields named in `overrides` replaced (nested tables
@@ -175,8 +177,9 @@ mod tests {
 
     #[test]
     fn every_built_in_experiment_parses() {
-        let _: ntp_exp::NtpExpExperiment = load("ntp_exp", Source::BuiltIn).unwrap();
-        let _: thor_all::ThorAllExperiment = load("thor_all", Source::BuiltIn).unwrap();
+        let e = ntp_exp::NtpExpExperiment::load(Source::BuiltIn).unwrap();
+        assert_eq!(e.origin, "experiments/ntp_exp.toml (built in)");
+        thor_all::ThorAllExperiment::load(Source::BuiltIn).unwrap();
         let err = format!(
             "{:#}",
             load::<ntp_exp::NtpExpExperiment>("nope", Source::BuiltIn).unwrap_err()
@@ -201,5 +204,21 @@ mod tests {
             load::<ntp_exp::NtpExpExperiment>("thor_all", Source::Dir(dir.path())).unwrap_err()
         );
         assert!(err.contains("thor_all.toml"), "{err}");
+    }
+
+    #[test]
+    fn a_misspelt_setting_in_an_edited_copy_is_an_error_naming_the_copy() {
+        let dir = tempfile::tempdir().unwrap();
+        let (_, built_in) = BUILT_IN.iter().find(|(n, _)| *n == "ntp_exp").unwrap();
+        let edited = built_in.replace("pairwise = true", "pairwse = true");
+        assert_ne!(&edited, built_in);
+        std::fs::write(dir.path().join("ntp_exp.toml"), edited).unwrap();
+        let experiment = ntp_exp::NtpExpExperiment::load(Source::Dir(dir.path())).unwrap();
+        let err = format!("{:#}", experiment.run_configs(Profile::Quick).unwrap_err());
+        assert!(
+            err.contains("ntp_exp.toml") && err.contains("unknown setting `pairwse`"),
+            "{err}"
+        );
+        assert!(!err.contains("built in"), "{err}");
     }
 }

@@ -35,6 +35,9 @@ pub struct NtpExpExperiment {
     pub overrides: toml::Table,
     /// The scale of each profile.
     pub profiles: crate::experiment::Profiles<NtpExpProfile>,
+    /// Where the file was read from (for messages).
+    #[serde(skip)]
+    pub origin: String,
 }
 
 /// The figure at one profile.
@@ -79,6 +82,24 @@ impl PanelScale {
 }
 
 impl NtpExpExperiment {
+    /// Reads `ntp_exp.toml` from `source`.
+    pub fn load(source: crate::experiment::Source<'_>) -> anyhow::Result<Self> {
+        let (mut experiment, origin): (Self, String) = crate::experiment::load("ntp_exp", source)?;
+        experiment.origin = origin;
+        Ok(experiment)
+    }
+
+    /// Every run configuration of the figure at `profile`, checked.
+    pub fn run_configs(&self, profile: Profile) -> anyhow::Result<Vec<BlocksRunConfig>> {
+        let mut configs = Vec::new();
+        for panel in &self.profiles.get(profile).panels {
+            for &n in &panel.train_tasks {
+                configs.push(self.run_config(profile, panel, n)?);
+            }
+        }
+        Ok(configs)
+    }
+
     /// The run configuration of the point with `train_tasks` tasks of
     /// `panel` at `profile`: the recipe's, with the experiment's and the
     /// profile's overrides, at least `panel.min_steps` steps, and
@@ -91,12 +112,13 @@ impl NtpExpExperiment {
     ) -> anyhow::Result<BlocksRunConfig> {
         anyhow::ensure!(
             self.domain == DomainId::Blocks && self.method == MethodId::Ntg,
-            "ntp_exp trains NTG on block stacking (domain = \"blocks\", method = \"ntg\")"
+            "{}: ntp_exp trains NTG on block stacking (domain = \"blocks\", method = \"ntg\")",
+            self.origin
         );
         let base = self
             .recipe
             .config(panel.obs, train_tasks, panel.demos_per_task, 1, self.seed);
-        let what = "experiments/ntp_exp.toml";
+        let what = self.origin.as_str();
         let config = crate::experiment::with_overrides(&base, &self.overrides, what)?;
         let mut config = crate::experiment::with_overrides(
             &config,
@@ -322,8 +344,7 @@ mod tests {
 
     #[test]
     fn the_built_in_file_gives_the_configurations_the_figure_was_measured_with() {
-        let experiment: NtpExpExperiment =
-            crate::experiment::load("ntp_exp", crate::experiment::Source::BuiltIn).unwrap();
+        let experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
         let quick = experiment.profiles.get(Profile::Quick);
         let state = &quick.panels[0];
         // What reproduce.rs built in code before the figure was a file.

@@ -33,6 +33,9 @@ pub struct ThorAllExperiment {
     pub overrides: BTreeMap<String, toml::Table>,
     /// The scale of each profile.
     pub profiles: Profiles<ThorAllScale>,
+    /// Where the file was read from (for messages).
+    #[serde(skip)]
+    pub origin: String,
 }
 
 /// The scale of fig. "thor_all" under a profile (one table of the
@@ -96,6 +99,13 @@ pub struct ThorAllResult {
 }
 
 impl ThorAllExperiment {
+    /// Reads `thor_all.toml` from `source`.
+    pub fn load(source: crate::experiment::Source<'_>) -> anyhow::Result<Self> {
+        let (mut experiment, origin): (Self, String) = crate::experiment::load("thor_all", source)?;
+        experiment.origin = origin;
+        Ok(experiment)
+    }
+
     /// The run configuration of `method` at `profile`.
     pub fn run_config(
         &self,
@@ -104,7 +114,8 @@ impl ThorAllExperiment {
     ) -> anyhow::Result<CollectRunConfig> {
         ensure!(
             self.domain == DomainId::Collect,
-            "thor_all trains on object collection (domain = \"collect\")"
+            "{}: thor_all trains on object collection (domain = \"collect\")",
+            self.origin
         );
         let scale = self.profiles.get(profile);
         let epochs = match method {
@@ -129,7 +140,7 @@ impl ThorAllExperiment {
             .get(method.name())
             .cloned()
             .unwrap_or_default();
-        crate::experiment::with_overrides(&config, &overrides, "experiments/thor_all.toml")
+        crate::experiment::with_overrides(&config, &overrides, &self.origin)
     }
 }
 
@@ -373,7 +384,7 @@ mod tests {
     #[test]
     fn comparison_sentence_groups_each_n_by_its_intervals() {
         let result = ThorAllResult {
-            scale: crate::experiment::load::<ThorAllExperiment>("thor_all", Default::default())
+            scale: ThorAllExperiment::load(Default::default())
                 .unwrap()
                 .profiles
                 .smoke,
@@ -397,8 +408,7 @@ mod tests {
 
     #[test]
     fn the_built_in_file_gives_the_configurations_the_figure_was_measured_with() {
-        let experiment: ThorAllExperiment =
-            crate::experiment::load("thor_all", crate::experiment::Source::BuiltIn).unwrap();
+        let experiment = ThorAllExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
         assert_eq!(experiment.methods, [MethodId::Ntg, MethodId::Flat]);
         for method in [MethodId::Ntg, MethodId::Flat] {
             let ntg = method == MethodId::Ntg;

@@ -376,11 +376,11 @@ impl JigsawsConfig {
             config: toml::Table,
             profiles: crate::experiment::Profiles<crate::experiment::ProfileOverrides>,
         }
-        let file: File = crate::experiment::load("jigsaws", experiments)?;
+        let (file, origin): (File, String) = crate::experiment::load("jigsaws", experiments)?;
         let mut base = serde_json::to_value(&file.config)?;
         let object = base
             .as_object_mut()
-            .context("experiments/jigsaws.toml: [config] is not a table")?;
+            .with_context(|| format!("{origin}: [config] is not a table"))?;
         object.insert("source".into(), serde_json::to_value(&source)?);
         object.insert(
             "observation".into(),
