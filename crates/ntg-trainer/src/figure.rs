@@ -37,6 +37,23 @@ pub struct Point {
     pub hi: f64,
 }
 
+impl Point {
+    /// A success rate at `x`, with its 95% interval as the error bar.
+    pub fn success(x: f64, rate: &crate::stats::SuccessRate) -> Self {
+        Point {
+            x,
+            y: rate.rate,
+            lo: rate.ci_low,
+            hi: rate.ci_high,
+        }
+    }
+
+    /// A value at `x` without an error bar.
+    pub fn exact(x: f64, y: f64) -> Self {
+        Point { x, y, lo: y, hi: y }
+    }
+}
+
 /// One line of a panel (a method).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Series {

@@ -240,12 +240,7 @@ pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
                 points: points
                     .iter()
                     .filter(|p| p.obs == obs)
-                    .map(|p| Point {
-                        x: p.train_tasks as f64,
-                        y: p.success.rate,
-                        lo: p.success.ci_low,
-                        hi: p.success.ci_high,
-                    })
+                    .map(|p| Point::success(p.train_tasks as f64, &p.success))
                     .collect(),
             },
             // Partial progress, so that reduced profiles, where whole tasks
@@ -255,12 +250,7 @@ pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
                 points: points
                     .iter()
                     .filter(|p| p.obs == obs)
-                    .map(|p| Point {
-                        x: p.train_tasks as f64,
-                        y: p.goal_fraction,
-                        lo: p.goal_fraction,
-                        hi: p.goal_fraction,
-                    })
+                    .map(|p| Point::exact(p.train_tasks as f64, p.goal_fraction))
                     .collect(),
             },
         ],

@@ -215,12 +215,7 @@ pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
                 points: l
                     .points
                     .iter()
-                    .map(|p| Point {
-                        x: p.objects as f64,
-                        y: p.success.rate,
-                        lo: p.success.ci_low,
-                        hi: p.success.ci_high,
-                    })
+                    .map(|p| Point::success(p.objects as f64, &p.success))
                     .collect(),
             })
             .collect(),
