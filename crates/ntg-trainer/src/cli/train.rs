@@ -255,7 +255,7 @@ fn eval_collect(
     }
     let model = crate::collect::load_model(run, config)?;
     let result = crate::collect::evaluate(
-        &model,
+        model.as_ref(),
         config.method,
         config.obs,
         &crate::collect::EVAL_OBJECTS,

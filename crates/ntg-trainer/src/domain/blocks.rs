@@ -19,7 +19,6 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::DemoDataset;
 use crate::domain::{self, Domain, Episode, EpisodeRecord};
 use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore};
-use crate::method::Model;
 use crate::method::ntg::{EpochMetrics, NtgTraining, TrainExtras, train_with};
 use crate::run_dir::RunDir;
 pub use crate::spec::ObsKind;
@@ -618,11 +617,7 @@ pub fn evaluate_tasks(
             rollout_seed: seeds.rollout + i as u64,
         })
         .collect();
-    let records = domain::evaluate(
-        &BlocksDomain::new(obs, failures),
-        &Model::Ntg(model),
-        &episodes,
-    )?;
+    let records = domain::evaluate(&BlocksDomain::new(obs, failures), &model, &episodes)?;
     Ok(EvalResult {
         variant: variant.name().to_owned(),
         success: domain::success_rate(&records),

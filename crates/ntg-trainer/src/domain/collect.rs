@@ -32,7 +32,7 @@ use crate::domain::{self, Domain, Episode, EpisodeRecord};
 use crate::fit::{OptimConfig, fit};
 use crate::method::flat::{FlatEpochMetrics, FlatStep, FlatTraining};
 use crate::method::ntg::{EpochMetrics, GcnSource, NtgStep, NtgTraining};
-use crate::method::{MethodId, Model};
+use crate::method::{MethodId, Model, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
@@ -364,7 +364,7 @@ pub fn train_run(
             let model = fit(model, &step, &config.optim, run, device, None, |m| {
                 on_epoch(Progress::Ntg(m))
             })?;
-            Ok(Model::Ntg(model))
+            Ok(Box::new(model))
         }
         MethodId::Flat => {
             let policy = FlatPolicyConfig::new(n, encoder(config.obs))
@@ -379,7 +379,7 @@ pub fn train_run(
             let policy = fit(policy, &step, &config.optim, run, device, None, |m| {
                 on_epoch(Progress::Flat(m))
             })?;
-            Ok(Model::Flat(policy))
+            Ok(Box::new(policy))
         }
     }
 }
@@ -486,7 +486,7 @@ impl Domain for CollectDomain {
 /// Evaluates `model` on `episodes` unseen test episodes for each N in
 /// `objects`, in parallel.
 pub fn evaluate(
-    model: &Model,
+    model: &dyn TrainedPolicy,
     method: MethodId,
     obs: ObsKind,
     objects: &[usize],
@@ -552,9 +552,14 @@ mod tests {
     }
 
     fn weights(model: &Model) -> Vec<f32> {
-        match model {
-            Model::Ntg(m) => to_vec(m.edges.w.weight.val()).unwrap(),
-            Model::Flat(p) => to_vec(p.out.weight.val()).unwrap(),
+        let any = model.as_any();
+        match (
+            any.downcast_ref::<ntg_model::NtgModel>(),
+            any.downcast_ref::<ntg_model::FlatPolicy>(),
+        ) {
+            (Some(m), _) => to_vec(m.edges.w.weight.val()).unwrap(),
+            (_, Some(p)) => to_vec(p.out.weight.val()).unwrap(),
+            _ => panic!("a model of another method"),
         }
     }
 
@@ -567,7 +572,7 @@ mod tests {
             let run = RunDir::open_or_create(&dir.path().join(method.name()), &config).unwrap();
             let model = train_run(&run, &config, &device, |_| {}).unwrap();
             assert!(run.epoch_seconds().unwrap() > 0.0);
-            let eval = evaluate(&model, method, ObsKind::State, &[1, 3], 2).unwrap();
+            let eval = evaluate(model.as_ref(), method, ObsKind::State, &[1, 3], 2).unwrap();
             assert_eq!(eval.episodes.len(), 4);
             assert_eq!(eval.points.len(), 2);
             assert_eq!(eval.points[1].objects, 3);
@@ -675,7 +680,7 @@ mod tests {
             };
             let run = RunDir::open_or_create(&dir.path().join(method.name()), &config).unwrap();
             let model = train_run(&run, &config, &device, |_| {}).unwrap();
-            let eval = evaluate(&model, method, ObsKind::State, &[2], 2).unwrap();
+            let eval = evaluate(model.as_ref(), method, ObsKind::State, &[2], 2).unwrap();
             assert_eq!(eval.episodes.len(), 2);
         }
     }

@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
 use crate::evaluate::in_parallel;
-use crate::method::Model;
+use crate::method::TrainedPolicy;
 use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
 
@@ -170,18 +170,18 @@ pub fn record_demos<D: Domain>(
 /// until the episode ends (`<end>` or the step limit).
 pub fn evaluate<D: Domain>(
     domain: &D,
-    model: &Model,
+    model: &dyn TrainedPolicy,
     episodes: &[Episode<D::Task>],
 ) -> anyhow::Result<Vec<EpisodeRecord>> {
-    let model = model.valid();
+    let model = model.for_inference();
     in_parallel(episodes, "rollouts", |_, episode| {
-        run_episode(domain, &model, episode)
+        run_episode(domain, model.as_ref(), episode)
     })
 }
 
 fn run_episode<D: Domain>(
     domain: &D,
-    model: &Model,
+    model: &dyn TrainedPolicy,
     episode: &Episode<D::Task>,
 ) -> anyhow::Result<EpisodeRecord> {
     let name = domain.task_name(&episode.task);

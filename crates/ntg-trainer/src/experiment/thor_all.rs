@@ -167,7 +167,7 @@ pub fn run(
         let model = train_run(&run, &config, &device, |p| eprintln!("  {}", p.line()))?;
         let eval = run.cached_eval(&format!("collect-{}.json", scale.test_episodes), || {
             evaluate(
-                &model,
+                model.as_ref(),
                 method,
                 scale.obs,
                 &EVAL_OBJECTS,

@@ -6,14 +6,18 @@
 use std::collections::BTreeMap;
 
 use anyhow::bail;
+use burn::module::Module;
 use burn::tensor::Device;
-use ctg_graph::Vocabulary;
-use ntg_model::{EdgeCounts, FlatBatch, FlatExample, FlatPolicy, executed_actions};
+use ctg_graph::{ActionId, Vocabulary};
+use ntg_model::{
+    ConditionedFlatPolicy, EdgeCounts, FlatBatch, FlatExample, FlatPolicy, executed_actions,
+};
 use rand::seq::IndexedRandom;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::DemoDataset;
-use crate::fit::{StepContext, StepReport, TrainStep, scalar};
+use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel, scalar};
+use crate::method::{Agent, Model, TrainedPolicy};
 
 /// Metrics of one Flat Policy epoch, as logged to `metrics.jsonl`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -158,5 +162,57 @@ impl TrainStep<FlatPolicy> for FlatStep<'_> {
             step_accuracy: means[1],
             seconds,
         }
+    }
+}
+
+/// The Flat Policy in the method registry.
+pub struct Flat;
+
+impl crate::method::Method for Flat {
+    fn name(&self) -> &'static str {
+        "flat"
+    }
+    fn legend(&self) -> &'static str {
+        "Flat Policy"
+    }
+    fn load(&self, dir: &std::path::Path, device: &Device) -> anyhow::Result<Model> {
+        Ok(Box::new(FlatPolicy::load_from(dir, device)?))
+    }
+}
+
+impl TrainedPolicy for FlatPolicy {
+    fn for_inference(&self) -> Model {
+        Box::new(self.valid())
+    }
+    fn condition(
+        &self,
+        demo: &[Vec<f32>],
+        _: &ctg_graph::Vocabulary,
+    ) -> anyhow::Result<Box<dyn Agent>> {
+        Ok(Box::new(FlatAgent {
+            policy: FlatPolicy::condition(self, demo)?,
+            memory: self.memory_dim() > 0,
+            num_nodes: self.num_nodes(),
+        }))
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
+/// The Flat Policy conditioned on a demo.
+struct FlatAgent {
+    policy: ConditionedFlatPolicy,
+    /// Whether it reads the actions taken so far.
+    memory: bool,
+    num_nodes: usize,
+}
+
+impl Agent for FlatAgent {
+    fn act(&self, row: &[f32], executed: &[ActionId]) -> anyhow::Result<ActionId> {
+        let m = self
+            .memory
+            .then(|| executed_actions(self.num_nodes, executed));
+        Ok(self.policy.next_action_with_memory(row, m.as_deref())?)
     }
 }

@@ -1,145 +1,137 @@
-//! Training methods, one file each, registered in [`MethodId`]: NTG
-//! ([`ntg`]) and the Flat Policy baseline ([`flat`]). A method is a
-//! [`crate::fit::TrainStep`] (its loss on a batch and its metrics line)
-//! plus a model type [`crate::fit::TrainedModel`]; [`crate::fit::fit`]
-//! trains every method the same way.
+//! Training methods, one file each, registered in one list ([`MethodId`]):
+//! NTG ([`ntg`]) and the Flat Policy baseline ([`flat`]).
 //!
-//! Adding a method: a new file here with its step, one variant in
-//! [`MethodId`] (the compiler then lists every `match` that must learn
-//! it), and its model in [`Model`].
+//! A method is a model type that [`crate::fit::fit`] can train (a
+//! [`crate::fit::TrainedModel`] with a [`crate::fit::TrainStep`]), and that,
+//! once trained, is a [`TrainedPolicy`]: conditioned on one demonstration it
+//! gives an [`Agent`], the reactive policy every domain's evaluation rolls
+//! out ([`crate::domain::evaluate`]). Its [`Method`] value names it and loads
+//! it from a run folder.
+//!
+//! Adding a method: a new file here (its model, step, [`Method`],
+//! [`TrainedPolicy`] and [`Agent`]), and one line in the `methods!` list
+//! below. A domain that trains it maps its run configuration onto the
+//! method's options in its `train_run`.
 
-use burn::module::Module;
+use std::any::Any;
+use std::path::Path;
+
 use burn::tensor::Device;
 use clap::ValueEnum;
-use ntg_model::{FlatPolicy, NtgModel};
+use ctg_graph::{ActionId, Vocabulary};
 use serde::{Deserialize, Serialize};
-
-use crate::fit::TrainedModel;
 
 pub mod flat;
 pub mod ntg;
 
-/// The registered methods.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum MethodId {
+/// A registered method: its names and how to load a trained model of it.
+pub trait Method: Sync {
+    /// Name in files, run folders and on the command line (the registry's
+    /// identifier, lower-cased).
+    fn name(&self) -> &'static str;
+    /// Name in figure legends and reports.
+    fn legend(&self) -> &'static str;
+    /// Loads a trained model saved in `dir`.
+    fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model>;
+}
+
+/// A trained model of any method, ready to be conditioned on demos.
+pub trait TrainedPolicy: Send + Sync {
+    /// The same model on the inference backend (no autodiff).
+    fn for_inference(&self) -> Model;
+    /// The policy conditioned on the demo with observation rows `demo`.
+    fn condition(
+        &self,
+        demo: &[Vec<f32>],
+        vocabulary: &Vocabulary,
+    ) -> anyhow::Result<Box<dyn Agent>>;
+    /// The concrete model (for tests and tools that need its weights).
+    fn as_any(&self) -> &dyn Any;
+}
+
+/// A trained model of any method.
+pub type Model = Box<dyn TrainedPolicy>;
+
+/// A model conditioned on one demonstration: a reactive policy over
+/// observation rows, the same for every domain.
+pub trait Agent {
+    /// The greedy next action for the observation row `row`, the agent
+    /// having taken `executed` so far in the episode (read only by policies
+    /// with an execution memory).
+    fn act(&self, row: &[f32], executed: &[ActionId]) -> anyhow::Result<ActionId>;
+    /// What the method read from the demo as its action sequence (NTG's
+    /// demo interpreter), if anything.
+    fn transcription(&self) -> &[ActionId] {
+        &[]
+    }
+}
+
+/// The registry: one line per method, `Identifier => value implementing
+/// Method`; it makes [`MethodId`] (serialised and parsed lower-case).
+macro_rules! methods {
+    ($($(#[$doc:meta])* $id:ident => $method:expr,)*) => {
+        /// The registered methods.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+        #[serde(rename_all = "lowercase")]
+        pub enum MethodId {
+            $($(#[$doc])* $id,)*
+        }
+
+        impl MethodId {
+            /// Every registered method, in registry order.
+            pub const ALL: &[MethodId] = &[$(MethodId::$id,)*];
+
+            /// The method itself.
+            pub fn method(self) -> &'static dyn Method {
+                match self {
+                    $(MethodId::$id => &$method,)*
+                }
+            }
+        }
+    };
+}
+
+methods! {
     /// Neural Task Graphs.
-    Ntg,
+    Ntg => ntg::Ntg,
     /// The Flat Policy baseline (attention over the demo, then an MLP).
-    Flat,
+    Flat => flat::Flat,
 }
 
 impl MethodId {
-    /// Name in files and run folders.
+    /// Name in files, run folders and on the command line.
     pub fn name(self) -> &'static str {
-        match self {
-            MethodId::Ntg => "ntg",
-            MethodId::Flat => "flat",
-        }
+        self.method().name()
     }
 
     /// Name in figure legends and reports.
     pub fn legend(self) -> &'static str {
-        match self {
-            MethodId::Ntg => "NTG (ours)",
-            MethodId::Flat => "Flat Policy",
-        }
+        self.method().legend()
     }
 
     /// Loads this method's model saved in `dir`.
-    pub fn load(self, dir: &std::path::Path, device: &Device) -> anyhow::Result<Model> {
-        Ok(match self {
-            MethodId::Ntg => Model::Ntg(NtgModel::load_from(dir, device)?),
-            MethodId::Flat => Model::Flat(FlatPolicy::load_from(dir, device)?),
-        })
+    pub fn load(self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
+        self.method().load(dir, device)
     }
 }
 
-/// A trained model of any method.
-#[derive(Debug, Clone)]
-#[allow(clippy::large_enum_variant)] // one or two per run; boxing buys nothing
-pub enum Model {
-    /// NTG.
-    Ntg(NtgModel),
-    /// The Flat Policy.
-    Flat(FlatPolicy),
-}
+#[cfg(test)]
+mod tests {
+    use super::*;
 
-impl Model {
-    /// The same model on its inference backend (no autodiff).
-    pub fn valid(&self) -> Model {
-        match self {
-            Model::Ntg(m) => Model::Ntg(m.valid()),
-            Model::Flat(p) => Model::Flat(p.valid()),
-        }
-    }
-}
-
-/// A model conditioned on one demonstration: a reactive policy over
-/// observation rows, the same for every domain.
-#[allow(clippy::large_enum_variant)] // one per episode; boxing buys nothing
-pub enum Agent {
-    /// NTG's graph executor over the demo's completed task graph.
-    Ntg(ntg_model::NtgPolicy),
-    /// The Flat Policy, attending over the demo.
-    Flat {
-        /// The conditioned policy.
-        policy: ntg_model::ConditionedFlatPolicy,
-        /// Whether it reads the actions taken so far.
-        memory: bool,
-        /// Vocabulary size.
-        num_nodes: usize,
-    },
-}
-
-impl Model {
-    /// The policy conditioned on the demo with observation rows `demo`.
-    pub fn condition(
-        &self,
-        demo: &[Vec<f32>],
-        vocabulary: &ctg_graph::Vocabulary,
-    ) -> anyhow::Result<Agent> {
-        Ok(match self {
-            Model::Ntg(m) => Agent::Ntg(ntg_model::NtgPolicy::from_demo(m, demo, vocabulary)?),
-            Model::Flat(p) => Agent::Flat {
-                policy: p.condition(demo)?,
-                memory: p.memory_dim() > 0,
-                num_nodes: p.num_nodes(),
-            },
-        })
-    }
-}
-
-impl Agent {
-    /// The greedy next action for the observation row `row`, the agent
-    /// having taken `executed` so far in the episode (read only by policies
-    /// with an execution memory).
-    pub fn act(
-        &self,
-        row: &[f32],
-        executed: &[ctg_graph::ActionId],
-    ) -> anyhow::Result<ctg_graph::ActionId> {
-        Ok(match self {
-            Agent::Ntg(policy) => {
-                policy.set_executed(executed);
-                policy.action_distribution(row)?.most_likely()
-            }
-            Agent::Flat {
-                policy,
-                memory,
-                num_nodes,
-            } => {
-                let m = memory.then(|| ntg_model::executed_actions(*num_nodes, executed));
-                policy.next_action_with_memory(row, m.as_deref())?
-            }
-        })
-    }
-
-    /// NTG's transcription of the demo (empty for the Flat Policy).
-    pub fn transcription(&self) -> &[ctg_graph::ActionId] {
-        match self {
-            Agent::Ntg(policy) => policy.demo_actions(),
-            Agent::Flat { .. } => &[],
+    #[test]
+    fn every_method_is_named_as_it_is_serialised() {
+        for &id in MethodId::ALL {
+            let serialised = serde_json::to_value(id).unwrap();
+            assert_eq!(serialised.as_str(), Some(id.name()));
+            let parsed: MethodId = serde_json::from_value(serialised).unwrap();
+            assert_eq!(parsed, id);
+            assert_eq!(
+                MethodId::from_str(id.name(), false).unwrap(),
+                id,
+                "the command line accepts {}",
+                id.name()
+            );
         }
     }
 }

@@ -22,11 +22,12 @@
 
 use std::collections::BTreeMap;
 
+use burn::module::Module;
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use ctg_graph::{ActionId, Ctg, Vocabulary};
 use ntg_model::{
-    DemoBatch, EdgeCounts, NtgModel, adjacency_tensor, ids_tensor, pending_nodes, rows_tensor,
-    successor_mask,
+    DemoBatch, EdgeCounts, NtgModel, NtgPolicy, adjacency_tensor, ids_tensor, pending_nodes,
+    rows_tensor, successor_mask,
 };
 use rand::seq::IndexedRandom;
 use rand::{Rng, SeedableRng};
@@ -35,8 +36,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::DemoDataset;
 use crate::fit::{
-    OptimConfig, Selection, StepContext, StepReport, TrainStep, Validator, fit, scalar,
+    OptimConfig, Selection, StepContext, StepReport, TrainStep, TrainedModel, Validator, fit,
+    scalar,
 };
+use crate::method::{Agent, Model, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::symmetry::{ObjectSymmetry, Relabeling, RenamingFilter};
 
@@ -592,6 +595,48 @@ pub fn train_with(
         every: extras.validate_every,
     });
     fit(model, &step, optim, run, device, selection, on_epoch)
+}
+
+/// NTG in the method registry.
+pub struct Ntg;
+
+impl crate::method::Method for Ntg {
+    fn name(&self) -> &'static str {
+        "ntg"
+    }
+    fn legend(&self) -> &'static str {
+        "NTG (ours)"
+    }
+    fn load(&self, dir: &std::path::Path, device: &Device) -> anyhow::Result<Model> {
+        Ok(Box::new(NtgModel::load_from(dir, device)?))
+    }
+}
+
+impl TrainedPolicy for NtgModel {
+    fn for_inference(&self) -> Model {
+        Box::new(self.valid())
+    }
+    fn condition(
+        &self,
+        demo: &[Vec<f32>],
+        vocabulary: &ctg_graph::Vocabulary,
+    ) -> anyhow::Result<Box<dyn Agent>> {
+        Ok(Box::new(NtgPolicy::from_demo(self, demo, vocabulary)?))
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
+/// NTG's agent: the graph executor over the demo's completed task graph.
+impl Agent for NtgPolicy {
+    fn act(&self, row: &[f32], executed: &[ActionId]) -> anyhow::Result<ActionId> {
+        self.set_executed(executed);
+        Ok(self.action_distribution(row)?.most_likely())
+    }
+    fn transcription(&self) -> &[ActionId] {
+        self.demo_actions()
+    }
 }
 
 #[cfg(test)]
