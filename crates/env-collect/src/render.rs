@@ -73,6 +73,13 @@ fn to_rgb(c: Color) -> Rgb<u8> {
     Rgb([c[0] as u8, c[1] as u8, c[2] as u8])
 }
 
+/// Fills the ellipse centred at `(cx, cy)` with radii `(rx, ry)` (both
+/// positive) with `color`.
+fn fill_ellipse(img: &mut RgbImage, color: Color, (cx, cy): (f32, f32), (rx, ry): (f32, f32)) {
+    let bbox = [cx - rx, cy - ry, cx + rx, cy + ry];
+    fill(img, bbox, color, |x, y| in_ellipse(x, y, cx, cy, rx, ry));
+}
+
 /// Fills the axis-aligned rectangle `[x0, y0, x1, y1)` (pixel centres
 /// inside it) with `color`.
 fn fill_rect(img: &mut RgbImage, color: Color, [x0, y0, x1, y1]: [f32; 4]) {
@@ -191,13 +198,8 @@ pub fn draw_object(
             outlined(img, square_bbox(lx, ly, 0.18 * s), leaf, |x, y, g| {
                 in_ellipse(x, y, lx, ly, 0.18 * s + g, 0.08 * s + g)
             });
-            let (hx, hy) = (cx - 0.16 * s, ay - 0.14 * s);
-            fill(
-                img,
-                square_bbox(hx, hy, 0.1 * s),
-                scaled(body, 1.5),
-                |x, y| in_ellipse(x, y, hx, hy, 0.09 * s, 0.09 * s),
-            );
+            let highlight = (cx - 0.16 * s, ay - 0.14 * s);
+            fill_ellipse(img, scaled(body, 1.5), highlight, (0.09 * s, 0.09 * s));
         }
         Category::Bread => {
             let (hw, top, bottom, dome) = (0.5 * s, cy - 0.3 * s, cy + 0.28 * s, 0.3 * s);
@@ -228,13 +230,8 @@ pub fn draw_object(
                     in_ellipse(x, y, cx, ey, rx + g, ry + g)
                 },
             );
-            let (hx, hy) = (cx - 0.12 * s, ey - 0.18 * s);
-            fill(
-                img,
-                square_bbox(hx, hy, 0.1 * s),
-                scaled(body, 1.2),
-                |x, y| in_ellipse(x, y, hx, hy, 0.06 * s, 0.1 * s),
-            );
+            let highlight = (cx - 0.12 * s, ey - 0.18 * s);
+            fill_ellipse(img, scaled(body, 1.2), highlight, (0.06 * s, 0.1 * s));
         }
         Category::Lettuce => {
             let r = 0.48 * s;
