@@ -236,7 +236,7 @@ fn train_collect(args: &TrainArgs) -> anyhow::Result<()> {
         run.root().display()
     );
     let device = ntg_model::cpu_device().autodiff();
-    crate::collect::train_run(&run, &config, &device, |p| eprintln!("{}", p.line()))?;
+    crate::collect::train_run(&run, &config, &device, |line| eprintln!("{line}"))?;
     eprintln!("done: weights in {}", run.checkpoint_dir().display());
     Ok(())
 }

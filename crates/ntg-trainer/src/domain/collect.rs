@@ -30,8 +30,8 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::DemoDataset;
 use crate::domain::{self, Domain, Episode, EpisodeRecord};
 use crate::fit::{OptimConfig, fit};
-use crate::method::flat::{FlatEpochMetrics, FlatStep, FlatTraining};
-use crate::method::ntg::{EpochMetrics, GcnSource, NtgStep, NtgTraining};
+use crate::method::flat::{FlatStep, FlatTraining};
+use crate::method::ntg::{GcnSource, NtgStep, NtgTraining};
 use crate::method::{MethodId, Model, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::spec::ObsKind;
@@ -102,8 +102,9 @@ pub enum InterpreterKind {
 }
 
 impl InterpreterKind {
-    /// Sets the interpreter options of `config` for this kind.
-    pub fn apply(self, config: &mut ntg_model::DemoInterpreterConfig) {
+    /// Sets the interpreter options of `config` for this kind, with the
+    /// location-aware attention's initial shift +1 weight `step_prior`.
+    pub fn apply(self, config: &mut ntg_model::DemoInterpreterConfig, step_prior: Option<f32>) {
         let on = match self {
             InterpreterKind::Luong => None,
             InterpreterKind::Stepping => Some(true),
@@ -113,6 +114,7 @@ impl InterpreterKind {
         config.location_attention = on;
         config.stateless_decoder = on;
         config.local_annotations = on;
+        config.location_step_prior = step_prior;
     }
 
     /// The initial weight of the location-aware attention's shift +1 that
@@ -135,19 +137,6 @@ impl InterpreterKind {
 /// epochs) and NTG fell to 0.07 / 0.004 / 0 at N = 3 / 4 / 5; with it,
 /// seeds 0–3 all reach 1.0 within 5 epochs (quick profile scale).
 pub const LOCATION_STEP_PRIOR: f32 = 0.3;
-
-impl InterpreterKind {
-    /// Sets the interpreter options of `config` for this kind, with the
-    /// location-aware attention's initial shift +1 weight `step_prior`.
-    pub fn apply_with_prior(
-        self,
-        config: &mut ntg_model::DemoInterpreterConfig,
-        step_prior: Option<f32>,
-    ) {
-        self.apply(config);
-        config.location_step_prior = step_prior;
-    }
-}
 
 /// Everything that defines an object-collection training run (`config.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -307,26 +296,8 @@ pub fn build_dataset(config: &CollectRunConfig) -> anyhow::Result<DemoDataset> {
     domain::record_demos(&domain, &tasks, config.demos_per_task, TRAIN_SEED_BASE)
 }
 
-/// One line of training progress, either method.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Progress<'a> {
-    /// An NTG epoch.
-    Ntg(&'a EpochMetrics),
-    /// A Flat Policy epoch.
-    Flat(&'a FlatEpochMetrics),
-}
-
-impl Progress<'_> {
-    /// One human-readable line.
-    pub fn line(&self) -> String {
-        match self {
-            Progress::Ntg(m) => m.log_line(),
-            Progress::Flat(m) => m.log_line(),
-        }
-    }
-}
-
-/// Trains (or resumes) a run in `run`, returning the model. Both methods
+/// Trains (or resumes) a run in `run`, returning the model; `on_epoch`
+/// gets each epoch's log line. Both methods
 /// imitate each training demo conditioned on *another* demo of its task
 /// (the Flat Policy attends over it; NTG's GCN completes its path, whose
 /// `NE_gcn` the edge classifier reads), as at test time: trained on its
@@ -337,7 +308,7 @@ pub fn train_run(
     run: &RunDir,
     config: &CollectRunConfig,
     device: &Device,
-    mut on_epoch: impl FnMut(Progress<'_>),
+    mut on_epoch: impl FnMut(String),
 ) -> anyhow::Result<Model> {
     config.validate()?;
     let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config))?;
@@ -348,7 +319,7 @@ pub fn train_run(
             model_config.seed = config.model_seed;
             config
                 .interpreter
-                .apply_with_prior(&mut model_config.interpreter, config.location_step_prior);
+                .apply(&mut model_config.interpreter, config.location_step_prior);
             model_config.edge.memory_dim = config.memory.then_some(n);
             let model = NtgModel::new(model_config, device)?;
             let training = NtgTraining {
@@ -362,7 +333,7 @@ pub fn train_run(
             };
             let step = NtgStep::new(&model, &dataset, training, device)?;
             let model = fit(model, &step, &config.optim, run, device, None, |m| {
-                on_epoch(Progress::Ntg(m))
+                on_epoch(m.log_line())
             })?;
             Ok(Box::new(model))
         }
@@ -377,7 +348,7 @@ pub fn train_run(
             };
             let step = FlatStep::new(&policy, &dataset, training, device)?;
             let policy = fit(policy, &step, &config.optim, run, device, None, |m| {
-                on_epoch(Progress::Flat(m))
+                on_epoch(m.log_line())
             })?;
             Ok(Box::new(policy))
         }

@@ -164,7 +164,7 @@ pub fn run(
             dir.display()
         );
         let device = ntg_model::cpu_device().autodiff();
-        let model = train_run(&run, &config, &device, |p| eprintln!("  {}", p.line()))?;
+        let model = train_run(&run, &config, &device, |line| eprintln!("  {line}"))?;
         let eval = run.cached_eval(&format!("collect-{}.json", scale.test_episodes), || {
             evaluate(
                 model.as_ref(),
