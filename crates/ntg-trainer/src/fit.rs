@@ -13,6 +13,14 @@
 //! and its `(epoch, step)` to draw anything else it needs, so a run resumed
 //! from the checkpoint of epoch `e - 1` takes exactly the same steps as an
 //! uninterrupted one. Nothing random needs saving.
+//!
+//! Kills: each epoch is logged first (`metrics.jsonl`, `validation.jsonl`),
+//! then its checkpoint (weights, optimizer state, progress) and `best/` are
+//! committed whole by [`crate::run_dir::replace_dir`]. A run killed at any
+//! moment resumes from a complete checkpoint, drops the lines of the epoch
+//! it did not commit, and redoes that epoch; logged epochs beyond the
+//! checkpoint by more than that (a checkpoint removed by hand) are an
+//! error, not a silent restart.
 
 use std::path::Path;
 
@@ -26,7 +34,7 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::run_dir::RunDir;
+use crate::run_dir::{RunDir, drop_lines_from_epoch, recover_dir, replace_dir};
 
 /// The paper's Adam learning rate (block stacking's [`Recipe::Paper`], and
 /// the default of the other domains' `ntg train`).
@@ -249,6 +257,10 @@ where
     let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
     let ckpt = run.checkpoint_dir();
     let progress_path = ckpt.join("progress.json");
+    // A kill leaves the checkpoint and `best/` whole (see `replace_dir`),
+    // and at most the lines of the epoch after the checkpoint logged.
+    recover_dir(&ckpt)?;
+    recover_dir(&run.best_dir())?;
     let mut start = 0;
     if progress_path.is_file() {
         let progress: Progress = RunDir::read_json(&progress_path)?;
@@ -258,6 +270,8 @@ where
             .with_context(|| format!("resuming from {}", ckpt.display()))?;
         start = progress.epochs_done;
     }
+    drop_lines_from_epoch(&run.metrics_path(), start)?;
+    drop_lines_from_epoch(&run.validation_path(), start)?;
     let steps_per_epoch = num_examples.div_ceil(optim.batch_size);
     let total_steps = steps_per_epoch * optim.epochs;
     for epoch in start..optim.epochs {
@@ -308,24 +322,29 @@ where
                 Some(best) => best.epoch >= epoch || score.beats(&best.score),
             };
             if improves {
-                let best = run.best_dir();
-                model.save_to(&best)?;
-                RunDir::write_json(&best.join("selection.json"), &record)?;
+                replace_dir(&run.best_dir(), |dir| {
+                    model.save_to(dir)?;
+                    RunDir::write_json(&dir.join("selection.json"), &record)
+                })?;
             }
             validation = Some(record);
         }
-        model.save_to(&ckpt)?;
-        save_optimizer(&optimizer, ckpt.join("optimizer.bpk"))?;
-        RunDir::write_json(
-            &progress_path,
-            &Progress {
-                epochs_done: epoch + 1,
-            },
-        )?;
+        // Log, then checkpoint: a run killed in between redoes the epoch
+        // and drops its lines first.
         run.append_metrics(&metrics)?;
         if let Some(record) = validation {
             RunDir::append_jsonl(&run.validation_path(), &record)?;
         }
+        replace_dir(&ckpt, |dir| {
+            model.save_to(dir)?;
+            save_optimizer(&optimizer, dir.join("optimizer.bpk"))?;
+            RunDir::write_json(
+                &dir.join("progress.json"),
+                &Progress {
+                    epochs_done: epoch + 1,
+                },
+            )
+        })?;
         on_epoch(&metrics);
     }
     if selection.is_some()

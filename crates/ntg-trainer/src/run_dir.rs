@@ -242,6 +242,104 @@ impl RunDir {
     }
 }
 
+/// `DIR.next` and `DIR.old` beside `dir`.
+fn staging(dir: &Path) -> (PathBuf, PathBuf) {
+    let name = dir.file_name().map(|n| n.to_string_lossy().into_owned());
+    let name = name.unwrap_or_default();
+    (
+        dir.with_file_name(format!("{name}.next")),
+        dir.with_file_name(format!("{name}.old")),
+    )
+}
+
+/// Replaces the folder `dir` by the one `write` fills, so that a kill at
+/// any moment leaves the old folder or the new one, complete, never a mix:
+/// `write` fills `DIR.next`, which then takes `DIR`'s place by renames
+/// (the old one parked as `DIR.old` in between). [`recover_dir`] finishes
+/// or undoes an interrupted replacement.
+pub fn replace_dir(
+    dir: &Path,
+    write: impl FnOnce(&Path) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let (next, old) = staging(dir);
+    let rename = |from: &Path, to: &Path| {
+        fs::rename(from, to)
+            .with_context(|| format!("renaming {} to {}", from.display(), to.display()))
+    };
+    if next.exists() {
+        fs::remove_dir_all(&next).with_context(|| format!("removing {}", next.display()))?;
+    }
+    fs::create_dir_all(&next).with_context(|| format!("creating {}", next.display()))?;
+    write(&next)?;
+    if dir.exists() {
+        rename(dir, &old)?;
+    }
+    rename(&next, dir)?;
+    if old.exists() {
+        fs::remove_dir_all(&old).with_context(|| format!("removing {}", old.display()))?;
+    }
+    Ok(())
+}
+
+/// Puts `dir` back in order after a kill during [`replace_dir`]: a
+/// half-written `DIR.next` is removed, and a `DIR` parked as `DIR.old`
+/// whose replacement never took its place is restored (the replacement is
+/// dropped: what was logged after the old one is redone).
+pub fn recover_dir(dir: &Path) -> anyhow::Result<()> {
+    let (next, old) = staging(dir);
+    if old.exists() {
+        if dir.exists() {
+            fs::remove_dir_all(&old).with_context(|| format!("removing {}", old.display()))?;
+        } else {
+            fs::rename(&old, dir)
+                .with_context(|| format!("restoring {} from {}", dir.display(), old.display()))?;
+        }
+    }
+    if next.exists() {
+        fs::remove_dir_all(&next).with_context(|| format!("removing {}", next.display()))?;
+    }
+    Ok(())
+}
+
+/// Keeps the lines of the JSON-lines file `path` whose `"epoch"` is below
+/// `epochs_done` (a run killed after logging an epoch but before its
+/// checkpoint redoes that epoch) and returns how many lines it dropped;
+/// errors if a line is further ahead than one epoch, which no kill leaves
+/// (the checkpoint was removed or replaced by hand).
+pub fn drop_lines_from_epoch(path: &Path, epochs_done: usize) -> anyhow::Result<usize> {
+    if !path.is_file() {
+        return Ok(0);
+    }
+    let lines: Vec<serde_json::Value> = read_jsonl(path)?;
+    let epoch = |v: &serde_json::Value| v.get("epoch").and_then(serde_json::Value::as_u64);
+    if let Some(e) = lines
+        .iter()
+        .filter_map(epoch)
+        .find(|&e| e > epochs_done as u64)
+    {
+        bail!(
+            "{} logs epoch {e} but the checkpoint holds {epochs_done} finished epochs; the checkpoint was removed or replaced: start a new run (another --out)",
+            path.display()
+        );
+    }
+    let kept: Vec<&serde_json::Value> = lines
+        .iter()
+        .filter(|v| epoch(v).is_none_or(|e| e < epochs_done as u64))
+        .collect();
+    let dropped = lines.len() - kept.len();
+    if dropped > 0 {
+        let mut text = String::new();
+        for v in kept {
+            text.push_str(&serde_json::to_string(v)?);
+            text.push('\n');
+        }
+        let tmp = path.with_extension("jsonl.tmp");
+        fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
+        fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(dropped)
+}
+
 /// Reads every line of a JSON-lines file, naming the file and line of the
 /// first that does not parse.
 pub fn read_jsonl<T: DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
@@ -376,5 +474,54 @@ mod tests {
         assert!(err.contains("m.jsonl") && err.contains("line 3"), "{err}");
         std::fs::write(&path, "{\"epochs_done\": 1}\n{\"epochs_done\": 2}\n").unwrap();
         assert_eq!(read_jsonl::<serde_json::Value>(&path).unwrap().len(), 2);
+    }
+
+    #[test]
+    fn replacing_a_folder_leaves_old_or_new_and_recovery_finishes_a_killed_one() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path().join("checkpoint");
+        let write = |n: u32| {
+            move |d: &Path| -> anyhow::Result<()> {
+                fs::write(d.join("n"), n.to_string())?;
+                Ok(())
+            }
+        };
+        let read = |d: &Path| fs::read_to_string(d.join("n")).unwrap();
+        replace_dir(&dir, write(1)).unwrap();
+        replace_dir(&dir, write(2)).unwrap();
+        assert_eq!(read(&dir), "2");
+        let (next, old) = staging(&dir);
+        assert!(!next.exists() && !old.exists());
+        // A failed write leaves the old folder in place.
+        assert!(replace_dir(&dir, |_| anyhow::bail!("disk full")).is_err());
+        assert_eq!(read(&dir), "2");
+        recover_dir(&dir).unwrap();
+        assert!(!next.exists());
+        // Killed between the two renames: the old folder comes back.
+        fs::rename(&dir, &old).unwrap();
+        fs::create_dir_all(&next).unwrap();
+        recover_dir(&dir).unwrap();
+        assert_eq!(read(&dir), "2");
+        assert!(!next.exists() && !old.exists());
+        // Killed before removing the parked one: it goes.
+        fs::create_dir_all(&old).unwrap();
+        recover_dir(&dir).unwrap();
+        assert!(!old.exists() && dir.exists());
+    }
+
+    #[test]
+    fn lines_of_an_unfinished_epoch_are_dropped_and_lines_from_the_future_refused() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("metrics.jsonl");
+        assert_eq!(drop_lines_from_epoch(&path, 3).unwrap(), 0);
+        fs::write(&path, "{\"epoch\":0}\n{\"epoch\":1}\n{\"epoch\":2}\n").unwrap();
+        assert_eq!(drop_lines_from_epoch(&path, 3).unwrap(), 0);
+        assert_eq!(drop_lines_from_epoch(&path, 2).unwrap(), 1);
+        assert_eq!(read_jsonl::<serde_json::Value>(&path).unwrap().len(), 2);
+        let err = drop_lines_from_epoch(&path, 0).unwrap_err().to_string();
+        assert!(
+            err.contains("logs epoch 1") && err.contains("metrics.jsonl"),
+            "{err}"
+        );
     }
 }

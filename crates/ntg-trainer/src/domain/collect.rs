@@ -584,6 +584,63 @@ mod tests {
         }
     }
 
+    /// A kill leaves, at worst, the lines of an epoch logged whose
+    /// checkpoint was never committed, a half-written `checkpoint.next`, or
+    /// the old checkpoint parked as `checkpoint.old`: the resumed run redoes
+    /// that epoch, logs it once, and ends with the weights of an
+    /// uninterrupted run.
+    #[test]
+    fn runs_killed_between_logging_and_checkpointing_resume_exactly() {
+        let dir = tempfile::tempdir().unwrap();
+        let device = ntg_model::cpu_device().autodiff();
+        let method = MethodId::Flat;
+        let straight = RunDir::open_or_create(&dir.path().join("a"), &config(method, 2)).unwrap();
+        let a = weights(&train_run(&straight, &config(method, 2), &device, |_| {}).unwrap());
+        let copy = |from: &std::path::Path, to: &std::path::Path| {
+            std::fs::create_dir_all(to).unwrap();
+            for entry in std::fs::read_dir(from).unwrap() {
+                let entry = entry.unwrap();
+                std::fs::copy(entry.path(), to.join(entry.file_name())).unwrap();
+            }
+        };
+        for parked in [false, true] {
+            let root = dir.path().join(format!("b{parked}"));
+            let run = RunDir::open_or_create(&root, &config(method, 1)).unwrap();
+            train_run(&run, &config(method, 1), &device, |_| {}).unwrap();
+            let after_one = dir.path().join(format!("saved{parked}"));
+            copy(&run.checkpoint_dir(), &after_one);
+            train_run(&run, &config(method, 2), &device, |_| {}).unwrap();
+            // Back to the state of a kill during epoch 1's checkpoint: its
+            // metrics line is logged, the checkpoint holds one epoch.
+            std::fs::remove_dir_all(run.checkpoint_dir()).unwrap();
+            let next = root.join("checkpoint.next");
+            std::fs::create_dir_all(&next).unwrap();
+            std::fs::write(next.join("model.bpk"), b"half").unwrap();
+            if parked {
+                copy(&after_one, &root.join("checkpoint.old"));
+            } else {
+                copy(&after_one, &run.checkpoint_dir());
+            }
+            let b = train_run(&run, &config(method, 2), &device, |_| {}).unwrap();
+            assert_eq!(weights(&b), a, "parked {parked}");
+            let epochs: Vec<u64> =
+                crate::run_dir::read_jsonl::<serde_json::Value>(&run.metrics_path())
+                    .unwrap()
+                    .iter()
+                    .map(|v| v["epoch"].as_u64().unwrap())
+                    .collect();
+            assert_eq!(epochs, [0, 1]);
+            assert!(!next.exists() && !root.join("checkpoint.old").exists());
+        }
+        // A checkpoint removed by hand is not silently retrained over.
+        std::fs::remove_dir_all(straight.checkpoint_dir()).unwrap();
+        let err = train_run(&straight, &config(method, 2), &device, |_| {})
+            .map(|_| ())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("checkpoint was removed"), "{err}");
+    }
+
     #[test]
     fn test_episodes_are_unseen_and_seeded() {
         let splitter = env_collect::TaskSplitter::default();
