@@ -6,7 +6,7 @@
 //! - `ntg collect tasks --objects N --count K --split test`: lists distinct
 //!   tasks of one side of the fixed train/test split.
 //!
-//! `ntg train --domain collect` reads [`CollectTrainArgs`] (in
+//! `ntg train --domain collect` reads [`crate::collect::CollectFlags`] (in
 //! [`super::train`]).
 
 use std::io::Write;
@@ -18,7 +18,6 @@ use env_collect::{CollectConfig, Split, TaskSplitter, export};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::collect;
 use crate::experiment::thor_all;
 
 /// Subcommands of `ntg collect`.
@@ -34,55 +33,6 @@ pub enum CollectCommand {
     /// and the Flat Policy on N = 2 and 4, evaluate on N = 1..5, write the
     /// figure and print the report section.
     Figure(FigureArgs),
-}
-
-/// The `ntg train` options that only `--domain collect` reads.
-#[derive(Debug, Args)]
-#[command(next_help_heading = "Object collection (--domain collect)")]
-pub struct CollectTrainArgs {
-    /// Which model to train.
-    #[arg(long, value_enum, default_value_t = crate::method::MethodId::Ntg)]
-    pub method: crate::method::MethodId,
-    /// Numbers of target objects of the training tasks.
-    #[arg(long, value_delimiter = ',', default_values_t = [2, 4])]
-    pub objects: Vec<usize>,
-    /// NTG: train the demo interpreter on whole demos alone, without
-    /// random stretches of them.
-    #[arg(long)]
-    pub no_segments: bool,
-    /// Also train the final `<end>` decision, which the last frame cannot
-    /// support (without it, episodes end at the step limit).
-    #[arg(long)]
-    pub learn_end: bool,
-    /// Give both policies an execution memory: the actions the agent has
-    /// taken so far (the Flat Policy reads them in its attention query,
-    /// NTG's edge classifier reads the task-graph nodes not yet executed).
-    #[arg(long)]
-    pub memory: bool,
-    /// NTG: which demo interpreter.
-    #[arg(long, value_enum, default_value_t = collect::InterpreterKind::Stepping)]
-    pub interpreter: collect::InterpreterKind,
-    /// NTG with the stepping interpreter: initial weight of its
-    /// location-aware attention's shift +1, a bias towards reading the next
-    /// frame (0 = no preference) [default: 0.3 for NTG with the stepping
-    /// interpreter].
-    #[arg(long, value_name = "W")]
-    pub location_step_prior: Option<f32>,
-}
-
-impl CollectTrainArgs {
-    /// The location step prior of the run: the flag, else the
-    /// interpreter's default for NTG (none for the Flat Policy). An
-    /// explicit 0 is no prior, as in runs saved before the option existed,
-    /// so those resume with `--location-step-prior 0`.
-    pub fn location_step_prior(&self) -> Option<f32> {
-        match (self.location_step_prior, self.method) {
-            (Some(0.0), _) => None,
-            (Some(w), _) => Some(w),
-            (None, crate::method::MethodId::Ntg) => self.interpreter.default_step_prior(),
-            (None, crate::method::MethodId::Flat) => None,
-        }
-    }
 }
 
 /// Arguments of `ntg collect figure`.

@@ -13,12 +13,15 @@ use burn::tensor::Device;
 use clap::ValueEnum;
 use ctg_graph::{ActionId, record_demonstration};
 use env_blocks::{BlocksEnv, BlocksExpert, BlocksObservation, EnvConfig, StackTask};
-use ntg_model::{AblationConfig, EncoderConfig, NtgConfig, NtgModel, NtgPolicy};
+use ntg_model::{EncoderConfig, NtgConfig, NtgModel, NtgPolicy};
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::DemoDataset;
-use crate::domain::{self, Domain, Episode, EpisodeRecord};
+use crate::domain::{
+    self, Domain, DomainFlags, DomainRuns, Episode, EpisodeRecord, EvalFlags, TrainFlags,
+};
 use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore};
+pub use crate::method::ntg::Variant;
 use crate::method::ntg::{EpochMetrics, NtgTraining, TrainExtras, train_with};
 use crate::run_dir::RunDir;
 pub use crate::spec::ObsKind;
@@ -446,46 +449,6 @@ pub struct EvalResult {
     pub tasks: Vec<EpisodeRecord>,
 }
 
-/// Policy variants for evaluation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum Variant {
-    /// The full NTG model.
-    Full,
-    /// Uniform ε over successors (no edge classifier).
-    NoEdgeClassifier,
-    /// Uniform ℓ (no node localizer).
-    NoNodeLocalizer,
-    /// Fully connected initial graph (no demo interpreter).
-    NoDemoInterpreter,
-    /// The demo's path graph as is (no GCN).
-    NoGcn,
-}
-
-impl Variant {
-    fn ablation(self) -> AblationConfig {
-        let a = AblationConfig::new();
-        match self {
-            Variant::Full => a,
-            Variant::NoEdgeClassifier => a.with_edge_classifier(false),
-            Variant::NoNodeLocalizer => a.with_node_localizer(false),
-            Variant::NoDemoInterpreter => a.with_demo_interpreter(false),
-            Variant::NoGcn => a.with_gcn(false),
-        }
-    }
-
-    /// Name used in files and reports.
-    pub fn name(self) -> &'static str {
-        match self {
-            Variant::Full => "full",
-            Variant::NoEdgeClassifier => "no-edge-classifier",
-            Variant::NoNodeLocalizer => "no-node-localizer",
-            Variant::NoDemoInterpreter => "no-demo-interpreter",
-            Variant::NoGcn => "no-gcn",
-        }
-    }
-}
-
 /// Records the conditioning demo of test task `index` (seed
 /// `DEMO_SEED_BASE + index`) in `env` and builds the policy from it: the
 /// first half of every evaluation episode, for `ntg trace`.
@@ -624,6 +587,232 @@ pub fn evaluate_tasks(
         mean_goal_fraction: domain::mean_goal_fraction(&records),
         tasks: records,
     })
+}
+
+/// Block stacking's own `ntg train` flags.
+#[derive(Debug, Clone, clap::Args)]
+#[command(next_help_heading = "Block stacking (--domain blocks)")]
+pub struct BlocksFlags {
+    /// The training recipe the other options add to.
+    #[arg(long, value_enum, default_value_t = Recipe::Recommended)]
+    pub recipe: Recipe,
+    /// Train the edge classifier on GCN embeddings of another demo of the
+    /// same task than the one it imitates.
+    #[arg(long)]
+    pub gcn_from_other_demo: bool,
+    /// Probability that the demo interpreter's decoder reads `<start>`
+    /// instead of the previous action in training (0 = plain teacher forcing).
+    #[arg(long, default_value_t = 0.0)]
+    pub token_dropout: f32,
+    /// The localizer's and edge classifier's state encoders also read every
+    /// pairwise difference of cube positions.
+    #[arg(long)]
+    pub pairwise: bool,
+    /// Hidden layers of the localizer's and edge classifier's state encoder
+    /// MLPs (state observations only; the demo interpreter keeps one)
+    /// [default: 3 with --recipe recommended, else 1].
+    #[arg(long)]
+    pub state_hidden_layers: Option<usize>,
+    /// Held-out validation tasks scored after every epoch; the epoch that
+    /// scores best is the run's result (`best/`). 0 = keep the last epoch.
+    #[arg(long, default_value_t = 100)]
+    pub validation_tasks: usize,
+    /// Score the validation tasks after every this many epochs (and after
+    /// the last).
+    #[arg(long, default_value_t = 1)]
+    pub validate_every: usize,
+    /// Train on demos whose cubes are renamed by a random permutation per
+    /// demo and step (state observations; not in the paper).
+    #[arg(long)]
+    pub permute_objects: bool,
+    /// Hidden width of a fusion layer between the edge classifier's inputs
+    /// and its query (0 = the paper's linear W; not in the paper)
+    /// [default: 256 with --recipe recommended, else 0].
+    #[arg(long)]
+    pub edge_fusion_hidden: Option<usize>,
+    /// Weight of recovery steps (the next action repeats one already taken)
+    /// in the edge classifier's loss (1 = unweighted; not in the paper).
+    #[arg(long, default_value_t = 1.0)]
+    pub retry_weight: f32,
+    /// Keep the edge classifier's loss out of the GCN, which then learns
+    /// only to complete task graphs (not in the paper).
+    #[arg(long)]
+    pub detach_gcn_from_edges: bool,
+    /// Weigh edges by the completed graph's probabilities instead of
+    /// cutting them to the graph thresholded at 0.5 (trained the same way).
+    #[arg(long)]
+    pub soft_edges: bool,
+    /// Turn stochastic grasp/drop failures off (they are on by default).
+    #[arg(long)]
+    pub no_failures: bool,
+}
+
+/// The run configuration `ntg train --domain blocks` asks for: the recipe,
+/// with the boolean flags added and the numbers overridden.
+pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
+    let base = own.recipe.config(
+        flags.obs,
+        flags.train_tasks,
+        flags.demos_per_task,
+        flags.epochs,
+        flags.seed,
+    );
+    BlocksRunConfig {
+        failures: !own.no_failures,
+        state_hidden_layers: own.state_hidden_layers.unwrap_or(base.state_hidden_layers),
+        pairwise: base.pairwise || own.pairwise,
+        validation_tasks: own.validation_tasks,
+        validate_every: own.validate_every,
+        permute_objects: base.permute_objects || own.permute_objects,
+        // Renamed demos never show a held-out task (new runs always).
+        exclude_held_out_renamings: base.permute_objects || own.permute_objects,
+        edge_fusion_hidden: own.edge_fusion_hidden.unwrap_or(base.edge_fusion_hidden),
+        retry_weight: own.retry_weight,
+        detach_gcn_from_edges: base.detach_gcn_from_edges || own.detach_gcn_from_edges,
+        soft_edges: base.soft_edges || own.soft_edges,
+        optim: OptimConfig {
+            batch_size: flags.batch_size,
+            learning_rate: flags.lr.unwrap_or(base.optim.learning_rate),
+            token_dropout: own.token_dropout,
+            cosine_decay: base.optim.cosine_decay || flags.cosine_decay,
+            gcn_from_other_demo: base.optim.gcn_from_other_demo || own.gcn_from_other_demo,
+            ..base.optim
+        },
+        ..base
+    }
+}
+
+/// Block stacking in the domain registry (`ntg train --domain blocks`,
+/// `ntg eval` on its runs).
+pub struct Blocks;
+
+impl DomainRuns for Blocks {
+    fn name(&self) -> &'static str {
+        "blocks"
+    }
+
+    fn train(&self, flags: &TrainFlags, own: &DomainFlags) -> anyhow::Result<()> {
+        let own = &own.blocks;
+        let config = train_config(flags, own);
+        if !flags.resume {
+            if config.train_tasks == 0 || config.demos_per_task == 0 {
+                bail!("--train-tasks and --demos-per-task must be positive");
+            }
+            if config.permute_objects && config.obs != ObsKind::State {
+                bail!(
+                    "--permute-objects renames cubes in state observations; it does not apply to --obs vid"
+                );
+            }
+            if !(0.0..1.0).contains(&config.optim.token_dropout) {
+                bail!(
+                    "--token-dropout must be in [0, 1), got {}",
+                    config.optim.token_dropout
+                );
+            }
+        }
+        let run = RunDir::start_or_resume(
+            &flags.out,
+            &config,
+            flags.resume,
+            "runs started before --recipe existed need --recipe paper; ",
+        )?;
+        let device = ntg_model::cpu_device().autodiff();
+        eprintln!(
+            "training NTG ({:?} observations) on {} tasks x {} demos for {} epochs -> {}",
+            config.obs,
+            config.train_tasks,
+            config.demos_per_task,
+            config.optim.epochs,
+            run.root().display()
+        );
+        train_run(&run, &config, &device, |m| eprintln!("{}", m.log_line()))?;
+        match crate::fit::selected_epoch(&run)? {
+            Some(best) => eprintln!(
+                "done: epoch {} scored best on the validation tasks (success {:.3}, goals met {:.3}); its weights are in {}",
+                best.epoch,
+                best.score.success,
+                best.score.goal_fraction,
+                run.best_dir().display()
+            ),
+            None => eprintln!("done: weights in {}", run.checkpoint_dir().display()),
+        }
+        Ok(())
+    }
+
+    fn owns(&self, config: &serde_json::Value) -> bool {
+        // Block-stacking configurations predate the `domain` field.
+        config.get("domain").is_none()
+    }
+
+    fn evaluate(&self, run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()> {
+        let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+        let device = ntg_model::cpu_device();
+        let model = load_trained(run, flags.edge_threshold, &device)?;
+        let mut name = format!("{}-{}", flags.variant.name(), flags.test_tasks);
+        if let Some(t) = flags.edge_threshold {
+            name.push_str(&format!("-threshold{t}"));
+        }
+        let result = match flags.split {
+            crate::domain::EvalSplit::Test => evaluate(
+                &model,
+                config.obs,
+                config.failures,
+                flags.test_tasks,
+                flags.variant,
+            )?,
+            crate::domain::EvalSplit::Validation => {
+                name.insert_str(0, "validation-");
+                evaluate_tasks(
+                    &model,
+                    config.obs,
+                    config.failures,
+                    &env_blocks::validation_tasks(flags.test_tasks)?,
+                    Seeds::VALIDATION,
+                    flags.variant,
+                )?
+            }
+        };
+        std::fs::create_dir_all(run.eval_dir())?;
+        let path = run.eval_dir().join(format!("{name}.json"));
+        RunDir::write_json(&path, &result)?;
+        let s = result.success;
+        println!(
+            "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); goals met {:.3}; records in {}",
+            result.variant,
+            s.successes,
+            s.trials,
+            s.rate,
+            s.ci_low,
+            s.ci_high,
+            result.mean_goal_fraction,
+            path.display()
+        );
+        Ok(())
+    }
+}
+
+/// Loads the trained model of `run` (the epoch selected on validation
+/// tasks if there is one, else the last checkpoint), with its edge
+/// threshold overridden when `edge_threshold` is given (checked to lie in
+/// [0, 1]).
+pub fn load_trained(
+    run: &RunDir,
+    edge_threshold: Option<f32>,
+    device: &burn::tensor::Device,
+) -> anyhow::Result<NtgModel> {
+    let dir = match crate::fit::selected_epoch(run)? {
+        Some(_) => run.best_dir(),
+        None => run.checkpoint_dir(),
+    };
+    let mut model = NtgModel::load(dir, device)
+        .with_context(|| format!("loading the trained model of {}", run.root().display()))?;
+    if let Some(t) = edge_threshold {
+        if !(0.0..=1.0).contains(&t) {
+            bail!("--edge-threshold must be in [0, 1], got {t}");
+        }
+        model.config.edge_threshold = t;
+    }
+    Ok(model)
 }
 
 #[cfg(test)]

@@ -10,8 +10,10 @@
 //! parallel), and [`crate::fit::fit`] the one training loop.
 //!
 //! Adding a domain: a new file here implementing [`Domain`] (with its task
-//! split, seeds, dataset and run configuration), and one variant in
-//! [`DomainId`].
+//! split, seeds, dataset and run configuration) and [`DomainRuns`] (its
+//! `ntg train` / `ntg eval`), and one line in the `domains!` list below.
+
+use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::ValueEnum;
@@ -21,30 +23,157 @@ use serde::{Deserialize, Serialize};
 use crate::dataset::{DatasetSpec, DemoDataset, ObsDtype, generate, progress_bar};
 use crate::evaluate::in_parallel;
 use crate::method::TrainedPolicy;
+use crate::method::ntg::Variant;
+use crate::run_dir::RunDir;
 use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
 
 pub mod blocks;
 pub mod collect;
 
-/// The registered domains.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum DomainId {
+/// What the command line needs of a domain, whatever its types:
+/// `ntg train --domain NAME` and `ntg eval` on its runs.
+pub trait DomainRuns: Sync {
+    /// Name on the command line and in files.
+    fn name(&self) -> &'static str;
+    /// `ntg train`: builds the run configuration from the shared flags and
+    /// the domain's own, starts (or with `--resume` continues) the run in
+    /// `--out`, and trains it.
+    fn train(&self, flags: &TrainFlags, own: &DomainFlags) -> anyhow::Result<()>;
+    /// Whether `config` (a run folder's `config.json`) is a run of this
+    /// domain.
+    fn owns(&self, config: &serde_json::Value) -> bool;
+    /// `ntg eval` on a run of this domain: evaluates it on unseen tasks,
+    /// writes the records under `eval/` and prints the success rates.
+    fn evaluate(&self, run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()>;
+}
+
+/// The registry: one line per domain, `Identifier => value implementing
+/// DomainRuns, flags field: its own ntg train flags`; it makes [`DomainId`]
+/// and [`DomainFlags`].
+macro_rules! domains {
+    ($($(#[$doc:meta])* $id:ident => $value:expr, flags $field:ident: $flags:ty,)*) => {
+        /// The registered domains.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+        #[serde(rename_all = "lowercase")]
+        pub enum DomainId {
+            $($(#[$doc])* $id,)*
+        }
+
+        impl DomainId {
+            /// Every registered domain, in registry order.
+            pub const ALL: &[DomainId] = &[$(DomainId::$id,)*];
+
+            /// The domain's command-line side.
+            pub fn runs(self) -> &'static dyn DomainRuns {
+                match self {
+                    $(DomainId::$id => &$value,)*
+                }
+            }
+        }
+
+        /// Every domain's own `ntg train` flags.
+        #[derive(Debug, Clone, clap::Args)]
+        pub struct DomainFlags {
+            $(
+                #[allow(missing_docs)]
+                #[command(flatten)]
+                pub $field: $flags,
+            )*
+        }
+    };
+}
+
+domains! {
     /// Block stacking (the paper's main experiment, fig. "ntp_exp").
-    Blocks,
-    /// Object collection (fig. "thor_all" (b)).
-    Collect,
+    Blocks => blocks::Blocks, flags blocks: blocks::BlocksFlags,
+    /// Object collection (fig. "thor_all" (b)): NTG or the Flat Policy.
+    Collect => collect::Collect, flags collect: collect::CollectFlags,
 }
 
 impl DomainId {
-    /// Name in run folders and files.
+    /// Name in run folders, files and on the command line.
     pub fn name(self) -> &'static str {
-        match self {
-            DomainId::Blocks => "blocks",
-            DomainId::Collect => "collect",
-        }
+        self.runs().name()
     }
+
+    /// The domain whose run `config` (a `config.json`) is.
+    pub fn of_run(config: &serde_json::Value) -> Option<DomainId> {
+        DomainId::ALL
+            .iter()
+            .copied()
+            .find(|d| d.runs().owns(config))
+    }
+}
+
+/// The `ntg train` flags every domain reads.
+#[derive(Debug, Clone, clap::Args)]
+pub struct TrainFlags {
+    /// Observation kind.
+    #[arg(long, value_enum, default_value_t = ObsKind::State)]
+    pub obs: ObsKind,
+    /// Training tasks (blocks: a prefix of the standard 1000-task pool;
+    /// collect: distinct training tasks per number of objects).
+    #[arg(long, default_value_t = 100)]
+    pub train_tasks: usize,
+    /// Expert demonstrations per training task.
+    #[arg(long, default_value_t = 20)]
+    pub demos_per_task: usize,
+    /// Passes over the demonstrations.
+    #[arg(long, default_value_t = 20)]
+    pub epochs: usize,
+    /// Demonstrations per optimisation step.
+    #[arg(long, default_value_t = 32)]
+    pub batch_size: usize,
+    /// Adam learning rate [default: blocks 3e-3 with --recipe recommended,
+    /// else 1e-3].
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Seed of the weights and the shuffling.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Decay the learning rate along a half cosine to a tenth of --lr.
+    #[arg(long)]
+    pub cosine_decay: bool,
+    /// Run folder to create (or, with --resume, to continue).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Continue the run in --out from its last checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+}
+
+/// The flags of `ntg eval`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct EvalFlags {
+    /// Run folder written by `ntg train`.
+    #[arg(long)]
+    pub run: PathBuf,
+    /// Number of unseen test tasks (blocks: from the start of the standard
+    /// test set; collect: test episodes per number of objects).
+    #[arg(long, default_value_t = 100)]
+    pub test_tasks: usize,
+    /// Which policy to evaluate (NTG block-stacking runs).
+    #[arg(long, value_enum, default_value_t = Variant::Full)]
+    pub variant: Variant,
+    /// Keep GCN edges with probability at least this (default: the
+    /// model's configured threshold, 0.5; NTG block-stacking runs).
+    #[arg(long)]
+    pub edge_threshold: Option<f32>,
+    /// Which tasks to evaluate on (blocks): the test set, or the held-out
+    /// validation tasks, where settings such as --edge-threshold can be
+    /// chosen without looking at the test set.
+    #[arg(long, value_enum, default_value_t = EvalSplit::Test)]
+    pub split: EvalSplit,
+}
+
+/// Task sets `ntg eval` can use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum EvalSplit {
+    /// The standard test set (the reported numbers).
+    Test,
+    /// The validation tasks (`env_blocks::validation_tasks`).
+    Validation,
 }
 
 /// What the shared loops need to know of a domain.

@@ -24,10 +24,11 @@ use std::collections::BTreeMap;
 
 use burn::module::Module;
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
+use clap::ValueEnum;
 use ctg_graph::{ActionId, Ctg, Vocabulary};
 use ntg_model::{
-    DemoBatch, EdgeCounts, NtgModel, NtgPolicy, adjacency_tensor, ids_tensor, pending_nodes,
-    rows_tensor, successor_mask,
+    AblationConfig, DemoBatch, EdgeCounts, NtgModel, NtgPolicy, adjacency_tensor, ids_tensor,
+    pending_nodes, rows_tensor, successor_mask,
 };
 use rand::seq::IndexedRandom;
 use rand::{Rng, SeedableRng};
@@ -595,6 +596,47 @@ pub fn train_with(
         every: extras.validate_every,
     });
     fit(model, &step, optim, run, device, selection, on_epoch)
+}
+
+/// NTG's policy variants for evaluation: the full model and its ablations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Variant {
+    /// The full NTG model.
+    Full,
+    /// Uniform ε over successors (no edge classifier).
+    NoEdgeClassifier,
+    /// Uniform ℓ (no node localizer).
+    NoNodeLocalizer,
+    /// Fully connected initial graph (no demo interpreter).
+    NoDemoInterpreter,
+    /// The demo's path graph as is (no GCN).
+    NoGcn,
+}
+
+impl Variant {
+    /// The ablation switches of this variant.
+    pub fn ablation(self) -> AblationConfig {
+        let a = AblationConfig::new();
+        match self {
+            Variant::Full => a,
+            Variant::NoEdgeClassifier => a.with_edge_classifier(false),
+            Variant::NoNodeLocalizer => a.with_node_localizer(false),
+            Variant::NoDemoInterpreter => a.with_demo_interpreter(false),
+            Variant::NoGcn => a.with_gcn(false),
+        }
+    }
+
+    /// Name used in files and reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Variant::Full => "full",
+            Variant::NoEdgeClassifier => "no-edge-classifier",
+            Variant::NoNodeLocalizer => "no-node-localizer",
+            Variant::NoDemoInterpreter => "no-demo-interpreter",
+            Variant::NoGcn => "no-gcn",
+        }
+    }
 }
 
 /// NTG in the method registry.
