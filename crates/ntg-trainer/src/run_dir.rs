@@ -85,10 +85,14 @@ impl RunDir {
             let run = RunDir::open(root)?;
             let saved: C = RunDir::read_json(&run.config_path())?;
             if saved != *config {
+                let differences = config_differences(
+                    &serde_json::to_value(&saved)?,
+                    &serde_json::to_value(config)?,
+                );
                 bail!(
-                    "{} was started with a different configuration; resume it with the same arguments as the original run ({hint}saved: {})",
+                    "{} was started with a different configuration ({}); resume it with the same arguments as the original run ({hint}or start a new run in another --out)",
                     run.config_path().display(),
-                    serde_json::to_string(&saved)?
+                    differences.join("; ")
                 );
             }
             Ok(run)
@@ -242,6 +246,39 @@ impl RunDir {
     }
 }
 
+/// The fields in which two configurations differ, as `name: saved S, now N`
+/// (nested fields as `optim.epochs`).
+pub fn config_differences(saved: &serde_json::Value, now: &serde_json::Value) -> Vec<String> {
+    fn walk(path: &str, saved: &serde_json::Value, now: &serde_json::Value, out: &mut Vec<String>) {
+        match (saved, now) {
+            (serde_json::Value::Object(a), serde_json::Value::Object(b)) => {
+                let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
+                keys.sort();
+                keys.dedup();
+                for key in keys {
+                    let name = if path.is_empty() {
+                        key.clone()
+                    } else {
+                        format!("{path}.{key}")
+                    };
+                    let null = serde_json::Value::Null;
+                    walk(
+                        &name,
+                        a.get(key).unwrap_or(&null),
+                        b.get(key).unwrap_or(&null),
+                        out,
+                    );
+                }
+            }
+            _ if saved != now => out.push(format!("{path}: saved {saved}, now {now}")),
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    walk("", saved, now, &mut out);
+    out
+}
+
 /// `DIR.next` and `DIR.old` beside `dir`.
 fn staging(dir: &Path) -> (PathBuf, PathBuf) {
     let name = dir.file_name().map(|n| n.to_string_lossy().into_owned());
@@ -376,7 +413,8 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("different configuration"), "{err}");
-        assert!(err.contains("(try --x; saved: {\"epochs\":3})"), "{err}");
+        assert!(err.contains("(epochs: saved 3, now 4)"), "{err}");
+        assert!(err.contains("(try --x; or start a new run"), "{err}");
         // Resuming where nothing was started names the folder.
         let missing = tmp.path().join("none");
         let err = RunDir::start_or_resume(&missing, &config, true, "")

@@ -50,3 +50,72 @@ impl Profile {
         }
     }
 }
+
+/// Command-line parsers that refuse out-of-range numbers at parse time, so
+/// that clap's error names the flag and nothing is written.
+pub mod parse {
+    fn number<T: std::str::FromStr>(s: &str) -> Result<T, String>
+    where
+        T::Err: std::fmt::Display,
+    {
+        s.trim().parse().map_err(|e| format!("{e}"))
+    }
+
+    /// A whole number of at least 1.
+    pub fn positive(s: &str) -> Result<usize, String> {
+        match number::<usize>(s)? {
+            0 => Err("must be at least 1".into()),
+            n => Ok(n),
+        }
+    }
+
+    /// A finite number above 0.
+    pub fn positive_real(s: &str) -> Result<f64, String> {
+        let v: f64 = number(s)?;
+        if v.is_finite() && v > 0.0 {
+            Ok(v)
+        } else {
+            Err(format!("must be a finite number above 0, got {v}"))
+        }
+    }
+
+    /// A finite number of at least 0.
+    pub fn non_negative(s: &str) -> Result<f32, String> {
+        let v: f32 = number(s)?;
+        if v.is_finite() && v >= 0.0 {
+            Ok(v)
+        } else {
+            Err(format!("must be a finite number of at least 0, got {v}"))
+        }
+    }
+
+    /// A probability below 1: a number in `[0, 1)`.
+    pub fn rate(s: &str) -> Result<f32, String> {
+        let v: f32 = number(s)?;
+        if (0.0..1.0).contains(&v) {
+            Ok(v)
+        } else {
+            Err(format!("must be in [0, 1), got {v}"))
+        }
+    }
+
+    /// A number in `[0, 1]`.
+    pub fn unit(s: &str) -> Result<f32, String> {
+        let v: f32 = number(s)?;
+        if (0.0..=1.0).contains(&v) {
+            Ok(v)
+        } else {
+            Err(format!("must be in [0, 1], got {v}"))
+        }
+    }
+
+    /// Any finite number.
+    pub fn finite(s: &str) -> Result<f32, String> {
+        let v: f32 = number(s)?;
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(format!("must be a finite number, got {v}"))
+        }
+    }
+}

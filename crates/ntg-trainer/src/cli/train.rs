@@ -166,4 +166,74 @@ mod tests {
         // An explicit 0 is no prior: what runs saved before the option hold.
         assert_eq!(prior(&["--location-step-prior", "0"]), None);
     }
+
+    #[test]
+    fn out_of_range_numbers_are_refused_at_parse_time_naming_the_flag() {
+        let refused = |args: &[&str]| {
+            let argv = ["ntg"].iter().chain(args);
+            Cli::try_parse_from(argv).unwrap_err().render().to_string()
+        };
+        for (args, flag) in [
+            (&["train", "--out", "r", "--lr", "NaN"][..], "--lr"),
+            (&["train", "--out", "r", "--lr", "inf"][..], "--lr"),
+            (&["train", "--out", "r", "--lr=-1"][..], "--lr"),
+            (&["train", "--out", "r", "--epochs", "0"][..], "--epochs"),
+            (
+                &["train", "--out", "r", "--batch-size", "0"][..],
+                "--batch-size",
+            ),
+            (
+                &["train", "--out", "r", "--train-tasks", "0"][..],
+                "--train-tasks",
+            ),
+            (
+                &["train", "--out", "r", "--retry-weight", "NaN"][..],
+                "--retry-weight",
+            ),
+            (
+                &["train", "--out", "r", "--token-dropout", "1"][..],
+                "--token-dropout",
+            ),
+            (
+                &["train", "--out", "r", "--location-step-prior", "inf"][..],
+                "--location-step-prior",
+            ),
+            (
+                &["eval", "--run", "r", "--test-tasks", "0"][..],
+                "--test-tasks",
+            ),
+            (
+                &["eval", "--run", "r", "--edge-threshold", "2"][..],
+                "--edge-threshold",
+            ),
+        ] {
+            let err = refused(args);
+            assert!(err.contains(flag), "{args:?}: {err}");
+        }
+    }
+
+    #[test]
+    fn too_many_training_tasks_are_refused_before_the_run_folder_exists() {
+        let tmp = tempfile::tempdir().unwrap();
+        for domain in ["blocks", "collect"] {
+            let out = tmp.path().join(domain);
+            let out_arg = out.to_str().unwrap();
+            let argv = [
+                "ntg",
+                "train",
+                "--domain",
+                domain,
+                "--train-tasks",
+                "5000",
+                "--out",
+                out_arg,
+            ];
+            let Command::Train(args) = Cli::try_parse_from(argv).unwrap().command else {
+                panic!("not ntg train");
+            };
+            let err = format!("{:#}", super::run_train(&args).unwrap_err());
+            assert!(err.contains("5000"), "{domain}: {err}");
+            assert!(!out.exists(), "{domain}: the run folder was created");
+        }
+    }
 }

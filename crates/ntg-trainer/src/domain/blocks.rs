@@ -602,7 +602,7 @@ pub struct BlocksFlags {
     pub gcn_from_other_demo: bool,
     /// Probability that the demo interpreter's decoder reads `<start>`
     /// instead of the previous action in training (0 = plain teacher forcing).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, value_parser = crate::spec::parse::rate, default_value_t = 0.0)]
     pub token_dropout: f32,
     /// The localizer's and edge classifier's state encoders also read every
     /// pairwise difference of cube positions.
@@ -611,7 +611,7 @@ pub struct BlocksFlags {
     /// Hidden layers of the localizer's and edge classifier's state encoder
     /// MLPs (state observations only; the demo interpreter keeps one)
     /// [default: 3 with --recipe recommended, else 1].
-    #[arg(long)]
+    #[arg(long, value_parser = crate::spec::parse::positive)]
     pub state_hidden_layers: Option<usize>,
     /// Held-out validation tasks scored after every epoch; the epoch that
     /// scores best is the run's result (`best/`). 0 = keep the last epoch.
@@ -632,7 +632,7 @@ pub struct BlocksFlags {
     pub edge_fusion_hidden: Option<usize>,
     /// Weight of recovery steps (the next action repeats one already taken)
     /// in the edge classifier's loss (1 = unweighted; not in the paper).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, value_parser = crate::spec::parse::non_negative, default_value_t = 1.0)]
     pub retry_weight: f32,
     /// Keep the edge classifier's loss out of the GCN, which then learns
     /// only to complete task graphs (not in the paper).
@@ -694,22 +694,16 @@ impl DomainRuns for Blocks {
     fn train(&self, flags: &TrainFlags, own: &DomainFlags) -> anyhow::Result<()> {
         let own = &own.blocks;
         let config = train_config(flags, own);
-        if !flags.resume {
-            if config.train_tasks == 0 || config.demos_per_task == 0 {
-                bail!("--train-tasks and --demos-per-task must be positive");
-            }
-            if config.permute_objects && config.obs != ObsKind::State {
-                bail!(
-                    "--permute-objects renames cubes in state observations; it does not apply to --obs vid"
-                );
-            }
-            if !(0.0..1.0).contains(&config.optim.token_dropout) {
-                bail!(
-                    "--token-dropout must be in [0, 1), got {}",
-                    config.optim.token_dropout
-                );
-            }
+        // Checked before the run folder exists, so a corrected command is
+        // not refused as "already exists".
+        if config.permute_objects && config.obs != ObsKind::State {
+            bail!(
+                "--permute-objects renames cubes in state observations; it does not apply to --obs vid"
+            );
         }
+        env_blocks::standard_split()?
+            .train(config.train_tasks)
+            .with_context(|| format!("--train-tasks {}", config.train_tasks))?;
         let run = RunDir::start_or_resume(
             &flags.out,
             &config,

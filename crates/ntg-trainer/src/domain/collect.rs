@@ -518,7 +518,7 @@ pub struct CollectFlags {
     /// location-aware attention's shift +1, a bias towards reading the next
     /// frame (0 = no preference) [default: 0.3 for NTG with the stepping
     /// interpreter].
-    #[arg(long, value_name = "W")]
+    #[arg(long, value_name = "W", value_parser = crate::spec::parse::finite)]
     pub location_step_prior: Option<f32>,
 }
 
@@ -566,6 +566,8 @@ impl DomainRuns for Collect {
         config.optim.learning_rate = flags.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE);
         config.optim.cosine_decay = flags.cosine_decay;
         config.validate()?;
+        // Before the run folder exists (see `blocks::Blocks::train`).
+        training_tasks(&config)?;
         let run = RunDir::start_or_resume(&flags.out, &config, flags.resume, "")?;
         eprintln!(
             "training {} ({:?} observations) on N = {:?}, {} tasks per N x {} demos, {} epochs -> {}",

@@ -114,20 +114,20 @@ pub struct TrainFlags {
     pub obs: ObsKind,
     /// Training tasks (blocks: a prefix of the standard 1000-task pool;
     /// collect: distinct training tasks per number of objects).
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, value_parser = crate::spec::parse::positive, default_value_t = 100)]
     pub train_tasks: usize,
     /// Expert demonstrations per training task.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, value_parser = crate::spec::parse::positive, default_value_t = 20)]
     pub demos_per_task: usize,
     /// Passes over the demonstrations.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, value_parser = crate::spec::parse::positive, default_value_t = 20)]
     pub epochs: usize,
     /// Demonstrations per optimisation step.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, value_parser = crate::spec::parse::positive, default_value_t = 32)]
     pub batch_size: usize,
     /// Adam learning rate [default: blocks 3e-3 with --recipe recommended,
     /// else 1e-3].
-    #[arg(long)]
+    #[arg(long, value_parser = crate::spec::parse::positive_real)]
     pub lr: Option<f64>,
     /// Seed of the weights and the shuffling.
     #[arg(long, default_value_t = 0)]
@@ -151,14 +151,14 @@ pub struct EvalFlags {
     pub run: PathBuf,
     /// Number of unseen test tasks (blocks: from the start of the standard
     /// test set; collect: test episodes per number of objects).
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, value_parser = crate::spec::parse::positive, default_value_t = 100)]
     pub test_tasks: usize,
     /// Which policy to evaluate (NTG block-stacking runs).
     #[arg(long, value_enum, default_value_t = Variant::Full)]
     pub variant: Variant,
     /// Keep GCN edges with probability at least this (default: the
     /// model's configured threshold, 0.5; NTG block-stacking runs).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::spec::parse::unit)]
     pub edge_threshold: Option<f32>,
     /// Which tasks to evaluate on (blocks): the test set, or the held-out
     /// validation tasks, where settings such as --edge-threshold can be
