@@ -75,18 +75,9 @@ pub fn main() -> ExitCode {
             return ExitCode::SUCCESS;
         }
         Err(err) => {
-            // Usage errors on one line (clap's first line), then a hint.
-            let rendered = err.render().to_string();
-            let first = rendered
-                .lines()
-                .next()
-                .unwrap_or("error: invalid arguments");
-            let hint = rendered
-                .lines()
-                .find(|l| l.trim_start().starts_with("[possible values"))
-                .map(|l| format!(" {}", l.trim()))
-                .unwrap_or_default();
-            eprintln!("{first}{hint}");
+            // Usage errors on one line: clap's first paragraph (with the
+            // missing flags after "not provided:", or the possible values).
+            eprintln!("{}", one_line(&err.render().to_string()));
             return ExitCode::from(2);
         }
     };
@@ -96,5 +87,42 @@ pub fn main() -> ExitCode {
             eprintln!("error: {err:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Clap's first paragraph of an error message on one line.
+fn one_line(rendered: &str) -> String {
+    let words: Vec<&str> = rendered
+        .lines()
+        .take_while(|l| !l.trim().is_empty())
+        .map(str::trim)
+        .collect();
+    if words.is_empty() {
+        "error: invalid arguments".to_owned()
+    } else {
+        words.join(" ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn usage_errors_keep_their_first_paragraph_on_one_line() {
+        let err = Cli::try_parse_from(["ntg", "train"]).unwrap_err();
+        let line = one_line(&err.render().to_string());
+        assert!(
+            line.starts_with("error: the following required arguments were not provided:")
+                && line.contains("--out"),
+            "{line}"
+        );
+        assert!(!line.contains('\n'));
+        let err = Cli::try_parse_from(["ntg", "train", "--out", "r", "--epochs", "x"]).unwrap_err();
+        let line = one_line(&err.render().to_string());
+        assert!(
+            line.contains("--epochs") && !line.contains("Usage"),
+            "{line}"
+        );
     }
 }
