@@ -65,9 +65,59 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// Parses a command line: clap's parsing, then the checks it cannot
+/// express (flags of another domain than `--domain`'s are refused, not
+/// ignored).
+pub fn parse_from<I, T>(args: I) -> Result<Cli, clap::Error>
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    use clap::{CommandFactory, FromArgMatches};
+    let mut command = Cli::command();
+    let matches = command.try_get_matches_from_mut(args)?;
+    let cli = Cli::from_arg_matches(&matches)?;
+    if let (Command::Train(train), Some(("train", sub))) = (&cli.command, matches.subcommand())
+        && let Some(message) = foreign_domain_flag(&command, sub, train.domain)
+    {
+        return Err(command.error(clap::error::ErrorKind::ArgumentConflict, message));
+    }
+    Ok(cli)
+}
+
+/// The message for the first `ntg train` flag given on the command line
+/// that belongs to another domain than `domain`, if any.
+fn foreign_domain_flag(
+    command: &clap::Command,
+    sub: &clap::ArgMatches,
+    domain: crate::domain::DomainId,
+) -> Option<String> {
+    let train = command.find_subcommand("train")?;
+    crate::domain::DomainId::ALL
+        .iter()
+        .filter(|&&other| other != domain)
+        .find_map(|&other| {
+            let id = other.flags_group()?;
+            let group = train.get_groups().find(|g| g.get_id() == &id)?;
+            let arg = group.get_args().find(|a| {
+                sub.value_source(a.as_str()) == Some(clap::parser::ValueSource::CommandLine)
+            })?;
+            let flag = train
+                .get_arguments()
+                .find(|x| x.get_id() == arg)
+                .and_then(|x| x.get_long())
+                .unwrap_or(arg.as_str());
+            Some(format!(
+                "--{flag} is a flag of --domain {}; this run is --domain {}",
+                other.name(),
+                domain.name()
+            ))
+        })
+}
+
 /// Entry point of the `ntg` binary: parse, run, and report errors on one line.
 pub fn main() -> ExitCode {
-    let cli = match Cli::try_parse() {
+    let cli = match parse_from(std::env::args_os()) {
         Ok(cli) => cli,
         Err(err) if !err.use_stderr() => {
             // --help / --version: print as clap formats it.
@@ -124,5 +174,38 @@ mod tests {
             line.contains("--epochs") && !line.contains("Usage"),
             "{line}"
         );
+    }
+
+    #[test]
+    fn flags_of_another_domain_are_refused_not_ignored() {
+        let err = parse_from(["ntg", "train", "--out", "r", "--memory"]).unwrap_err();
+        let line = one_line(&err.render().to_string());
+        assert!(
+            line.contains("--memory is a flag of --domain collect; this run is --domain blocks"),
+            "{line}"
+        );
+        let err = parse_from([
+            "ntg",
+            "train",
+            "--domain",
+            "collect",
+            "--out",
+            "r",
+            "--pairwise",
+        ])
+        .unwrap_err()
+        .render()
+        .to_string();
+        assert!(
+            err.contains("--pairwise is a flag of --domain blocks"),
+            "{err}"
+        );
+        // A domain's own flags, and flags left at their defaults, pass.
+        parse_from([
+            "ntg", "train", "--domain", "collect", "--out", "r", "--memory",
+        ])
+        .unwrap();
+        parse_from(["ntg", "train", "--out", "r", "--pairwise"]).unwrap();
+        parse_from(["ntg", "eval", "--run", "r"]).unwrap();
     }
 }

@@ -70,6 +70,13 @@ macro_rules! domains {
                     $(DomainId::$id => &$value,)*
                 }
             }
+
+            /// The clap group of the domain's own `ntg train` flags.
+            pub fn flags_group(self) -> Option<clap::Id> {
+                match self {
+                    $(DomainId::$id => <$flags as clap::Args>::group_id(),)*
+                }
+            }
         }
 
         /// Every domain's own `ntg train` flags.
