@@ -52,6 +52,16 @@ impl<O> Demonstration<O> {
         })
     }
 
+    /// A demonstration from parts the caller has already validated (same
+    /// rules as [`Demonstration::new`]).
+    pub(crate) fn from_validated(observations: Vec<O>, actions: Vec<ActionId>) -> Self {
+        debug_assert!(!actions.is_empty() && observations.len() == actions.len() + 1);
+        Demonstration {
+            observations,
+            actions,
+        }
+    }
+
     /// The observations, one more than the actions.
     pub fn observations(&self) -> &[O] {
         &self.observations

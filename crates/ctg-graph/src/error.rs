@@ -50,6 +50,21 @@ pub enum CtgError {
         /// Number of observations required (`actions + 1`).
         expected: usize,
     },
+    /// A video demonstration whose frame segments do not match its actions:
+    /// it needs one segment of frames before the first action and one per
+    /// action, none empty.
+    #[error(
+        "a video demonstration with {actions} actions needs {expected} non-empty \
+         frame segments (one before the first action and one per action): {problem}"
+    )]
+    VideoSegments {
+        /// Number of actions.
+        actions: usize,
+        /// Number of segments required (`actions + 1`).
+        expected: usize,
+        /// What is wrong.
+        problem: String,
+    },
     /// Two graphs (or a graph and a vocabulary) of different sizes.
     #[error("size mismatch: {left} nodes vs {right} nodes")]
     SizeMismatch {

@@ -15,6 +15,8 @@
 //! - [`Ctg`]: dense weighted adjacency, built from demonstrated paths and
 //!   their union, thresholded, exported to DOT, serialised with serde;
 //! - [`Demonstration`]: observations plus actions, validated;
+//!   [`VideoDemonstration`]: the same as a video, many frames per action,
+//!   each frame labelled with the action it belongs to;
 //! - [`Environment`] / [`Expert`] in the Gymnasium style (`reset(seed)`,
 //!   `step` with `terminated` vs `truncated`), and [`check_environment`],
 //!   the conformance check every environment crate runs;
@@ -76,6 +78,7 @@ mod error;
 mod exec;
 mod graph;
 pub mod symbolic;
+mod video;
 mod vocab;
 
 pub use demo::Demonstration;
@@ -88,4 +91,5 @@ pub use exec::{
     OracleEdgeScorer, OracleNodeScorer, Rollout, UniformEdgeScorer, UniformNodeScorer,
 };
 pub use graph::{Ctg, Edge};
+pub use video::VideoDemonstration;
 pub use vocab::{ActionId, Vocabulary};
