@@ -1,4 +1,5 @@
-//! Criterion benchmarks: rendered frames, env steps and expert demos.
+//! Criterion benchmarks: rendered frames, env steps, expert demos and
+//! demonstration videos.
 //!
 //! `cargo bench -p env-blocks`. Throughput is reported per element (frames,
 //! steps, demos).
@@ -8,7 +9,10 @@ use std::hint::black_box;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ctg_graph::Environment;
 use env_blocks::render::CUBE_COLOURS;
-use env_blocks::{BlocksEnv, BlocksTask, EnvConfig, Renderer, generate_demos, standard_tasks};
+use env_blocks::{
+    BlocksEnv, BlocksTask, EnvConfig, Renderer, VideoConfig, generate_demos, record_video_demo,
+    standard_tasks,
+};
 
 fn render(c: &mut Criterion) {
     let task = standard_tasks().unwrap().remove(0);
@@ -85,5 +89,31 @@ fn demos(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, render, steps, demos);
+fn videos(c: &mut Criterion) {
+    // Video demos of one standard stacking task (failures on, default
+    // timing), 8 seeds per iteration on one thread; the same work is
+    // reported per demo and per frame.
+    let task = BlocksTask::Stack(standard_tasks().unwrap().remove(0));
+    let config = EnvConfig::default();
+    let video = VideoConfig::default();
+    let seeds: Vec<u64> = (0..8).collect();
+    let record_all = || {
+        seeds
+            .iter()
+            .map(|&s| record_video_demo(task.clone(), config, s, &video).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let frames: usize = record_all().iter().map(|v| v.num_frames()).sum();
+    let mut g = c.benchmark_group("video_demos");
+    g.sample_size(10);
+    for (name, elements) in [("demos", seeds.len()), ("frames", frames)] {
+        g.throughput(Throughput::Elements(elements as u64));
+        g.bench_function(format!("stack_task0_{name}"), |b| {
+            b.iter(|| black_box(record_all()))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, render, steps, demos, videos);
 criterion_main!(benches);

@@ -12,7 +12,9 @@
 //!   (`pick(X)`, `place(Y)`) or NTP's primitive level;
 //! - [`expert`]: the scripted [`BlocksExpert`], NTP's hierarchical trace,
 //!   rich demos and parallel demo generation;
-//! - [`sheet`]: contact sheets of frames.
+//! - [`video`]: demonstration videos, the expert's demo rendered along each
+//!   primitive's motion (several frames per flat action, seeded lengths);
+//! - [`sheet`]: contact sheets of frames and of videos.
 //!
 //! Must never depend on `ntg-model`, burn, or another environment crate.
 
@@ -23,6 +25,7 @@ pub mod render;
 pub mod sheet;
 pub mod sorting;
 pub mod task;
+pub mod video;
 pub mod world;
 
 pub use env::{
@@ -39,6 +42,9 @@ pub use sorting::{SortTask, generate_sort_tasks, standard_sort_tasks};
 pub use task::{
     Goal, StackTask, StandardSplit, TaskStats, generate_stack_tasks, parse_ntp_tasks,
     read_ntp_tasks, standard_split, standard_tasks, validation_tasks, write_ntp_tasks,
+};
+pub use video::{
+    FrameRange, VideoConfig, generate_video_demos, record_video_demo, video_segment_lengths,
 };
 pub use world::{Failure, FailureConfig, Outcome, Primitive, Support, Target, World};
 

@@ -21,7 +21,7 @@ use parry3d::math::Pose;
 use parry3d::query::{Ray, RayCast};
 use parry3d::shape::Cuboid;
 
-use crate::world::{BIN_HALF, BIN_THICKNESS, CUBE_HALF, WORKSPACE_HALF, World};
+use crate::world::{BIN_HALF, BIN_THICKNESS, Bin, CUBE_HALF, WORKSPACE_HALF, World};
 
 /// Frame width and height in pixels.
 pub const FRAME_SIZE: u32 = 64;
@@ -81,6 +81,29 @@ pub struct DrawBox {
     pub half: Vec3,
     /// Linear RGB in [0, 1].
     pub colour: [f32; 3],
+}
+
+/// How the gripper's fingers are drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fingers {
+    /// Open wide (around a cube, without touching it).
+    Open,
+    /// Closed on a cube (touching its sides).
+    OnCube,
+    /// Closed on nothing.
+    ClosedEmpty,
+}
+
+impl Fingers {
+    /// The fingers of a world's gripper: open, or closed on the held cube,
+    /// or closed empty.
+    pub fn of(world: &World) -> Fingers {
+        match (world.is_closed(), world.held()) {
+            (false, _) => Fingers::Open,
+            (true, Some(_)) => Fingers::OnCube,
+            (true, None) => Fingers::ClosedEmpty,
+        }
+    }
 }
 
 /// The fixed camera with its precomputed rays and table background.
@@ -174,27 +197,48 @@ impl Renderer {
     /// cube), bin pads, and the gripper (two fingers and a palm, fingers
     /// open wide, closed on a cube, or closed empty).
     pub fn scene_boxes(world: &World, colours: &[[f32; 3]]) -> Vec<DrawBox> {
-        let mut boxes = Vec::with_capacity(world.objects().len() + world.bins().len() + 3);
-        for (b, bin) in world.bins().iter().enumerate() {
+        Self::pose_boxes(
+            world.objects(),
+            world.bins(),
+            world.gripper(),
+            Fingers::of(world),
+            colours,
+        )
+    }
+
+    /// The boxes of a scene given piece by piece: cubes at `objects`
+    /// (coloured by `colours`, one per cube), the `bins`' pads, and the
+    /// gripper at `gripper` (its grasp point) with its `fingers`. For a
+    /// world's own pieces this is [`Renderer::scene_boxes`]; videos use it
+    /// for the poses between two worlds.
+    pub fn pose_boxes(
+        objects: &[Vec3],
+        bins: &[Bin],
+        gripper: Vec3,
+        fingers: Fingers,
+        colours: &[[f32; 3]],
+    ) -> Vec<DrawBox> {
+        let mut boxes = Vec::with_capacity(objects.len() + bins.len() + 3);
+        for (b, bin) in bins.iter().enumerate() {
             boxes.push(DrawBox {
                 centre: Vec3::new(bin.centre.x, bin.centre.y, BIN_THICKNESS / 2.0),
                 half: Vec3::new(BIN_HALF, BIN_HALF, BIN_THICKNESS / 2.0),
                 colour: BIN_COLOURS[b % BIN_COLOURS.len()],
             });
         }
-        for (i, p) in world.objects().iter().enumerate() {
+        for (i, p) in objects.iter().enumerate() {
             boxes.push(DrawBox {
                 centre: *p,
                 half: Vec3::splat(CUBE_HALF),
                 colour: colours.get(i).copied().unwrap_or([0.5, 0.5, 0.5]),
             });
         }
-        let g = world.gripper();
+        let g = gripper;
         let finger_half = Vec3::new(0.008, 0.005, 0.022);
-        let spread = match (world.is_closed(), world.held()) {
-            (false, _) => CUBE_HALF + 0.02,
-            (true, Some(_)) => CUBE_HALF + finger_half.y,
-            (true, None) => 0.01,
+        let spread = match fingers {
+            Fingers::Open => CUBE_HALF + 0.02,
+            Fingers::OnCube => CUBE_HALF + finger_half.y,
+            Fingers::ClosedEmpty => 0.01,
         };
         for side in [-1.0, 1.0] {
             boxes.push(DrawBox {

@@ -1,5 +1,7 @@
 //! Speed of the environment: steps/s without rendering, steps/s with a frame
-//! rendered per step (= frames/s), and parallel demonstration generation.
+//! rendered per step (= frames/s), parallel demonstration generation, and
+//! video demonstrations (frames/s; demos/s = 8 / time per iteration) next
+//! to one-frame demonstrations of the same 8 episodes.
 //!
 //! `cargo bench -p env-collect --bench collect`
 
@@ -8,7 +10,8 @@ use std::hint::black_box;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use ctg_graph::{ActionId, Environment, record_demonstration};
 use env_collect::{
-    CollectConfig, CollectEnv, CollectExpert, Task, TaskSplitter, generate_demos, jobs_for_tasks,
+    CollectConfig, CollectEnv, CollectExpert, Task, TaskSplitter, VideoConfig, generate_demos,
+    jobs_for_tasks, record_demo, record_video_demo,
 };
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -67,5 +70,34 @@ fn demos(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, steps, demos);
+fn videos(c: &mut Criterion) {
+    let t = task(4);
+    let config = CollectConfig::default();
+    let video = VideoConfig::default();
+    let seeds: Vec<u64> = (0..8).collect();
+    let record = || {
+        seeds
+            .iter()
+            .map(|&s| record_video_demo(t.clone(), config, s, &video).expect("video"))
+            .collect::<Vec<_>>()
+    };
+    let frames: usize = record().iter().map(|v| v.num_frames()).sum();
+    let keyframes: usize = record().iter().map(|v| v.len() + 1).sum();
+    let mut group = c.benchmark_group("video_demos_n4");
+    group.sample_size(20);
+    // Elements = frames: frames/s; 8 demos per iteration.
+    group.throughput(Throughput::Elements(frames as u64));
+    group.bench_function("8_videos", |b| b.iter(|| black_box(record())));
+    group.throughput(Throughput::Elements(keyframes as u64));
+    group.bench_function("8_one_frame_demos", |b| {
+        b.iter(|| {
+            for &s in &seeds {
+                black_box(record_demo(&t, s, &config).expect("demo"));
+            }
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, steps, demos, videos);
 criterion_main!(benches);

@@ -474,46 +474,100 @@ impl CollectEnv {
 
 fn render_frame(e: &Episode, visible: &[usize]) -> RgbImage {
     let mut img = RgbImage::new(FRAME_SIZE, FRAME_SIZE);
-    let objects = &e.scene.objects;
-    let salt = match e.place {
+    let salt = draw_place(&mut img, &e.scene, e.place, visible, None);
+    draw_hand_of(&mut img, &e.scene, e.held);
+    render::add_noise(&mut img, salt);
+    img
+}
+
+/// Draws `place` of `scene` with the objects `visible` there (indices into
+/// [`Scene::objects`], in drawing order; inside a receptacle the `i`-th
+/// takes slot `i`), leaving out `skip` but keeping the others' slots; no
+/// hand inset, no noise. Returns the place's noise salt.
+pub(crate) fn draw_place(
+    img: &mut RgbImage,
+    scene: &Scene,
+    place: Place,
+    visible: &[usize],
+    skip: Option<usize>,
+) -> u64 {
+    let shown = visible
+        .iter()
+        .enumerate()
+        .filter(|&(_, &k)| Some(k) != skip);
+    match place {
         Place::Start => {
-            render::draw_start(&mut img, &e.scene.start);
-            e.scene.start.salt
+            render::draw_start(img, &scene.start);
+            scene.start.salt
         }
         Place::Location(i) => {
-            let loc = &e.scene.locations[i];
-            render::draw_surface(&mut img, loc.surface, &loc.backdrop);
-            for &k in visible {
-                let o = &objects[k];
-                let (x, y) = o.position;
-                render::draw_object(&mut img, o.category, x, y, o.appearance.size, &o.appearance);
+            let loc = &scene.locations[i];
+            render::draw_surface(img, loc.surface, &loc.backdrop);
+            for (_, &k) in shown {
+                let (x, y, size) = object_pose(scene, place, visible, k);
+                let o = &scene.objects[k];
+                render::draw_object(img, o.category, x, y, size, &o.appearance);
             }
             loc.backdrop.salt
         }
         Place::Receptacle(r) => {
-            let backdrop = &e.scene.receptacles[r.index()];
-            render::draw_receptacle(&mut img, r, backdrop);
-            for (slot, &k) in visible.iter().enumerate() {
-                let o = &objects[k];
+            let backdrop = &scene.receptacles[r.index()];
+            render::draw_receptacle(img, r, backdrop);
+            for (slot, &k) in shown {
+                let o = &scene.objects[k];
                 let (x, y) = render::receptacle_slot(r, slot);
-                render::draw_object(
-                    &mut img,
-                    o.category,
-                    x,
-                    y,
-                    RECEPTACLE_OBJECT_SIZE,
-                    &o.appearance,
-                );
+                render::draw_object(img, o.category, x, y, RECEPTACLE_OBJECT_SIZE, &o.appearance);
             }
             backdrop.salt
         }
-    };
-    let held = e
-        .held
-        .map(|k| (objects[k].category, &objects[k].appearance));
-    render::draw_hand(&mut img, held);
-    render::add_noise(&mut img, salt);
-    img
+    }
+}
+
+/// Where object `k` (one of `visible` at `place`) is drawn: centre and size.
+pub(crate) fn object_pose(
+    scene: &Scene,
+    place: Place,
+    visible: &[usize],
+    k: usize,
+) -> (f32, f32, f32) {
+    let o = &scene.objects[k];
+    match place {
+        Place::Receptacle(r) => {
+            let slot = visible.iter().position(|&j| j == k).unwrap_or(0);
+            let (x, y) = render::receptacle_slot(r, slot);
+            (x, y, RECEPTACLE_OBJECT_SIZE)
+        }
+        Place::Start | Place::Location(_) => (o.position.0, o.position.1, o.appearance.size),
+    }
+}
+
+/// Draws the hand inset holding object `held` of `scene`, if any.
+pub(crate) fn draw_hand_of(img: &mut RgbImage, scene: &Scene, held: Option<usize>) {
+    let held = held.map(|k| (scene.objects[k].category, &scene.objects[k].appearance));
+    render::draw_hand(img, held);
+}
+
+/// What the agent sees, as object indices: the crate's view of one moment
+/// of an episode, for rendering frames between observations.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct Snapshot {
+    /// Where the agent is.
+    pub(crate) place: Place,
+    /// Objects visible there, in drawing order.
+    pub(crate) visible: Vec<usize>,
+    /// The held object.
+    pub(crate) held: Option<usize>,
+}
+
+impl CollectEnv {
+    /// The current moment as object indices (`None` before the first reset).
+    pub(crate) fn snapshot(&self) -> Option<Snapshot> {
+        self.episode.as_ref().map(|e| Snapshot {
+            place: e.place,
+            visible: e.visible(),
+            held: e.held,
+        })
+    }
 }
 
 impl Environment for CollectEnv {

@@ -1,10 +1,10 @@
 //! Writing a demonstration to disk: JSON, one PNG per frame, and a contact
-//! sheet.
+//! sheet; contact sheets of video demonstrations.
 
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use ctg_graph::{Demonstration, Environment, Vocabulary, record_demonstration};
+use ctg_graph::{Demonstration, Environment, VideoDemonstration, Vocabulary, record_demonstration};
 use image::RgbImage;
 use serde::Serialize;
 
@@ -18,6 +18,8 @@ pub const DEMO_FORMAT: &str = "ntg-collect-demo/1";
 pub const SHEET_COLUMNS: usize = 6;
 /// Magnification of frames on a contact sheet.
 pub const SHEET_SCALE: u32 = 2;
+/// Frames per row of a video's contact sheet.
+pub const VIDEO_SHEET_COLUMNS: usize = 8;
 
 /// One observation of a written demonstration.
 #[derive(Debug, Clone, Serialize)]
@@ -94,6 +96,39 @@ pub fn demo_contact_sheet(demo: &Demonstration<CollectObservation>) -> Option<Rg
         .collect();
     let cells: Vec<(&RgbImage, String)> = frames?.into_iter().zip(captions(demo)).collect();
     Some(contact_sheet(&cells, SHEET_COLUMNS, SHEET_SCALE))
+}
+
+/// Captions for a video's frames: `s.j/n action`, frame `j` of the `n` of
+/// segment `s` and its action (`<START>` for segment 0); `j = n` is the
+/// keyframe.
+pub fn video_captions<F>(video: &VideoDemonstration<F>) -> Vec<String> {
+    let vocab = vocabulary();
+    let nodes = video.node_labels();
+    video
+        .segments()
+        .enumerate()
+        .flat_map(|(s, range)| {
+            let n = range.len();
+            let name = vocab.name(nodes[s]).unwrap_or("?");
+            (1..=n).map(move |j| format!("{s}.{j}/{n} {name}"))
+        })
+        .collect()
+}
+
+/// A contact sheet of a video demonstration: every frame with its
+/// [`video_captions`] caption, [`VIDEO_SHEET_COLUMNS`] per row.
+pub fn video_contact_sheet(video: &VideoDemonstration<RgbImage>) -> RgbImage {
+    let cells: Vec<(&RgbImage, String)> =
+        video.frames().iter().zip(video_captions(video)).collect();
+    contact_sheet(&cells, VIDEO_SHEET_COLUMNS, SHEET_SCALE)
+}
+
+/// Writes [`video_contact_sheet`] as a PNG at `path`.
+pub fn write_video_contact_sheet(
+    path: &Path,
+    video: &VideoDemonstration<RgbImage>,
+) -> Result<(), CollectError> {
+    save_png(&video_contact_sheet(video), path)
 }
 
 fn save_png(img: &RgbImage, path: &Path) -> Result<(), CollectError> {

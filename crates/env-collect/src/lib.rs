@@ -31,6 +31,15 @@
 //! `docs/collect-contact-sheet.png`). [`frame_to_chw`] turns a frame into the
 //! CHW `[0, 1]` features the frame encoder reads.
 //!
+//! [`video`] records demonstrations as videos
+//! ([`ctg_graph::VideoDemonstration`]): several frames per action, of
+//! seeded, varying number ([`VideoConfig`]), showing the motion (walking
+//! pans, the arm reaching, the object lifting into the hand, the receptacle
+//! opening and the object dropping in), each action's segment ending on the
+//! very frame the environment observes ([`record_video_demo`],
+//! [`VideoRecorder`] for any rollout, [`generate_video_demos`] in parallel;
+//! [`export::video_contact_sheet`] draws one).
+//!
 //! Speed (criterion, `cargo bench -p env-collect`): see `benches/collect.rs`.
 //!
 //! **Architecture invariant:** depends on `ctg-graph`, `image`, `rand`,
@@ -58,6 +67,7 @@ pub mod export;
 mod generate;
 pub mod render;
 mod task;
+pub mod video;
 
 pub use domain::{Action, Category, Receptacle, Surface, vocabulary};
 pub use env::{
@@ -69,6 +79,7 @@ pub use generate::{
     DemoJob, generate_demos, generate_demos_sequential, jobs_for_tasks, record_demo,
 };
 pub use task::{Split, Target, Task, TaskSplitter};
+pub use video::{FrameRange, VideoConfig, VideoRecorder, generate_video_demos, record_video_demo};
 
 /// Errors of this crate (environment-protocol errors are
 /// [`ctg_graph::CtgError`], wrapped here where they meet the others).

@@ -512,6 +512,58 @@ pub fn draw_receptacle(img: &mut RgbImage, receptacle: Receptacle, backdrop: &Ba
     }
 }
 
+/// Draws the receptacle's door (lid, cover) over its content area, `open`
+/// in [0, 1]: closed at 0, swung towards its hinge on the left as it opens,
+/// gone at 1 (the frame then equals the open receptacle).
+pub fn draw_receptacle_door(
+    img: &mut RgbImage,
+    receptacle: Receptacle,
+    backdrop: &Backdrop,
+    open: f32,
+) {
+    let [x0, y0, x1, y1] = content_area(receptacle);
+    let (x0, y0, x1, y1) = (x0 - 1.0, y0 - 1.0, x1 + 1.0, y1 + 1.0);
+    let width = (1.0 - open.clamp(0.0, 1.0)) * (x1 - x0);
+    if width < 0.5 {
+        return;
+    }
+    let color = tinted(
+        match receptacle {
+            Receptacle::Fridge => [236.0, 238.0, 244.0],
+            Receptacle::Sink => [150.0, 112.0, 70.0],
+            Receptacle::Cabinet => [140.0, 92.0, 52.0],
+            Receptacle::Microwave => [44.0, 46.0, 54.0],
+            Receptacle::GarbageCan => [36.0, 84.0, 50.0],
+        },
+        backdrop.tint,
+    );
+    let right = x0 + width;
+    fill_rect(img, scaled(color, 0.6), [x0, y0, right, y1]);
+    fill_rect(img, color, [x0 + 1.0, y0 + 1.0, right - 1.0, y1 - 1.0]);
+    if width > 5.0 {
+        let (hx, hy) = (right - 3.0, (y0 + y1) / 2.0);
+        fill_rect(
+            img,
+            scaled(color, 0.35),
+            [hx - 1.0, hy - 3.0, hx + 1.0, hy + 3.0],
+        );
+    }
+}
+
+/// Draws the agent's arm reaching from `from` (usually below the frame) to
+/// `to`, where its hand is.
+pub fn draw_arm(img: &mut RgbImage, from: (f32, f32), to: (f32, f32)) {
+    let skin = [226.0, 176.0, 140.0];
+    let r = 2.6;
+    outlined(img, capsule_bbox(from, to, r), skin, |x, y, g| {
+        segment_distance(x, y, from, to) <= r + g
+    });
+    let hand = 3.4;
+    outlined(img, square_bbox(to.0, to.1, hand), skin, |x, y, g| {
+        in_ellipse(x, y, to.0, to.1, hand + g, hand + g)
+    });
+}
+
 /// Where the `i`-th object in a receptacle is drawn (centre), laid out in
 /// rows across the receptacle's content area, skipping the hand inset;
 /// past the last free cell the layout starts over (objects overlap).
@@ -636,6 +688,7 @@ fn glyph(c: char) -> u16 {
         ':' => 0b000_010_000_010_000,
         '.' => 0b000_000_000_000_010,
         '!' => 0b010_010_010_000_010,
+        '/' => 0b001_001_010_100_100,
         ' ' => 0,
         _ => 0b111_111_111_111_111,
     }

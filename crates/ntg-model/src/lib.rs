@@ -12,6 +12,9 @@
 //! - [`NodeLocalizer`]: ℓ(n|o) ∝ exp(Enc(o)ᵀ NE_loc(n));
 //! - [`EdgeClassifier`]: ε(a|n,o) ∝ exp((W[Enc(o), NE_gcn(n)])ᵀ NE_loc(n_a)),
 //!   masked to the CTG successors of n;
+//! - [`FrameStageNet`]: training NTG on videos, stage A: the one shared
+//!   frame encoder trained with the localizer's and edge classifier's
+//!   losses on single frames (stage B trains the rest on its embeddings);
 //! - [`FlatPolicy`]: the Flat Policy baseline (Duan et al. 2017), attention
 //!   over the encoded demo with the current observation as the query, then
 //!   an MLP to the next action;
@@ -38,6 +41,7 @@ mod edge;
 mod encoder;
 mod error;
 mod flat_policy;
+mod frame_stage;
 mod gcn;
 mod interpreter;
 mod localizer;
@@ -57,6 +61,7 @@ pub use flat_policy::{
     ConditionedFlatPolicy, FlatBatch, FlatExample, FlatOutput, FlatPolicy, FlatPolicyConfig,
     executed_actions,
 };
+pub use frame_stage::{FrameStageConfig, FrameStageLoss, FrameStageNet};
 pub use gcn::{EdgeCounts, GcnOutput, GraphCompletionConfig, GraphCompletionNet, PairMlp};
 pub use interpreter::{DemoInterpreter, DemoInterpreterConfig, InterpreterOutput, LossOutput};
 pub use localizer::{NodeLocalizer, NodeLocalizerConfig};

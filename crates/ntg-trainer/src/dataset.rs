@@ -8,7 +8,9 @@
 //! - `index.json`: `{"format": "ntg-dataset/1", "obs_dim": D, "dtype": "f32" | "u8",
 //!   "vocabulary": [action names], "demos": [{"task": t, "seed": s,
 //!   "actions": [ids], "first_row": r}]}`. Demo *i* owns observation rows
-//!   `first_row .. first_row + actions.len() + 1`, in order.
+//!   `first_row .. first_row + actions.len() + 1`, in order; a video demo
+//!   also has `"segment_ends": [e0, e1, ...]` (one per action plus the
+//!   first, relative to `first_row`) and owns its `e_last` frames.
 //! - `observations.bin`: every observation row back to back, `D` values per
 //!   row, little-endian `f32`, or `u8` holding `round(255 * value)` for
 //!   observations whose values are multiples of 1/255 in `[0, 1]` (frames).
@@ -19,7 +21,10 @@ use std::ops::Range;
 use std::path::Path;
 
 use anyhow::{Context, bail, ensure};
-use ctg_graph::{ActionId, Demonstration, Environment, Expert, Vocabulary, record_demonstration};
+use ctg_graph::{
+    ActionId, Demonstration, Environment, Expert, VideoDemonstration, Vocabulary,
+    record_demonstration,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -53,12 +58,54 @@ pub struct DemoEntry {
     pub actions: Vec<ActionId>,
     /// First observation row.
     pub first_row: usize,
+    /// Video demonstrations: the exclusive end of each frame segment,
+    /// relative to `first_row` (see `ctg_graph::VideoDemonstration`); the
+    /// demo owns every frame. `None`: one row per CTG node (keyframes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub segment_ends: Option<Vec<usize>>,
 }
 
 impl DemoEntry {
-    /// Observation rows of this demonstration (one more than actions).
+    /// Number of observation rows: one more than actions, or a video's
+    /// frames.
+    pub fn num_rows(&self) -> usize {
+        match &self.segment_ends {
+            Some(ends) => ends.last().copied().unwrap_or(0),
+            None => self.actions.len() + 1,
+        }
+    }
+
+    /// Observation rows of this demonstration (all of a video's frames).
     pub fn rows(&self) -> Range<usize> {
-        self.first_row..self.first_row + self.actions.len() + 1
+        self.first_row..self.first_row + self.num_rows()
+    }
+
+    /// Index within [`DemoEntry::rows`] of the row at each CTG node (one
+    /// more than actions): every row, or the last frame of each segment of
+    /// a video.
+    pub fn keyframes(&self) -> Vec<usize> {
+        match &self.segment_ends {
+            Some(ends) => ends.iter().map(|&e| e - 1).collect(),
+            None => (0..=self.actions.len()).collect(),
+        }
+    }
+
+    /// Checks that a video's segments fit its actions (one non-empty
+    /// segment per action, plus the first).
+    fn check_segments(&self) -> anyhow::Result<()> {
+        if let Some(ends) = &self.segment_ends {
+            ensure!(
+                ends.len() == self.actions.len() + 1,
+                "{} segments for {} actions",
+                ends.len(),
+                self.actions.len()
+            );
+            ensure!(
+                ends.first().is_some_and(|&e| e > 0) && ends.windows(2).all(|w| w[0] < w[1]),
+                "frame segments must be non-empty and in order"
+            );
+        }
+        Ok(())
     }
 }
 
@@ -131,6 +178,7 @@ impl DemoDataset {
                 seed,
                 actions: demo.actions().to_vec(),
                 first_row: row,
+                segment_ends: None,
             });
             row += demo.len() + 1;
         }
@@ -140,6 +188,70 @@ impl DemoDataset {
             obs,
             demos: entries,
         })
+    }
+
+    /// Builds a dataset of video demonstrations whose frames are already
+    /// featurised (`obs_dim` values each, stored as `f32`).
+    pub fn from_videos(
+        vocab: Vocabulary,
+        obs_dim: usize,
+        videos: impl IntoIterator<Item = (usize, u64, VideoDemonstration<Vec<f32>>)>,
+    ) -> anyhow::Result<Self> {
+        let mut dataset = DemoDataset {
+            vocab,
+            obs_dim,
+            obs: ObsBuffer::F32(Vec::new()),
+            demos: Vec::new(),
+        };
+        for (task, seed, video) in videos {
+            dataset.push_video(task, seed, video)?;
+        }
+        Ok(dataset)
+    }
+
+    /// Appends one featurised video demonstration.
+    pub fn push_video(
+        &mut self,
+        task: usize,
+        seed: u64,
+        video: VideoDemonstration<Vec<f32>>,
+    ) -> anyhow::Result<()> {
+        let first_row = self.num_rows();
+        let ends = video.segments().map(|r| r.end).collect::<Vec<usize>>();
+        let (frames, _, actions) = video.into_parts();
+        for (k, f) in frames.iter().enumerate() {
+            ensure!(
+                f.len() == self.obs_dim,
+                "task {task} seed {seed}: frame {k} has {} values, expected {}",
+                f.len(),
+                self.obs_dim
+            );
+            match &mut self.obs {
+                ObsBuffer::F32(buf) => buf.extend_from_slice(f),
+                ObsBuffer::U8(buf) => {
+                    for &v in f {
+                        ensure!(
+                            (0.0..=1.0).contains(&v),
+                            "task {task} seed {seed}: value {v} cannot be stored as u8"
+                        );
+                        buf.push((v * 255.0).round() as u8);
+                    }
+                }
+            }
+        }
+        self.demos.push(DemoEntry {
+            task,
+            seed,
+            actions,
+            first_row,
+            segment_ends: Some(ends),
+        });
+        Ok(())
+    }
+
+    /// Whether the demonstrations are videos (several frames per action).
+    pub fn is_video(&self) -> bool {
+        self.demos.iter().any(|d| d.segment_ends.is_some())
     }
 
     /// The action vocabulary.
@@ -181,10 +293,14 @@ impl DemoDataset {
         v
     }
 
-    /// Demonstration `i` as rows of `f32`.
+    /// Demonstration `i` as rows of `f32` (a video's keyframes).
     pub fn demonstration(&self, i: usize) -> anyhow::Result<Demonstration<Vec<f32>>> {
         let entry = &self.demos[i];
-        let obs = entry.rows().map(|r| self.row(r)).collect();
+        let obs = entry
+            .keyframes()
+            .into_iter()
+            .map(|k| self.row(entry.first_row + k))
+            .collect();
         Ok(Demonstration::new(obs, entry.actions.clone(), &self.vocab)?)
     }
 
@@ -262,13 +378,15 @@ impl DemoDataset {
             if d.actions.is_empty() {
                 bail!("{}: demo {i} has no actions", index_path.display());
             }
+            d.check_segments()
+                .with_context(|| format!("{}: demo {i}", index_path.display()))?;
             for &a in &d.actions {
                 index
                     .vocabulary
                     .check_action(a)
                     .with_context(|| format!("{}: demo {i}", index_path.display()))?;
             }
-            expected_rows += d.actions.len() + 1;
+            expected_rows += d.num_rows();
         }
         let bin_path = dir.join("observations.bin");
         let mut bytes = Vec::new();

@@ -8,7 +8,9 @@
 //! - [`fit`]: the one epoch loop (checkpoints, exact resume, validation
 //!   and best-epoch selection) that every method trains through;
 //! - [`method`]: methods, one file each (NTG, the Flat Policy): a training
-//!   step and a model that can be conditioned on a demo;
+//!   step and a model that can be conditioned on a demo; [`video`]: NTG
+//!   from demo videos, trained in stages (the shared frame encoder on
+//!   single frames, then the rest on its cached embeddings);
 //! - [`domain`]: domains, one file each (block stacking, object
 //!   collection) behind one trait, and the one evaluation loop;
 //!   [`jigsaws`]: the JIGSAWS cross-task experiment, scored by NLL;
@@ -40,5 +42,6 @@ pub mod stats;
 pub mod svg;
 pub mod symmetry;
 pub mod trace;
+pub mod video;
 
 pub use domain::{blocks, collect};

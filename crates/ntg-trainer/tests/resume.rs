@@ -26,6 +26,7 @@ fn config() -> BlocksRunConfig {
         retry_weight: 3.0,
         detach_gcn_from_edges: true,
         soft_edges: true,
+        video: None,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,

@@ -37,6 +37,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         retry_weight: 0.0,
         detach_gcn_from_edges: false,
         soft_edges: false,
+        video: None,
         optim: OptimConfig {
             epochs: 25,
             batch_size: 32,
@@ -51,10 +52,11 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
     RunDir::write_json(&run.config_path(), &config).unwrap();
     let device = ntg_model::cpu_device().autodiff();
     let model = train_run(&run, &config, &device, |_| {}).unwrap();
+    let model = model.ntg();
 
-    let ntg = evaluate(&model, ObsKind::State, true, TEST_TASKS, Variant::Full).unwrap();
+    let ntg = evaluate(model, ObsKind::State, true, TEST_TASKS, Variant::Full).unwrap();
     let uniform = evaluate(
-        &model,
+        model,
         ObsKind::State,
         true,
         TEST_TASKS,

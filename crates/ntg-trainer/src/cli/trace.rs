@@ -32,7 +32,14 @@ pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
     let run = RunDir::open(&args.run)?;
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     let device = ntg_model::cpu_device();
-    let model = crate::blocks::load_trained(&run, args.edge_threshold, &device)?;
+    let crate::blocks::TrainedBlocks::State(model) =
+        crate::blocks::load_trained(&run, args.edge_threshold, &device)?
+    else {
+        anyhow::bail!(
+            "{}: ntg trace replays state-input runs; this run is on video (--obs vid)",
+            run.root().display()
+        );
+    };
     let index = crate::trace::resolve_test_task(&args.task)?;
     let trace = crate::trace::trace_task(&model, config.obs, config.failures, index, &args.out)?;
     print!("{}", crate::trace::trace_table(&trace));

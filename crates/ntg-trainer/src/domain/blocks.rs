@@ -22,11 +22,13 @@ use crate::domain::{
 };
 use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore};
 pub use crate::method::ntg::Variant;
-use crate::method::ntg::{EpochMetrics, NtgTraining, TrainExtras, train_with};
+use crate::method::ntg::{EpochMetrics, GcnSource, NtgTraining, TrainExtras, train_with};
+use crate::method::ntg_video::{NtgBased, VideoNtgModel};
 use crate::run_dir::RunDir;
 pub use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
 use crate::symmetry::{ObjectSymmetry, RenamingFilter};
+use crate::video::{EncoderStage, VideoRun};
 
 /// Seed base of training demonstrations.
 pub const TRAIN_SEED_BASE: u64 = 10_000_000;
@@ -47,10 +49,17 @@ pub fn obs_dim(kind: ObsKind) -> usize {
     }
 }
 
-/// The encoder for `kind` (`state_hidden_layers` and `pairwise` apply to
-/// the state MLP: the relational input covers the 8 cube positions).
+/// The encoder of the NTG networks for `kind` (`state_hidden_layers` and
+/// `pairwise` apply to the state MLP: the relational input covers the 8
+/// cube positions). On video the networks read the frozen frame encoder's
+/// embeddings (see [`crate::video`]) through an MLP of
+/// `state_hidden_layers` layers.
 pub fn encoder(kind: ObsKind, state_hidden_layers: usize, pairwise: bool) -> EncoderConfig {
     match kind {
+        ObsKind::Vid => EncoderConfig::State(
+            ntg_model::StateEncoderConfig::new(EncoderStage::default().embedding_dim())
+                .with_hidden_layers(state_hidden_layers),
+        ),
         ObsKind::State => EncoderConfig::State(
             ntg_model::StateEncoderConfig::new(env_blocks::STATE_DIM)
                 .with_hidden_layers(state_hidden_layers)
@@ -60,7 +69,6 @@ pub fn encoder(kind: ObsKind, state_hidden_layers: usize, pairwise: bool) -> Enc
                     0
                 }),
         ),
-        ObsKind::Vid => EncoderConfig::frame(),
     }
 }
 
@@ -153,8 +161,41 @@ pub struct BlocksRunConfig {
     /// classifier is trained the same way (softmax over every node).
     #[serde(default)]
     pub soft_edges: bool,
+    /// Video runs (`obs: vid`): how demo videos are recorded and the
+    /// staged training's encoder stage (see [`crate::video`]). `None` on
+    /// state runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub video: Option<BlocksVideo>,
     /// Optimisation.
     pub optim: OptimConfig,
+}
+
+/// How a block-stacking video run records its demos and trains its encoder.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BlocksVideo {
+    /// Frames per phase of each primitive's motion.
+    pub frames: env_blocks::VideoConfig,
+    /// Stage A: the shared frame encoder.
+    pub encoder: EncoderStage,
+    /// Cube renaming for frames (not in the paper): a task's demos are
+    /// recorded in groups of this many, the first group on the task itself
+    /// and every other group on the task with its cubes renamed by a
+    /// seeded permutation (a cube's colour follows its name; never onto a
+    /// held-out configuration). Each renamed group is its own task for the
+    /// GCN's target graph. 0 = no renaming.
+    pub demos_per_renaming: usize,
+}
+
+impl BlocksVideo {
+    /// The recommended settings (renaming in groups of 4 demos) or the
+    /// paper's (no renaming).
+    pub fn new(recommended: bool) -> Self {
+        BlocksVideo {
+            frames: env_blocks::VideoConfig::default(),
+            encoder: EncoderStage::default(),
+            demos_per_renaming: if recommended { 4 } else { 0 },
+        }
+    }
 }
 
 fn one() -> usize {
@@ -211,6 +252,7 @@ impl Recipe {
             retry_weight: 0.0,
             detach_gcn_from_edges: recommended,
             soft_edges: recommended,
+            video: (obs == ObsKind::Vid).then(|| BlocksVideo::new(recommended)),
             optim: OptimConfig {
                 epochs,
                 batch_size: 32,
@@ -266,8 +308,238 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     Ok(NtgModel::new(model_config, device)?)
 }
 
+/// A trained block-stacking model: NTG on state rows, or on frames.
+#[derive(Debug, Clone)]
+#[allow(clippy::large_enum_variant)] // one value per run; never in a collection
+pub enum TrainedBlocks {
+    /// State observations.
+    State(NtgModel),
+    /// Demo videos and frames (staged training).
+    Video(VideoNtgModel),
+}
+
+impl TrainedBlocks {
+    /// Evaluates the model on `tasks` (see [`evaluate_tasks`]).
+    pub fn evaluate_tasks(
+        &self,
+        failures: bool,
+        tasks: &[StackTask],
+        seeds: Seeds,
+        variant: Variant,
+    ) -> anyhow::Result<EvalResult> {
+        match self {
+            TrainedBlocks::State(m) => {
+                evaluate_tasks(m, ObsKind::State, failures, tasks, seeds, variant)
+            }
+            TrainedBlocks::Video(m) => {
+                evaluate_tasks(m, ObsKind::Vid, failures, tasks, seeds, variant)
+            }
+        }
+    }
+
+    /// Evaluates the model on the first `test_tasks` unseen tasks.
+    pub fn evaluate(
+        &self,
+        failures: bool,
+        test_tasks: usize,
+        variant: Variant,
+    ) -> anyhow::Result<EvalResult> {
+        self.evaluate_tasks(failures, test_tasks_of(test_tasks)?, Seeds::TEST, variant)
+    }
+
+    /// The NTG networks.
+    pub fn ntg(&self) -> &NtgModel {
+        match self {
+            TrainedBlocks::State(m) => m,
+            TrainedBlocks::Video(m) => &m.ntg,
+        }
+    }
+
+    /// The NTG networks, to change their evaluation settings.
+    pub fn ntg_mut(&mut self) -> &mut NtgModel {
+        match self {
+            TrainedBlocks::State(m) => m,
+            TrainedBlocks::Video(m) => &mut m.ntg,
+        }
+    }
+}
+
 /// Trains (or resumes) a block-stacking run in `run`, returning the model.
 pub fn train_run(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    device: &Device,
+    on_epoch: impl FnMut(&EpochMetrics),
+) -> anyhow::Result<TrainedBlocks> {
+    match config.obs {
+        ObsKind::State => train_state_run(run, config, device, on_epoch).map(TrainedBlocks::State),
+        ObsKind::Vid => train_video_run(run, config, device, on_epoch).map(TrainedBlocks::Video),
+    }
+}
+
+/// `task` with cube `i` renamed `perm[i]`.
+pub fn renamed_task(task: &StackTask, perm: &[usize]) -> StackTask {
+    StackTask {
+        id: task.id.clone(),
+        goals: task
+            .goals
+            .iter()
+            .map(|g| env_blocks::Goal {
+                src: perm[g.src],
+                target: perm[g.target],
+            })
+            .collect(),
+    }
+}
+
+/// The renaming of group `group` of `task`'s demos: the identity for group
+/// 0, else a permutation drawn from `(task index, group)` that does not
+/// rename the task into a held-out configuration.
+fn group_renaming(
+    task: &StackTask,
+    index: usize,
+    group: usize,
+    held_out: &HeldOutConfigurations,
+) -> Vec<usize> {
+    use rand::seq::SliceRandom;
+    let mut perm: Vec<usize> = (0..env_blocks::world::NUM_OBJECTS).collect();
+    if group == 0 {
+        return perm;
+    }
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(
+        0x00C0_10E5 ^ ((index as u64) << 20) ^ group as u64,
+    );
+    loop {
+        perm.shuffle(&mut rng);
+        if !held_out.contains_renamed(task, &perm) {
+            return perm;
+        }
+    }
+}
+
+/// Trains (or resumes) a block-stacking video run: stage A (the shared
+/// frame encoder) then stage B (NTG on its embeddings); see
+/// [`crate::video`].
+pub fn train_video_run(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    device: &Device,
+    mut on_epoch: impl FnMut(&EpochMetrics),
+) -> anyhow::Result<VideoNtgModel> {
+    let video = config
+        .video
+        .clone()
+        .context("a video run's configuration needs its `video` settings")?;
+    video.frames.validate()?;
+    let split = env_blocks::standard_split()?;
+    let tasks = split.train(config.train_tasks)?;
+    let held_out = HeldOutConfigurations::new()?;
+    let groups = match video.demos_per_renaming {
+        0 => 1,
+        g => config.demos_per_task.div_ceil(g),
+    };
+    // Demo j of task t is dataset task t * groups + j / demos_per_renaming:
+    // each renamed group is its own task.
+    let pairs: Vec<(usize, u64)> = (0..config.demos_per_task)
+        .flat_map(|j| {
+            let group = j.checked_div(video.demos_per_renaming).unwrap_or(0);
+            (0..tasks.len()).map(move |t| {
+                (
+                    t * groups + group,
+                    TRAIN_SEED_BASE + 1000 * t as u64 + j as u64,
+                )
+            })
+        })
+        .collect();
+    let env_cfg = env_config(ObsKind::Vid, config.failures);
+    let record = |virtual_task: usize, seed: u64| {
+        let (t, group) = (virtual_task / groups, virtual_task % groups);
+        let perm = group_renaming(&tasks[t], t, group, &held_out);
+        let task = renamed_task(&tasks[t], &perm);
+        let v = env_blocks::record_video_demo(
+            env_blocks::BlocksTask::Stack(task),
+            env_cfg,
+            seed,
+            &video.frames,
+        )?;
+        Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
+    };
+    let vocab = flat_vocabulary();
+    let video_run = VideoRun {
+        vocabulary: &vocab,
+        pairs,
+        record: &record,
+        frame_dim: obs_dim_frames(),
+        encoder: &video.encoder,
+        seed: config.model_seed,
+    };
+    let frames = crate::video::train_encoder(run, &video_run, device)?;
+    let ntg = new_model(config, device)?;
+    let validation = env_blocks::validation_tasks(config.validation_tasks)?;
+    let mut validator =
+        |model: &VideoNtgModel| validation_score(model, ObsKind::Vid, config.failures, &validation);
+    let selection = (!validation.is_empty()).then_some(crate::fit::Selection {
+        validator: &mut validator as &mut dyn crate::fit::Validator<VideoNtgModel>,
+        every: config.validate_every,
+    });
+    let training = NtgTraining {
+        gcn_source: if config.optim.gcn_from_other_demo {
+            GcnSource::OtherSeeded
+        } else {
+            GcnSource::Own
+        },
+        token_dropout: config.optim.token_dropout,
+        retry_weight: config.retry_weight,
+        detach_gcn_from_edges: config.detach_gcn_from_edges,
+        ..NtgTraining::default()
+    };
+    crate::video::train_on_embeddings(
+        run,
+        &video_run,
+        frames,
+        ntg,
+        training,
+        &config.optim,
+        device,
+        selection,
+        &mut on_epoch,
+    )
+}
+
+/// The full model's score on the validation tasks `tasks` (printed).
+fn validation_score<M: NtgBased>(
+    model: &M,
+    obs: ObsKind,
+    failures: bool,
+    tasks: &[StackTask],
+) -> anyhow::Result<ValidationScore> {
+    let result = evaluate_tasks(
+        model,
+        obs,
+        failures,
+        tasks,
+        Seeds::VALIDATION,
+        Variant::Full,
+    )?;
+    eprintln!(
+        "  validation ({} tasks): success {:.3}, goals met {:.3}",
+        tasks.len(),
+        result.success.rate,
+        result.mean_goal_fraction
+    );
+    Ok(ValidationScore {
+        success: result.success.rate,
+        goal_fraction: result.mean_goal_fraction,
+    })
+}
+
+/// Values per frame row (64×64 RGB, CHW).
+fn obs_dim_frames() -> usize {
+    3 * 64 * 64
+}
+
+/// Trains (or resumes) a block-stacking run on state observations.
+fn train_state_run(
     run: &RunDir,
     config: &BlocksRunConfig,
     device: &Device,
@@ -277,13 +549,7 @@ pub fn train_run(
     let tasks = split.train(config.train_tasks)?;
     let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config, tasks))?;
     let model = new_model(config, device)?;
-    let symmetry = match (config.permute_objects, config.obs) {
-        (false, _) => None,
-        (true, ObsKind::State) => Some(object_symmetry()),
-        (true, ObsKind::Vid) => {
-            bail!("renaming cubes (permute_objects) works on state observations only")
-        }
-    };
+    let symmetry = config.permute_objects.then(object_symmetry);
     let held_out = if config.permute_objects && config.exclude_held_out_renamings {
         Some(HeldOutConfigurations::new()?)
     } else {
@@ -293,26 +559,8 @@ pub fn train_run(
         .as_ref()
         .map(|h| move |task: usize, perm: &[usize]| !h.contains_renamed(&tasks[task], perm));
     let validation = env_blocks::validation_tasks(config.validation_tasks)?;
-    let mut validator = |model: &NtgModel| -> anyhow::Result<ValidationScore> {
-        let result = evaluate_tasks(
-            model,
-            config.obs,
-            config.failures,
-            &validation,
-            Seeds::VALIDATION,
-            Variant::Full,
-        )?;
-        eprintln!(
-            "  validation ({} tasks): success {:.3}, goals met {:.3}",
-            validation.len(),
-            result.success.rate,
-            result.mean_goal_fraction
-        );
-        Ok(ValidationScore {
-            success: result.success.rate,
-            goal_fraction: result.mean_goal_fraction,
-        })
-    };
+    let mut validator =
+        |model: &NtgModel| validation_score(model, config.obs, config.failures, &validation);
     let extras = TrainExtras {
         validator: if validation.is_empty() {
             None
@@ -478,15 +726,19 @@ pub struct BlocksDomain {
     obs: ObsKind,
     env_config: EnvConfig,
     vocabulary: ctg_graph::Vocabulary,
+    video: env_blocks::VideoConfig,
 }
 
 impl BlocksDomain {
     /// The domain seen through `obs`, with stochastic failures on or off.
+    /// On frames, conditioning demos are videos timed by the default
+    /// [`env_blocks::VideoConfig`].
     pub fn new(obs: ObsKind, failures: bool) -> Self {
         BlocksDomain {
             obs,
             env_config: env_config(obs, failures),
             vocabulary: flat_vocabulary(),
+            video: env_blocks::VideoConfig::default(),
         }
     }
 }
@@ -525,6 +777,29 @@ impl Domain for BlocksDomain {
             .count();
         (met, task.goals.len())
     }
+    fn record_demo(
+        &self,
+        env: &mut BlocksEnv,
+        task: &StackTask,
+        seed: u64,
+    ) -> anyhow::Result<(Vec<Vec<f32>>, Vec<ActionId>)> {
+        if self.obs == ObsKind::State {
+            return domain::record_keyframes(self, env, seed);
+        }
+        let video = env_blocks::record_video_demo(
+            env_blocks::BlocksTask::Stack(task.clone()),
+            self.env_config,
+            seed,
+            &self.video,
+        )?;
+        let actions = video.actions().to_vec();
+        let rows = video
+            .frames()
+            .iter()
+            .map(env_collect::frame_to_chw)
+            .collect();
+        Ok((rows, actions))
+    }
 }
 
 /// The flat action vocabulary of block stacking (the CTG's nodes).
@@ -541,26 +816,39 @@ pub fn evaluate(
     test_tasks: usize,
     variant: Variant,
 ) -> anyhow::Result<EvalResult> {
-    let split = env_blocks::standard_split()?;
+    evaluate_tasks(
+        model,
+        obs,
+        failures,
+        test_tasks_of(test_tasks)?,
+        Seeds::TEST,
+        variant,
+    )
+}
+
+/// The first `test_tasks` tasks of the standard test set.
+fn test_tasks_of(test_tasks: usize) -> anyhow::Result<&'static [StackTask]> {
+    static SPLIT: std::sync::OnceLock<env_blocks::StandardSplit> = std::sync::OnceLock::new();
+    let split = match SPLIT.get() {
+        Some(s) => s,
+        None => {
+            let s = env_blocks::standard_split()?;
+            SPLIT.get_or_init(|| s)
+        }
+    };
     if test_tasks > split.test.len() {
         bail!(
             "asked for {test_tasks} test tasks; there are {}",
             split.test.len()
         );
     }
-    evaluate_tasks(
-        model,
-        obs,
-        failures,
-        &split.test[..test_tasks],
-        Seeds::TEST,
-        variant,
-    )
+    Ok(&split.test[..test_tasks])
 }
 
-/// Evaluates `model` on `tasks` with the given seeds (see [`evaluate`]).
-pub fn evaluate_tasks(
-    model: &NtgModel,
+/// Evaluates `model` (NTG on states, or on frames) on `tasks` with the
+/// given seeds (see [`evaluate`]).
+pub fn evaluate_tasks<M: NtgBased>(
+    model: &M,
     obs: ObsKind,
     failures: bool,
     tasks: &[StackTask],
@@ -568,7 +856,7 @@ pub fn evaluate_tasks(
     variant: Variant,
 ) -> anyhow::Result<EvalResult> {
     let mut model = model.clone();
-    model.config.ablation = variant.ablation();
+    model.ntg_mut().config.ablation = variant.ablation();
     let episodes: Vec<Episode<StackTask>> = tasks
         .iter()
         .enumerate()
@@ -645,6 +933,13 @@ pub struct BlocksFlags {
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
+    /// --obs vid: demo videos whose frames train the shared frame encoder
+    /// (stage A) [default: 1000].
+    #[arg(long, value_parser = crate::spec::parse::positive)]
+    pub encoder_demos: Option<usize>,
+    /// --obs vid: passes of stage A over those frames [default: 4].
+    #[arg(long, value_parser = crate::spec::parse::positive)]
+    pub encoder_epochs: Option<usize>,
 }
 
 /// The run configuration `ntg train --domain blocks` asks for: the recipe,
@@ -657,7 +952,13 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         flags.epochs,
         flags.seed,
     );
+    let video = base.video.clone().map(|mut v| {
+        v.encoder.demos = own.encoder_demos.unwrap_or(v.encoder.demos);
+        v.encoder.epochs = own.encoder_epochs.unwrap_or(v.encoder.epochs);
+        v
+    });
     BlocksRunConfig {
+        video,
         failures: !own.no_failures,
         state_hidden_layers: own.state_hidden_layers.unwrap_or(base.state_hidden_layers),
         pairwise: base.pairwise || own.pairwise,
@@ -700,6 +1001,11 @@ impl DomainRuns for Blocks {
             bail!(
                 "--permute-objects renames cubes in state observations; it does not apply to --obs vid"
             );
+        }
+        if config.obs == ObsKind::State
+            && (own.encoder_demos.is_some() || own.encoder_epochs.is_some())
+        {
+            bail!("--encoder-demos and --encoder-epochs set the frame encoder of --obs vid runs");
         }
         env_blocks::standard_split()?
             .train(config.train_tasks)
@@ -747,18 +1053,12 @@ impl DomainRuns for Blocks {
             name.push_str(&format!("-threshold{t}"));
         }
         let result = match flags.split {
-            crate::domain::EvalSplit::Test => evaluate(
-                &model,
-                config.obs,
-                config.failures,
-                flags.test_tasks,
-                flags.variant,
-            )?,
+            crate::domain::EvalSplit::Test => {
+                model.evaluate(config.failures, flags.test_tasks, flags.variant)?
+            }
             crate::domain::EvalSplit::Validation => {
                 name.insert_str(0, "validation-");
-                evaluate_tasks(
-                    &model,
-                    config.obs,
+                model.evaluate_tasks(
                     config.failures,
                     &env_blocks::validation_tasks(flags.test_tasks)?,
                     Seeds::VALIDATION,
@@ -793,18 +1093,25 @@ pub fn load_trained(
     run: &RunDir,
     edge_threshold: Option<f32>,
     device: &burn::tensor::Device,
-) -> anyhow::Result<NtgModel> {
+) -> anyhow::Result<TrainedBlocks> {
     let dir = match crate::fit::selected_epoch(run)? {
         Some(_) => run.best_dir(),
         None => run.checkpoint_dir(),
     };
-    let mut model = NtgModel::load(dir, device)
-        .with_context(|| format!("loading the trained model of {}", run.root().display()))?;
+    let context = || format!("loading the trained model of {}", run.root().display());
+    let mut model = if crate::method::ntg_video::is_video_model(&dir) {
+        TrainedBlocks::Video(
+            <VideoNtgModel as crate::fit::TrainedModel>::load_from(&dir, device)
+                .with_context(context)?,
+        )
+    } else {
+        TrainedBlocks::State(NtgModel::load(dir, device).with_context(context)?)
+    };
     if let Some(t) = edge_threshold {
         if !(0.0..=1.0).contains(&t) {
             bail!("--edge-threshold must be in [0, 1], got {t}");
         }
-        model.config.edge_threshold = t;
+        model.ntg_mut().config.edge_threshold = t;
     }
     Ok(model)
 }

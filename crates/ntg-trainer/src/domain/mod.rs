@@ -208,6 +208,34 @@ pub trait Domain: Sync {
     /// How many of the task's goals hold in `env` at the end of an
     /// episode, and how many it has.
     fn goals(&self, task: &Self::Task, env: &Self::Env) -> (usize, usize);
+    /// The conditioning demo a policy reads: the expert's demonstration of
+    /// `task` recorded with `seed` in `env`, as observation rows, and its
+    /// actions. By default one row per CTG node; a domain that records
+    /// demo videos gives every frame.
+    fn record_demo(
+        &self,
+        env: &mut Self::Env,
+        _task: &Self::Task,
+        seed: u64,
+    ) -> anyhow::Result<(Vec<Vec<f32>>, Vec<ctg_graph::ActionId>)> {
+        record_keyframes(self, env, seed)
+    }
+}
+
+/// [`Domain::record_demo`]'s default: the expert's demonstration recorded
+/// with `seed` in `env`, one featurised row per CTG node, and its actions.
+pub fn record_keyframes<D: Domain + ?Sized>(
+    domain: &D,
+    env: &mut D::Env,
+    seed: u64,
+) -> anyhow::Result<(Vec<Vec<f32>>, Vec<ctg_graph::ActionId>)> {
+    let demo = record_demonstration(env, &mut domain.expert(), seed)?;
+    let rows = demo
+        .observations()
+        .iter()
+        .map(|o| domain.featurize(o))
+        .collect();
+    Ok((rows, demo.actions().to_vec()))
 }
 
 /// One evaluation episode: a task, the seed of its conditioning demo and
@@ -322,13 +350,9 @@ fn run_episode<D: Domain>(
 ) -> anyhow::Result<EpisodeRecord> {
     let name = domain.task_name(&episode.task);
     let mut env = domain.env(&episode.task)?;
-    let demo = record_demonstration(&mut env, &mut domain.expert(), episode.demo_seed)
+    let (rows, demo_actions) = domain
+        .record_demo(&mut env, &episode.task, episode.demo_seed)
         .with_context(|| format!("demo of task {name}"))?;
-    let rows: Vec<Vec<f32>> = demo
-        .observations()
-        .iter()
-        .map(|o| domain.featurize(o))
-        .collect();
     let agent = model.condition(&rows, domain.vocabulary())?;
     let (mut observation, _) = env.reset(episode.rollout_seed)?;
     let mut trace = Vec::new();
@@ -361,6 +385,6 @@ fn run_episode<D: Domain>(
         goals,
         trace: names(&trace),
         transcription: names(agent.transcription()),
-        demo_actions: names(demo.actions()),
+        demo_actions: names(&demo_actions),
     })
 }

@@ -70,6 +70,10 @@ pub struct PanelScale {
     pub min_steps: usize,
     /// Unseen test tasks evaluated per point.
     pub test_tasks: usize,
+    /// Fields of the run configuration set in this panel's runs (after the
+    /// profile's), e.g. the video panel's `video.encoder`.
+    #[serde(default)]
+    pub overrides: toml::Table,
 }
 
 impl PanelScale {
@@ -120,11 +124,12 @@ impl NtpExpExperiment {
             .config(panel.obs, train_tasks, panel.demos_per_task, 1, self.seed);
         let what = self.origin.as_str();
         let config = crate::experiment::with_overrides(&base, &self.overrides, what)?;
-        let mut config = crate::experiment::with_overrides(
+        let config = crate::experiment::with_overrides(
             &config,
             &self.profiles.get(profile).overrides,
             what,
         )?;
+        let mut config = crate::experiment::with_overrides(&config, &panel.overrides, what)?;
         let epochs = panel.epochs_for(train_tasks, config.optim.batch_size);
         config.optim.epochs = epochs;
         config.validate_every = epochs.div_ceil(self.validations_per_run.max(1));
@@ -191,13 +196,7 @@ pub fn run(
             })?;
             let train_seconds = run.epoch_seconds()?;
             let result = run.cached_eval(&format!("full-{}.json", scale.test_tasks), || {
-                blocks::evaluate(
-                    &model,
-                    obs,
-                    config.failures,
-                    scale.test_tasks,
-                    Variant::Full,
-                )
+                model.evaluate(config.failures, scale.test_tasks, Variant::Full)
             })?;
             eprintln!(
                 "  success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}",
@@ -320,6 +319,7 @@ mod tests {
             epochs: 6,
             min_steps: 1000,
             test_tasks: 10,
+            overrides: toml::Table::new(),
         };
         // 500 demos = 16 steps per epoch -> 63 epochs to reach 1000 steps.
         assert_eq!(scale.epochs_for(50, 32), 63);
@@ -354,6 +354,7 @@ mod tests {
             retry_weight: 0.0,
             detach_gcn_from_edges: false,
             soft_edges: false,
+            video: None,
             optim: crate::fit::OptimConfig {
                 epochs,
                 batch_size: 32,
@@ -381,5 +382,13 @@ mod tests {
             (c.obs, c.validation_tasks, c.optim.epochs),
             (ObsKind::Vid, 0, 1)
         );
+        // The video panel's own overrides reach its encoder stage only.
+        let encoder = &c.video.as_ref().unwrap().encoder;
+        assert_eq!((encoder.demos, encoder.epochs), (10, 1));
+        let quick_vid = &quick.panels[1];
+        let c = experiment
+            .run_config(Profile::Quick, quick_vid, 50)
+            .unwrap();
+        assert_eq!(c.video.as_ref().unwrap().encoder.demos, 100);
     }
 }

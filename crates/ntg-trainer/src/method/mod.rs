@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 
 pub mod flat;
 pub mod ntg;
+pub mod ntg_video;
 
 /// A registered method: its names and how to load a trained model of it.
 pub trait Method: Sync {

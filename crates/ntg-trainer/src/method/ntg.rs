@@ -348,22 +348,25 @@ impl TrainStep<NtgModel> for NtgStep<'_> {
                     .collect()
             })
             .collect();
+        // The row at each CTG node: every row, or a video's keyframes.
+        let keyframes: Vec<Vec<usize>> = entries.iter().map(|e| e.keyframes()).collect();
         let demo_actions: Vec<Vec<ActionId>> = entries
             .iter()
             .enumerate()
             .map(|(b, e)| sequence(b, &e.actions))
             .collect();
 
-        // Demo interpreter: each demo whole, and (with segments) one
-        // contiguous stretch of it: actions `start..end` with the frames
-        // `start..=end` around them.
+        // Demo interpreter: each demo whole (every frame of a video), and
+        // (with segments) one contiguous stretch of it: actions
+        // `start..end` with the frames from node `start` to node `end`.
         let mut pairs: Vec<(&[Vec<f32>], &[ActionId])> = demo_rows
             .iter()
             .zip(&demo_actions)
             .map(|(rows, actions)| (rows.as_slice(), actions.as_slice()))
             .collect();
-        for ((rows, actions), &(start, end)) in demo_rows.iter().zip(&demo_actions).zip(&segments) {
-            pairs.push((&rows[start..=end], &actions[start..end]));
+        for (b, &(start, end)) in segments.iter().enumerate() {
+            let (rows, key) = (&demo_rows[b], &keyframes[b]);
+            pairs.push((&rows[key[start]..=key[end]], &demo_actions[b][start..end]));
         }
         let ablation = model.config().ablation.clone();
         let interp = if ablation.demo_interpreter {
@@ -423,7 +426,8 @@ impl TrainStep<NtgModel> for NtgStep<'_> {
         for (b, (actions, rows)) in demo_actions.iter().zip(&demo_rows).enumerate() {
             let labels = std::iter::once(Vocabulary::START).chain(actions.iter().copied());
             let nexts = actions.iter().copied().chain([Vocabulary::END]);
-            for (i, ((o, node), nx)) in rows.iter().zip(labels).zip(nexts).enumerate() {
+            let nodes_rows = keyframes[b].iter().map(|&k| &rows[k]);
+            for (i, ((o, node), nx)) in nodes_rows.zip(labels).zip(nexts).enumerate() {
                 obs.push(o);
                 nodes.push(node);
                 if t.skip_end && nx == Vocabulary::END {
@@ -650,6 +654,11 @@ impl crate::method::Method for Ntg {
         "NTG (ours)"
     }
     fn load(&self, dir: &std::path::Path, device: &Device) -> anyhow::Result<Model> {
+        if super::ntg_video::is_video_model(dir) {
+            return Ok(Box::new(
+                <super::ntg_video::VideoNtgModel as TrainedModel>::load_from(dir, device)?,
+            ));
+        }
         Ok(Box::new(NtgModel::load_from(dir, device)?))
     }
 }

@@ -1,0 +1,455 @@
+//! NTG from demonstration videos, trained in stages on CPU cores.
+//!
+//! A demo video has several frames per flat action (a
+//! `ctg_graph::VideoDemonstration`, recorded by the domain). Training all
+//! four networks end to end on frames runs the CNN over every frame of a
+//! batch in every step, seconds per step on two cores. The paper's
+//! networks share one encoder `Enc(o)`, so training is staged instead,
+//! with the paper's supervision (frames and flat action labels, nothing
+//! else):
+//!
+//! - **Stage A** ([`FrameStageStep`]): the encoder, trained with the
+//!   localizer's and the edge classifier's losses on single frames sampled
+//!   across demos (`ntg_model::FrameStageNet`), in large batches. Run
+//!   folder: `stage_a/` (its own checkpoint, metrics and resume).
+//! - **Stage B**: the encoder is frozen and every training demo's frames
+//!   are encoded once into an embedding cache (`embeddings/`, a dataset of
+//!   video demos whose rows are `Enc(o)`; frames are re-rendered from
+//!   their seeds, never stored). The demo interpreter (every frame of the
+//!   video), the GCN, the localizer and the edge classifier (the keyframes:
+//!   the scene after each action, what the policy sees when it acts) are
+//!   an `NtgModel` over embedding rows, trained by NTG's own step through
+//!   [`crate::fit::fit`] at the state path's speed.
+//!
+//! The result is a [`VideoNtgModel`]: at run time each frame is encoded
+//! once and its embedding read by all the networks.
+
+use anyhow::Context;
+use burn::module::Module;
+use burn::tensor::{Device, Tensor, TensorData};
+use ctg_graph::{ActionId, Ctg, VideoDemonstration, Vocabulary};
+use ntg_model::{
+    EdgeCounts, FrameStageConfig, FrameStageNet, NtgModel, ids_tensor, successor_mask,
+};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::{DemoDataset, ObsDtype, progress_bar};
+use crate::fit::{OptimConfig, Selection, StepContext, StepReport, TrainStep, fit, scalar};
+use crate::method::ntg::{NtgStep, task_graphs};
+pub use crate::method::ntg_video::{VideoNtgModel, encode_rows};
+use crate::run_dir::RunDir;
+
+/// Folder of the stage A run inside a video run's folder.
+pub const STAGE_A_DIR: &str = "stage_a";
+/// Folder of the embedding cache inside a video run's folder.
+pub const EMBEDDINGS_DIR: &str = "embeddings";
+
+/// Settings of stage A (saved in the run configuration).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EncoderStage {
+    /// Training demos whose frames train the encoder (demo 0 of every
+    /// task first, then demo 1, ...), at most all of them.
+    pub demos: usize,
+    /// Passes over those frames.
+    pub epochs: usize,
+    /// Frames per step.
+    pub batch_size: usize,
+    /// Adam learning rate.
+    pub learning_rate: f64,
+    /// Kernel side of the encoder's convolutions (3 or 4).
+    pub kernel: usize,
+}
+
+impl Default for EncoderStage {
+    fn default() -> Self {
+        EncoderStage {
+            demos: 1000,
+            epochs: 4,
+            batch_size: 64,
+            learning_rate: 1e-3,
+            kernel: 3,
+        }
+    }
+}
+
+impl EncoderStage {
+    /// The stage's network configuration for `num_nodes` CTG nodes.
+    pub fn net_config(&self, num_nodes: usize, seed: u64) -> FrameStageConfig {
+        FrameStageConfig::new(
+            num_nodes,
+            ntg_model::EncoderConfig::Frame(
+                ntg_model::FrameEncoderConfig::new().with_kernel(self.kernel),
+            ),
+        )
+        .with_seed(seed)
+    }
+
+    /// Size of the embeddings stage B trains on.
+    pub fn embedding_dim(&self) -> usize {
+        ntg_model::FrameEncoderConfig::new().out_dim
+    }
+}
+
+/// Records one training demo video, its frames featurised (CHW in
+/// `[0, 1]`): `(task index, seed)` → video.
+pub type VideoRecorder<'a> =
+    &'a (dyn Fn(usize, u64) -> anyhow::Result<VideoDemonstration<Vec<f32>>> + Sync);
+
+/// Metrics of one stage A epoch (`stage_a/metrics.jsonl`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EncoderEpochMetrics {
+    /// Epoch index (from 0).
+    pub epoch: usize,
+    /// Mean total loss.
+    pub loss: f32,
+    /// Localizer cross-entropy (frame → the action it belongs to).
+    pub localizer_loss: f32,
+    /// Localizer accuracy.
+    pub localizer_accuracy: f32,
+    /// Edge cross-entropy (frame + node → next action).
+    pub edge_loss: f32,
+    /// Edge accuracy.
+    pub edge_accuracy: f32,
+    /// Wall-clock seconds of the epoch.
+    pub seconds: f32,
+}
+
+/// Stage A's [`TrainStep`]: the examples are single frames of a dataset of
+/// video demos.
+pub struct FrameStageStep<'a> {
+    dataset: &'a DemoDataset,
+    /// Per frame: (row, its label, the next action, its demo's task).
+    frames: Vec<(usize, ActionId, ActionId, usize)>,
+    graphs: std::collections::BTreeMap<usize, Ctg>,
+    device: Device,
+}
+
+impl<'a> FrameStageStep<'a> {
+    /// The step over every frame of `dataset` (video demos).
+    pub fn new(dataset: &'a DemoDataset, device: &Device) -> anyhow::Result<Self> {
+        let mut frames = Vec::new();
+        for d in dataset.demos() {
+            let ends = d
+                .segment_ends
+                .as_ref()
+                .context("stage A trains on video demos")?;
+            let nodes: Vec<ActionId> = std::iter::once(Vocabulary::START)
+                .chain(d.actions.iter().copied())
+                .collect();
+            let next: Vec<ActionId> = d.actions.iter().copied().chain([Vocabulary::END]).collect();
+            let mut start = 0;
+            for (s, &end) in ends.iter().enumerate() {
+                for k in start..end {
+                    frames.push((d.first_row + k, nodes[s], next[s], d.task));
+                }
+                start = end;
+            }
+        }
+        Ok(FrameStageStep {
+            dataset,
+            frames,
+            graphs: task_graphs(dataset)?,
+            device: device.clone(),
+        })
+    }
+}
+
+impl TrainStep<FrameStageNet> for FrameStageStep<'_> {
+    type Metrics = EncoderEpochMetrics;
+
+    fn num_examples(&self) -> usize {
+        self.frames.len()
+    }
+
+    fn step(
+        &self,
+        model: &FrameStageNet,
+        batch: &[usize],
+        _ctx: StepContext<'_>,
+    ) -> anyhow::Result<StepReport> {
+        let n = model.config().num_nodes;
+        let dim = self.dataset.obs_dim();
+        let mut rows = Vec::with_capacity(batch.len() * dim);
+        let (mut labels, mut next, mut graphs) = (Vec::new(), Vec::new(), Vec::new());
+        for &i in batch {
+            let (row, label, nx, task) = self.frames[i];
+            self.dataset.extend_row(row, &mut rows);
+            labels.push(label);
+            next.push(nx);
+            graphs.push(&self.graphs[&task]);
+        }
+        let frames =
+            Tensor::<2>::from_data(TensorData::new(rows, [batch.len(), dim]), &self.device);
+        let mask = successor_mask(&graphs, &labels, Some(&next), n, &self.device)?;
+        let out = model.loss(
+            frames,
+            ids_tensor(&labels, n, &self.device)?,
+            ids_tensor(&next, n, &self.device)?,
+            mask,
+        )?;
+        Ok(StepReport {
+            values: vec![
+                scalar(out.loss.clone())?,
+                scalar(out.localizer.loss)?,
+                out.localizer.accuracy,
+                scalar(out.edge.loss)?,
+                out.edge.accuracy,
+            ],
+            loss: out.loss,
+            edges: EdgeCounts::default(),
+        })
+    }
+
+    fn epoch_metrics(
+        &self,
+        epoch: usize,
+        m: &[f32],
+        _edges: &EdgeCounts,
+        seconds: f32,
+    ) -> EncoderEpochMetrics {
+        EncoderEpochMetrics {
+            epoch,
+            loss: m[0],
+            localizer_loss: m[1],
+            localizer_accuracy: m[2],
+            edge_loss: m[3],
+            edge_accuracy: m[4],
+            seconds,
+        }
+    }
+}
+
+/// Stage B's step: NTG's own step on the NTG part of the model.
+pub struct VideoNtgStep<'a>(pub NtgStep<'a>);
+
+impl TrainStep<VideoNtgModel> for VideoNtgStep<'_> {
+    type Metrics = crate::method::ntg::EpochMetrics;
+    fn num_examples(&self) -> usize {
+        self.0.num_examples()
+    }
+    fn step(
+        &self,
+        model: &VideoNtgModel,
+        batch: &[usize],
+        ctx: StepContext<'_>,
+    ) -> anyhow::Result<StepReport> {
+        self.0.step(&model.ntg, batch, ctx)
+    }
+    fn epoch_metrics(
+        &self,
+        epoch: usize,
+        means: &[f32],
+        edges: &EdgeCounts,
+        seconds: f32,
+    ) -> Self::Metrics {
+        self.0.epoch_metrics(epoch, means, edges, seconds)
+    }
+}
+
+/// The `(task, seed)` pairs of `demos_per_task` demos of `tasks` tasks
+/// (demo `j` of task `t` with seed `seed_base + 1000 t + j`), ordered demo
+/// 0 of every task first, then demo 1, ...: any prefix spreads over tasks.
+pub fn spread_pairs(tasks: usize, demos_per_task: usize, seed_base: u64) -> Vec<(usize, u64)> {
+    (0..demos_per_task)
+        .flat_map(|j| (0..tasks).map(move |t| (t, seed_base + 1000 * t as u64 + j as u64)))
+        .collect()
+}
+
+/// Records the videos of `pairs` in parallel, in chunks, handing each
+/// chunk's videos (in order) to `sink`.
+fn record_in_chunks(
+    pairs: &[(usize, u64)],
+    record: VideoRecorder<'_>,
+    what: &str,
+    mut sink: impl FnMut(Vec<(usize, u64, VideoDemonstration<Vec<f32>>)>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let bar = progress_bar(pairs.len() as u64, what);
+    for chunk in pairs.chunks(64) {
+        let videos = chunk
+            .par_iter()
+            .map(|&(t, seed)| {
+                record(t, seed)
+                    .with_context(|| format!("demo video of task {t}, seed {seed}"))
+                    .map(|v| (t, seed, v))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        sink(videos)?;
+        bar.inc(chunk.len() as u64);
+    }
+    bar.finish_and_clear();
+    Ok(())
+}
+
+/// Stage A's dataset: the frames (as bytes) of the videos of `pairs`.
+pub fn frame_dataset(
+    vocab: &Vocabulary,
+    pairs: &[(usize, u64)],
+    record: VideoRecorder<'_>,
+    frame_dim: usize,
+) -> anyhow::Result<DemoDataset> {
+    let mut dataset = DemoDataset::from_demos(vocab.clone(), frame_dim, ObsDtype::U8, [])?;
+    record_in_chunks(pairs, record, "videos (A)", |videos| {
+        for (t, seed, v) in videos {
+            dataset.push_video(t, seed, v)?;
+        }
+        Ok(())
+    })?;
+    Ok(dataset)
+}
+
+/// Stage B's dataset: the videos of `pairs`, every frame encoded once by
+/// `net`'s frozen encoder.
+pub fn embedding_dataset(
+    vocab: &Vocabulary,
+    pairs: &[(usize, u64)],
+    record: VideoRecorder<'_>,
+    net: &FrameStageNet,
+) -> anyhow::Result<DemoDataset> {
+    let net = net.valid();
+    let mut dataset = DemoDataset::from_videos(vocab.clone(), net.encoder.out_dim(), [])?;
+    record_in_chunks(pairs, record, "encoding", |videos| {
+        for (t, seed, v) in videos {
+            let (frames, ends, actions) = v.into_parts();
+            let embedded = encode_rows(&net, &frames)?;
+            dataset.push_video(
+                t,
+                seed,
+                VideoDemonstration::new(embedded, ends, actions, vocab)?,
+            )?;
+        }
+        Ok(())
+    })?;
+    Ok(dataset)
+}
+
+/// Everything [`train_stages`] needs from the domain.
+pub struct VideoRun<'a> {
+    /// The domain's vocabulary.
+    pub vocabulary: &'a Vocabulary,
+    /// Every training demo, `(task, seed)`, in [`spread_pairs`] order.
+    pub pairs: Vec<(usize, u64)>,
+    /// Records a training demo video.
+    pub record: VideoRecorder<'a>,
+    /// Values per frame row.
+    pub frame_dim: usize,
+    /// Stage A's settings.
+    pub encoder: &'a EncoderStage,
+    /// Seed of stage A's weights and shuffling.
+    pub seed: u64,
+}
+
+/// Stage A (resumed if started): trains the shared encoder in
+/// `run/stage_a/`, returning the trained network.
+pub fn train_encoder(
+    run: &RunDir,
+    video: &VideoRun<'_>,
+    device: &Device,
+) -> anyhow::Result<FrameStageNet> {
+    let stage = video.encoder;
+    let config = StageAConfig {
+        stage: stage.clone(),
+        seed: video.seed,
+    };
+    let dir = RunDir::open_or_create(&run.root().join(STAGE_A_DIR), &config)?;
+    let demos = stage.demos.min(video.pairs.len());
+    let frames = DemoDataset::load_or_build(&dir.dataset_dir(), || {
+        frame_dataset(
+            video.vocabulary,
+            &video.pairs[..demos],
+            video.record,
+            video.frame_dim,
+        )
+    })?;
+    let net = stage
+        .net_config(video.vocabulary.len(), video.seed)
+        .init(device)?;
+    let step = FrameStageStep::new(&frames, device)?;
+    eprintln!(
+        "stage A: encoder on {} frames of {} demo videos, {} epochs",
+        step.num_examples(),
+        frames.demos().len(),
+        stage.epochs
+    );
+    let optim = OptimConfig {
+        epochs: stage.epochs,
+        batch_size: stage.batch_size,
+        learning_rate: stage.learning_rate,
+        seed: video.seed,
+        token_dropout: 0.0,
+        gcn_from_other_demo: false,
+        cosine_decay: true,
+    };
+    fit(
+        net,
+        &step,
+        &optim,
+        &dir,
+        device,
+        None,
+        |m: &EncoderEpochMetrics| {
+            eprintln!(
+                "  stage A epoch {}: loss {:.3} | localizer {:.3} | edges {:.3} | {:.1}s",
+                m.epoch, m.loss, m.localizer_accuracy, m.edge_accuracy, m.seconds
+            )
+        },
+    )
+}
+
+/// What `stage_a/config.json` records.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct StageAConfig {
+    stage: EncoderStage,
+    seed: u64,
+}
+
+/// Stage B: encodes every training video once with the frozen encoder
+/// (cached in `run/embeddings/`), then trains `ntg` (built for rows of the
+/// encoder's embeddings) through [`fit`] with NTG's `step` options.
+#[allow(clippy::too_many_arguments)]
+pub fn train_on_embeddings<'a>(
+    run: &RunDir,
+    video: &VideoRun<'_>,
+    frames: FrameStageNet,
+    ntg: NtgModel,
+    training: crate::method::ntg::NtgTraining<'a>,
+    optim: &OptimConfig,
+    device: &Device,
+    selection: Option<Selection<'_, VideoNtgModel>>,
+    on_epoch: impl FnMut(&crate::method::ntg::EpochMetrics),
+) -> anyhow::Result<VideoNtgModel> {
+    let started = std::time::Instant::now();
+    let embeddings = DemoDataset::load_or_build(&run.root().join(EMBEDDINGS_DIR), || {
+        embedding_dataset(video.vocabulary, &video.pairs, video.record, &frames)
+    })?;
+    eprintln!(
+        "stage B: {} demo videos, {} frames encoded ({:.0}s)",
+        embeddings.demos().len(),
+        embeddings.num_rows(),
+        started.elapsed().as_secs_f32()
+    );
+    let model = VideoNtgModel::new(frames, ntg)?;
+    let step = VideoNtgStep(NtgStep::new(&model.ntg, &embeddings, training, device)?);
+    fit(model, &step, optim, run, device, selection, on_epoch)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spread_pairs_cover_tasks_first() {
+        let pairs = spread_pairs(3, 2, 100);
+        assert_eq!(
+            pairs,
+            [
+                (0, 100),
+                (1, 1100),
+                (2, 2100),
+                (0, 101),
+                (1, 1101),
+                (2, 2101)
+            ]
+        );
+    }
+}
