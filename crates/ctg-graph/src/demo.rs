@@ -80,18 +80,12 @@ impl<O> Demonstration<O> {
 
     /// The CTG node each observation is at: `<start>`, then each action.
     pub fn node_labels(&self) -> Vec<ActionId> {
-        std::iter::once(Vocabulary::START)
-            .chain(self.actions.iter().copied())
-            .collect()
+        node_labels_of(&self.actions)
     }
 
     /// The action that follows each observation: each action, then `<end>`.
     pub fn next_actions(&self) -> Vec<ActionId> {
-        self.actions
-            .iter()
-            .copied()
-            .chain(std::iter::once(Vocabulary::END))
-            .collect()
+        next_actions_of(&self.actions)
     }
 
     /// The path graph `<start> -> actions... -> <end>` over `vocab`.
@@ -112,6 +106,24 @@ impl<O> Demonstration<O> {
             actions: self.actions,
         }
     }
+}
+
+/// The CTG node before each action and after the last: `<start>`, then
+/// each action.
+pub(crate) fn node_labels_of(actions: &[ActionId]) -> Vec<ActionId> {
+    std::iter::once(Vocabulary::START)
+        .chain(actions.iter().copied())
+        .collect()
+}
+
+/// The action after each node of [`node_labels_of`]: each action, then
+/// `<end>`.
+pub(crate) fn next_actions_of(actions: &[ActionId]) -> Vec<ActionId> {
+    actions
+        .iter()
+        .copied()
+        .chain(std::iter::once(Vocabulary::END))
+        .collect()
 }
 
 #[cfg(test)]

@@ -166,18 +166,12 @@ impl<F> VideoDemonstration<F> {
 
     /// The CTG node of each segment: `<start>`, then each action.
     pub fn node_labels(&self) -> Vec<ActionId> {
-        std::iter::once(Vocabulary::START)
-            .chain(self.actions.iter().copied())
-            .collect()
+        crate::demo::node_labels_of(&self.actions)
     }
 
     /// The action that follows each segment: each action, then `<end>`.
     pub fn next_actions(&self) -> Vec<ActionId> {
-        self.actions
-            .iter()
-            .copied()
-            .chain(std::iter::once(Vocabulary::END))
-            .collect()
+        crate::demo::next_actions_of(&self.actions)
     }
 
     /// Index of each segment's last frame (the scene once its action is done).
