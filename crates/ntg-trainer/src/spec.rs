@@ -89,6 +89,16 @@ pub mod parse {
         }
     }
 
+    /// A fraction: a number in `[0, 1]`.
+    pub fn fraction(s: &str) -> Result<f64, String> {
+        let v: f64 = number(s)?;
+        if (0.0..=1.0).contains(&v) {
+            Ok(v)
+        } else {
+            Err(format!("must be in [0, 1], got {v}"))
+        }
+    }
+
     /// A probability below 1: a number in `[0, 1)`.
     pub fn rate(s: &str) -> Result<f32, String> {
         let v: f32 = number(s)?;

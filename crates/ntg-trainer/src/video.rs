@@ -11,7 +11,10 @@
 //! - **Stage A** ([`FrameStageStep`]): the encoder, trained with the
 //!   localizer's and the edge classifier's losses on single frames sampled
 //!   across demos (`ntg_model::FrameStageNet`), in large batches. Run
-//!   folder: `stage_a/` (its own checkpoint, metrics and resume).
+//!   folder: `stage_a/` (its own checkpoint, metrics and resume). Each
+//!   epoch is scored on the frames of validation-task videos (localizer,
+//!   then edge accuracy, in `stage_a/validation.jsonl`) and the best epoch
+//!   is kept.
 //! - **Stage B**: the encoder is frozen and every training demo's frames
 //!   are encoded once into an embedding cache (`embeddings/`, a dataset of
 //!   video demos whose rows are `Enc(o)`; frames are re-rendered from
@@ -19,25 +22,27 @@
 //!   video), the GCN, the localizer and the edge classifier (the keyframes:
 //!   the scene after each action, what the policy sees when it acts) are
 //!   an `NtgModel` over embedding rows, trained by NTG's own step through
-//!   [`crate::fit::fit`] at the state path's speed.
+//!   [`crate::fit::fit`] at the state path's speed ([`OnFramesStep`]); the
+//!   Flat Policy trains on the same embeddings with its own step.
 //!
-//! The result is a [`VideoNtgModel`]: at run time each frame is encoded
-//! once and its embedding read by all the networks.
+//! The result is an [`OnFrames`] model ([`VideoNtgModel`] for NTG): at run
+//! time each frame is encoded once and its embedding read by all the
+//! networks.
 
 use anyhow::Context;
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use ctg_graph::{ActionId, Ctg, VideoDemonstration, Vocabulary};
-use ntg_model::{
-    EdgeCounts, FrameStageConfig, FrameStageNet, NtgModel, ids_tensor, successor_mask,
-};
+use ntg_model::{EdgeCounts, FrameStageConfig, FrameStageNet, ids_tensor, successor_mask};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::{DemoDataset, ObsDtype, progress_bar};
-use crate::fit::{OptimConfig, Selection, StepContext, StepReport, TrainStep, fit, scalar};
-use crate::method::ntg::{NtgStep, task_graphs};
-pub use crate::method::ntg_video::{VideoNtgModel, encode_rows};
+use crate::fit::{
+    OptimConfig, Selection, StepContext, StepReport, TrainStep, ValidationScore, fit, scalar,
+};
+use crate::method::ntg::task_graphs;
+pub use crate::method::on_frames::{OnFrames, OnFramesStep, VideoNtgModel, encode_rows};
 use crate::run_dir::RunDir;
 
 /// Folder of the stage A run inside a video run's folder.
@@ -59,6 +64,16 @@ pub struct EncoderStage {
     pub learning_rate: f64,
     /// Kernel side of the encoder's convolutions (3 or 4).
     pub kernel: usize,
+    /// Fraction of each demo's frames stage A trains on, besides its
+    /// keyframes (always kept): a seeded draw per frame. Below 1, the same
+    /// number of frames comes from more demos. Absent in runs saved before
+    /// it: 1 (every frame).
+    #[serde(default = "one")]
+    pub frame_fraction: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 impl Default for EncoderStage {
@@ -69,6 +84,7 @@ impl Default for EncoderStage {
             batch_size: 64,
             learning_rate: 1e-3,
             kernel: 3,
+            frame_fraction: 1.0,
         }
     }
 }
@@ -115,6 +131,15 @@ pub struct EncoderEpochMetrics {
     pub seconds: f32,
 }
 
+/// Per-frame accuracy of a stage A network on a set of videos.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FrameAccuracy {
+    /// Fraction of frames whose action the localizer names.
+    pub localizer: f64,
+    /// Fraction of frames whose next action the edge head names.
+    pub edge: f64,
+}
+
 /// Stage A's [`TrainStep`]: the examples are single frames of a dataset of
 /// video demos.
 pub struct FrameStageStep<'a> {
@@ -153,6 +178,53 @@ impl<'a> FrameStageStep<'a> {
             device: device.clone(),
         })
     }
+
+    /// The stage's losses on the frames `batch` (indices into the frames).
+    fn batch_loss(
+        &self,
+        model: &FrameStageNet,
+        batch: &[usize],
+    ) -> anyhow::Result<ntg_model::FrameStageLoss> {
+        let n = model.config().num_nodes;
+        let dim = self.dataset.obs_dim();
+        let mut rows = Vec::with_capacity(batch.len() * dim);
+        let (mut labels, mut next, mut graphs) = (Vec::new(), Vec::new(), Vec::new());
+        for &i in batch {
+            let (row, label, nx, task) = self.frames[i];
+            self.dataset.extend_row(row, &mut rows);
+            labels.push(label);
+            next.push(nx);
+            graphs.push(&self.graphs[&task]);
+        }
+        let frames =
+            Tensor::<2>::from_data(TensorData::new(rows, [batch.len(), dim]), &self.device);
+        let mask = successor_mask(&graphs, &labels, Some(&next), n, &self.device)?;
+        Ok(model.loss(
+            frames,
+            ids_tensor(&labels, n, &self.device)?,
+            ids_tensor(&next, n, &self.device)?,
+            mask,
+        )?)
+    }
+
+    /// `model`'s localizer and edge accuracy over every frame (no
+    /// gradients): on the frames of held-out videos, how well the encoder
+    /// generalises.
+    pub fn accuracy(&self, model: &FrameStageNet) -> anyhow::Result<FrameAccuracy> {
+        let model = model.valid();
+        let (mut localizer, mut edge) = (0.0f64, 0.0f64);
+        let all: Vec<usize> = (0..self.frames.len()).collect();
+        for batch in all.chunks(256) {
+            let out = self.batch_loss(&model, batch)?;
+            localizer += f64::from(out.localizer.accuracy) * batch.len() as f64;
+            edge += f64::from(out.edge.accuracy) * batch.len() as f64;
+        }
+        let total = self.frames.len().max(1) as f64;
+        Ok(FrameAccuracy {
+            localizer: localizer / total,
+            edge: edge / total,
+        })
+    }
 }
 
 impl TrainStep<FrameStageNet> for FrameStageStep<'_> {
@@ -168,26 +240,7 @@ impl TrainStep<FrameStageNet> for FrameStageStep<'_> {
         batch: &[usize],
         _ctx: StepContext<'_>,
     ) -> anyhow::Result<StepReport> {
-        let n = model.config().num_nodes;
-        let dim = self.dataset.obs_dim();
-        let mut rows = Vec::with_capacity(batch.len() * dim);
-        let (mut labels, mut next, mut graphs) = (Vec::new(), Vec::new(), Vec::new());
-        for &i in batch {
-            let (row, label, nx, task) = self.frames[i];
-            self.dataset.extend_row(row, &mut rows);
-            labels.push(label);
-            next.push(nx);
-            graphs.push(&self.graphs[&task]);
-        }
-        let frames =
-            Tensor::<2>::from_data(TensorData::new(rows, [batch.len(), dim]), &self.device);
-        let mask = successor_mask(&graphs, &labels, Some(&next), n, &self.device)?;
-        let out = model.loss(
-            frames,
-            ids_tensor(&labels, n, &self.device)?,
-            ids_tensor(&next, n, &self.device)?,
-            mask,
-        )?;
+        let out = self.batch_loss(model, batch)?;
         Ok(StepReport {
             values: vec![
                 scalar(out.loss.clone())?,
@@ -217,33 +270,6 @@ impl TrainStep<FrameStageNet> for FrameStageStep<'_> {
             edge_accuracy: m[4],
             seconds,
         }
-    }
-}
-
-/// Stage B's step: NTG's own step on the NTG part of the model.
-pub struct VideoNtgStep<'a>(pub NtgStep<'a>);
-
-impl TrainStep<VideoNtgModel> for VideoNtgStep<'_> {
-    type Metrics = crate::method::ntg::EpochMetrics;
-    fn num_examples(&self) -> usize {
-        self.0.num_examples()
-    }
-    fn step(
-        &self,
-        model: &VideoNtgModel,
-        batch: &[usize],
-        ctx: StepContext<'_>,
-    ) -> anyhow::Result<StepReport> {
-        self.0.step(&model.ntg, batch, ctx)
-    }
-    fn epoch_metrics(
-        &self,
-        epoch: usize,
-        means: &[f32],
-        edges: &EdgeCounts,
-        seconds: f32,
-    ) -> Self::Metrics {
-        self.0.epoch_metrics(epoch, means, edges, seconds)
     }
 }
 
@@ -281,21 +307,60 @@ fn record_in_chunks(
     Ok(())
 }
 
-/// Stage A's dataset: the frames (as bytes) of the videos of `pairs`.
+/// Stage A's dataset: the frames (as bytes) of the videos of `pairs`, each
+/// video's keyframes and a `fraction` of its other frames (a draw seeded
+/// by the video's seed; all of them at 1).
 pub fn frame_dataset(
     vocab: &Vocabulary,
     pairs: &[(usize, u64)],
     record: VideoRecorder<'_>,
     frame_dim: usize,
+    fraction: f64,
 ) -> anyhow::Result<DemoDataset> {
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&fraction),
+        "the fraction of frames stage A trains on must be in [0, 1], got {fraction}"
+    );
     let mut dataset = DemoDataset::from_demos(vocab.clone(), frame_dim, ObsDtype::U8, [])?;
     record_in_chunks(pairs, record, "videos (A)", |videos| {
         for (t, seed, v) in videos {
+            let v = if fraction < 1.0 {
+                keep_frames(v, fraction, seed, vocab)?
+            } else {
+                v
+            };
             dataset.push_video(t, seed, v)?;
         }
         Ok(())
     })?;
     Ok(dataset)
+}
+
+/// `video` with its keyframes (the last frame of each segment) and each
+/// other frame with probability `fraction`, drawn from `seed`.
+pub fn keep_frames<F>(
+    video: VideoDemonstration<F>,
+    fraction: f64,
+    seed: u64,
+    vocab: &Vocabulary,
+) -> anyhow::Result<VideoDemonstration<F>> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_F2A3);
+    let (frames, ends, actions) = video.into_parts();
+    let mut kept = Vec::new();
+    let mut kept_ends = Vec::with_capacity(ends.len());
+    let mut segment = 0;
+    for (i, f) in frames.into_iter().enumerate() {
+        let keyframe = i + 1 == ends[segment];
+        if keyframe || rng.random_bool(fraction) {
+            kept.push(f);
+        }
+        if keyframe {
+            kept_ends.push(kept.len());
+            segment += 1;
+        }
+    }
+    Ok(VideoDemonstration::new(kept, kept_ends, actions, vocab)?)
 }
 
 /// Stage B's dataset: the videos of `pairs`, every frame encoded once by
@@ -337,6 +402,17 @@ pub struct VideoRun<'a> {
     pub encoder: &'a EncoderStage,
     /// Seed of stage A's weights and shuffling.
     pub seed: u64,
+    /// Held-out videos that score stage A's epochs (the best is kept).
+    pub validation: Option<ValidationVideos<'a>>,
+}
+
+/// Videos of validation tasks, never trained on: stage A is scored by its
+/// localizer's and edge head's accuracy on their frames.
+pub struct ValidationVideos<'a> {
+    /// `(task, seed)` of each video (task indices are the recorder's own).
+    pub pairs: Vec<(usize, u64)>,
+    /// Records a validation video.
+    pub record: VideoRecorder<'a>,
 }
 
 /// Stage A (resumed if started): trains the shared encoder in
@@ -359,6 +435,7 @@ pub fn train_encoder(
             &video.pairs[..demos],
             video.record,
             video.frame_dim,
+            stage.frame_fraction,
         )
     })?;
     let net = stage
@@ -371,6 +448,39 @@ pub fn train_encoder(
         frames.demos().len(),
         stage.epochs
     );
+    let held_out = match &video.validation {
+        Some(v) if !v.pairs.is_empty() => Some(frame_dataset(
+            video.vocabulary,
+            &v.pairs,
+            v.record,
+            video.frame_dim,
+            1.0,
+        )?),
+        _ => None,
+    };
+    let held_out_step = held_out
+        .as_ref()
+        .map(|d| FrameStageStep::new(d, device))
+        .transpose()?;
+    let mut validator = |net: &FrameStageNet| -> anyhow::Result<ValidationScore> {
+        let step = held_out_step.as_ref().context("no validation videos")?;
+        let acc = step.accuracy(net)?;
+        eprintln!(
+            "  stage A held-out ({} frames of {} videos): localizer {:.3} | edges {:.3}",
+            step.num_examples(),
+            step.dataset.demos().len(),
+            acc.localizer,
+            acc.edge
+        );
+        Ok(ValidationScore {
+            success: acc.localizer,
+            goal_fraction: acc.edge,
+        })
+    };
+    let selection = held_out_step.is_some().then_some(Selection {
+        validator: &mut validator as &mut dyn crate::fit::Validator<FrameStageNet>,
+        every: 1,
+    });
     let optim = OptimConfig {
         epochs: stage.epochs,
         batch_size: stage.batch_size,
@@ -386,7 +496,7 @@ pub fn train_encoder(
         &optim,
         &dir,
         device,
-        None,
+        selection,
         |m: &EncoderEpochMetrics| {
             eprintln!(
                 "  stage A epoch {}: loss {:.3} | localizer {:.3} | edges {:.3} | {:.1}s",
@@ -403,24 +513,17 @@ struct StageAConfig {
     seed: u64,
 }
 
-/// Stage B: encodes every training video once with the frozen encoder
-/// (cached in `run/embeddings/`), then trains `ntg` (built for rows of the
-/// encoder's embeddings) through [`fit`] with NTG's `step` options.
-#[allow(clippy::too_many_arguments)]
-pub fn train_on_embeddings<'a>(
+/// Stage B's data: every training video of `video` encoded once with the
+/// frozen encoder of `frames`, cached in `run/embeddings/` (built on the
+/// first call, read back afterwards).
+pub fn embeddings(
     run: &RunDir,
     video: &VideoRun<'_>,
-    frames: FrameStageNet,
-    ntg: NtgModel,
-    training: crate::method::ntg::NtgTraining<'a>,
-    optim: &OptimConfig,
-    device: &Device,
-    selection: Option<Selection<'_, VideoNtgModel>>,
-    on_epoch: impl FnMut(&crate::method::ntg::EpochMetrics),
-) -> anyhow::Result<VideoNtgModel> {
+    frames: &FrameStageNet,
+) -> anyhow::Result<DemoDataset> {
     let started = std::time::Instant::now();
     let embeddings = DemoDataset::load_or_build(&run.root().join(EMBEDDINGS_DIR), || {
-        embedding_dataset(video.vocabulary, &video.pairs, video.record, &frames)
+        embedding_dataset(video.vocabulary, &video.pairs, video.record, frames)
     })?;
     eprintln!(
         "stage B: {} demo videos, {} frames encoded ({:.0}s)",
@@ -428,14 +531,44 @@ pub fn train_on_embeddings<'a>(
         embeddings.num_rows(),
         started.elapsed().as_secs_f32()
     );
-    let model = VideoNtgModel::new(frames, ntg)?;
-    let step = VideoNtgStep(NtgStep::new(&model.ntg, &embeddings, training, device)?);
-    fit(model, &step, optim, run, device, selection, on_epoch)
+    Ok(embeddings)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn keep_frames_keeps_every_keyframe_and_about_the_fraction_of_the_rest() {
+        let vocab = Vocabulary::from_sequences([["a", "b"].as_slice()]).unwrap();
+        let actions = vocab.parse_sequence("a b").unwrap();
+        let video = |n: usize| {
+            VideoDemonstration::new(
+                (0..3 * n).collect::<Vec<usize>>(),
+                vec![n, 2 * n, 3 * n],
+                actions.clone(),
+                &vocab,
+            )
+            .unwrap()
+        };
+        let all = keep_frames(video(4), 1.0, 7, &vocab).unwrap();
+        assert_eq!(all.frames(), video(4).frames());
+        let keys = keep_frames(video(4), 0.0, 7, &vocab).unwrap();
+        assert_eq!(keys.frames(), &[3, 7, 11], "the keyframes alone");
+        assert_eq!(keys.actions(), &actions[..]);
+        let some = keep_frames(video(400), 0.25, 7, &vocab).unwrap();
+        let others = some.frames().len() - 3;
+        assert!(
+            (250..350).contains(&others),
+            "{others} of 1197 non-keyframes at 0.25"
+        );
+        assert!(some.frames().contains(&399) && some.frames().contains(&1199));
+        assert_eq!(
+            some.frames(),
+            keep_frames(video(400), 0.25, 7, &vocab).unwrap().frames(),
+            "seeded"
+        );
+    }
 
     #[test]
     fn spread_pairs_cover_tasks_first() {

@@ -19,7 +19,7 @@ use ntg_trainer::blocks::{
     BlocksRunConfig, ObsKind, Recipe, TrainedBlocks, flat_vocabulary, train_run,
 };
 use ntg_trainer::fit::OptimConfig;
-use ntg_trainer::method::ntg_video::{VideoNtgModel, encode_rows};
+use ntg_trainer::method::on_frames::{VideoNtgModel, encode_rows};
 use ntg_trainer::run_dir::RunDir;
 
 const TASKS: usize = 6;
@@ -99,7 +99,7 @@ fn staged_training_fits_its_demo_videos() {
     let (mut tokens, mut token_total) = (0, 0);
     for v in videos {
         let embedded = encode_rows(&net, v.frames()).unwrap();
-        let decoded: Vec<ActionId> = model.ntg.interpreter.decode(&embedded).unwrap();
+        let decoded: Vec<ActionId> = model.policy.interpreter.decode(&embedded).unwrap();
         tokens += decoded
             .iter()
             .zip(v.actions())

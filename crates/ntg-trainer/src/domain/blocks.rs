@@ -20,10 +20,10 @@ use crate::dataset::DemoDataset;
 use crate::domain::{
     self, Domain, DomainFlags, DomainRuns, Episode, EpisodeRecord, EvalFlags, TrainFlags,
 };
-use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore};
+use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore, fit};
 pub use crate::method::ntg::Variant;
-use crate::method::ntg::{EpochMetrics, GcnSource, NtgTraining, TrainExtras, train_with};
-use crate::method::ntg_video::{NtgBased, VideoNtgModel};
+use crate::method::ntg::{EpochMetrics, GcnSource, NtgStep, NtgTraining, TrainExtras, train_with};
+use crate::method::on_frames::{NtgBased, OnFramesStep, VideoNtgModel};
 use crate::run_dir::RunDir;
 pub use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
@@ -351,7 +351,7 @@ impl TrainedBlocks {
     pub fn ntg(&self) -> &NtgModel {
         match self {
             TrainedBlocks::State(m) => m,
-            TrainedBlocks::Video(m) => &m.ntg,
+            TrainedBlocks::Video(m) => &m.policy,
         }
     }
 
@@ -359,7 +359,7 @@ impl TrainedBlocks {
     pub fn ntg_mut(&mut self) -> &mut NtgModel {
         match self {
             TrainedBlocks::State(m) => m,
-            TrainedBlocks::Video(m) => &mut m.ntg,
+            TrainedBlocks::Video(m) => &mut m.policy,
         }
     }
 }
@@ -464,6 +464,16 @@ pub fn train_video_run(
         )?;
         Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
     };
+    let validation = env_blocks::validation_tasks(config.validation_tasks)?;
+    let record_validation = |i: usize, seed: u64| {
+        let v = env_blocks::record_video_demo(
+            env_blocks::BlocksTask::Stack(validation[i].clone()),
+            env_cfg,
+            seed,
+            &video.frames,
+        )?;
+        Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
+    };
     let vocab = flat_vocabulary();
     let video_run = VideoRun {
         vocabulary: &vocab,
@@ -472,10 +482,15 @@ pub fn train_video_run(
         frame_dim: obs_dim_frames(),
         encoder: &video.encoder,
         seed: config.model_seed,
+        validation: Some(crate::video::ValidationVideos {
+            pairs: (0..validation.len())
+                .map(|i| (i, VALIDATION_DEMO_SEED_BASE + i as u64))
+                .collect(),
+            record: &record_validation,
+        }),
     };
     let frames = crate::video::train_encoder(run, &video_run, device)?;
     let ntg = new_model(config, device)?;
-    let validation = env_blocks::validation_tasks(config.validation_tasks)?;
     let mut validator =
         |model: &VideoNtgModel| validation_score(model, ObsKind::Vid, config.failures, &validation);
     let selection = (!validation.is_empty()).then_some(crate::fit::Selection {
@@ -493,13 +508,14 @@ pub fn train_video_run(
         detach_gcn_from_edges: config.detach_gcn_from_edges,
         ..NtgTraining::default()
     };
-    crate::video::train_on_embeddings(
-        run,
-        &video_run,
-        frames,
-        ntg,
-        training,
+    let embeddings = crate::video::embeddings(run, &video_run, &frames)?;
+    let model = VideoNtgModel::new(frames, ntg)?;
+    let step = OnFramesStep(NtgStep::new(&model.policy, &embeddings, training, device)?);
+    fit(
+        model,
+        &step,
         &config.optim,
+        run,
         device,
         selection,
         &mut on_epoch,
@@ -933,13 +949,6 @@ pub struct BlocksFlags {
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
-    /// --obs vid: demo videos whose frames train the shared frame encoder
-    /// (stage A) [default: 1000].
-    #[arg(long, value_parser = crate::spec::parse::positive)]
-    pub encoder_demos: Option<usize>,
-    /// --obs vid: passes of stage A over those frames [default: 4].
-    #[arg(long, value_parser = crate::spec::parse::positive)]
-    pub encoder_epochs: Option<usize>,
 }
 
 /// The run configuration `ntg train --domain blocks` asks for: the recipe,
@@ -953,8 +962,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         flags.seed,
     );
     let video = base.video.clone().map(|mut v| {
-        v.encoder.demos = own.encoder_demos.unwrap_or(v.encoder.demos);
-        v.encoder.epochs = own.encoder_epochs.unwrap_or(v.encoder.epochs);
+        flags.apply_encoder_flags(&mut v.encoder);
         v
     });
     BlocksRunConfig {
@@ -1002,11 +1010,7 @@ impl DomainRuns for Blocks {
                 "--permute-objects renames cubes in state observations; it does not apply to --obs vid"
             );
         }
-        if config.obs == ObsKind::State
-            && (own.encoder_demos.is_some() || own.encoder_epochs.is_some())
-        {
-            bail!("--encoder-demos and --encoder-epochs set the frame encoder of --obs vid runs");
-        }
+        flags.check_encoder_flags()?;
         env_blocks::standard_split()?
             .train(config.train_tasks)
             .with_context(|| format!("--train-tasks {}", config.train_tasks))?;
@@ -1099,7 +1103,7 @@ pub fn load_trained(
         None => run.checkpoint_dir(),
     };
     let context = || format!("loading the trained model of {}", run.root().display());
-    let mut model = if crate::method::ntg_video::is_video_model(&dir) {
+    let mut model = if crate::method::on_frames::is_video_model(&dir) {
         TrainedBlocks::Video(
             <VideoNtgModel as crate::fit::TrainedModel>::load_from(&dir, device)
                 .with_context(context)?,

@@ -31,13 +31,15 @@ use crate::dataset::DemoDataset;
 use crate::domain::{
     self, Domain, DomainFlags, DomainRuns, Episode, EpisodeRecord, EvalFlags, TrainFlags,
 };
-use crate::fit::{OptimConfig, fit};
+use crate::fit::{OptimConfig, TrainStep, fit};
 use crate::method::flat::{FlatStep, FlatTraining};
 use crate::method::ntg::{GcnSource, NtgStep, NtgTraining};
+use crate::method::on_frames::{EmbeddingReader, OnFrames, OnFramesStep};
 use crate::method::{MethodId, Model, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
+use crate::video::{EncoderStage, VideoRun};
 
 /// Seed base of training demonstrations.
 pub const TRAIN_SEED_BASE: u64 = 40_000_000;
@@ -191,6 +193,22 @@ pub struct CollectRunConfig {
     /// [`OptimConfig::learning_rate_at`] (constant, or with `cosine_decay`
     /// a half cosine per step down to a tenth), as in block stacking.
     pub optim: OptimConfig,
+    /// `--obs vid` from demo videos, trained in stages
+    /// ([`crate::video`]): how the videos are timed and how the shared
+    /// frame encoder trains. Absent (runs saved before it, or `obs` state):
+    /// one frame per action, each network's CNN trained end to end.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub video: Option<CollectVideo>,
+}
+
+/// How an object-collection run on frames records its demo videos and
+/// trains its shared frame encoder.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct CollectVideo {
+    /// Frames per phase of each action's motion.
+    pub frames: env_collect::VideoConfig,
+    /// Stage A: the shared frame encoder.
+    pub encoder: EncoderStage,
 }
 
 impl CollectRunConfig {
@@ -236,6 +254,7 @@ impl CollectRunConfig {
                 cosine_decay: false,
                 gcn_from_other_demo: false,
             },
+            video: (obs == ObsKind::Vid).then(CollectVideo::default),
         }
     }
 
@@ -257,6 +276,13 @@ impl CollectRunConfig {
             "training pairs each demo with another demo of its task: at least 2 demos per task are needed"
         );
         ensure!(self.optim.batch_size > 0, "batch size must be positive");
+        if let Some(video) = &self.video {
+            ensure!(
+                self.obs == ObsKind::Vid,
+                "demo video settings need --obs vid"
+            );
+            video.frames.validate()?;
+        }
         if let Some(w) = self.location_step_prior {
             ensure!(
                 self.method == MethodId::Ntg && self.interpreter == InterpreterKind::Stepping,
@@ -313,11 +339,51 @@ pub fn train_run(
     mut on_epoch: impl FnMut(String),
 ) -> anyhow::Result<Model> {
     config.validate()?;
-    let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config))?;
     let n = env_collect::vocabulary().len();
+    // On demo videos: stage A trains the shared encoder, stage B the
+    // method on the frames' embeddings (see `crate::video`).
+    let (frames, dataset, row_encoder) = match &config.video {
+        Some(video) => {
+            let tasks = training_tasks(config)?;
+            let record = |t: usize, seed: u64| {
+                let v = env_collect::record_video_demo(
+                    tasks[t].clone(),
+                    env_config(ObsKind::Vid),
+                    seed,
+                    &video.frames,
+                )?;
+                Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
+            };
+            let video_run = VideoRun {
+                vocabulary: env_collect::vocabulary(),
+                pairs: crate::video::spread_pairs(
+                    tasks.len(),
+                    config.demos_per_task,
+                    TRAIN_SEED_BASE,
+                ),
+                record: &record,
+                frame_dim: env_collect::FRAME_DIM,
+                encoder: &video.encoder,
+                seed: config.model_seed,
+                validation: None,
+            };
+            let frames = crate::video::train_encoder(run, &video_run, device)?;
+            let embeddings = crate::video::embeddings(run, &video_run, &frames)?;
+            (
+                Some(frames),
+                embeddings,
+                EncoderConfig::state(video.encoder.embedding_dim()),
+            )
+        }
+        None => (
+            None,
+            DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config))?,
+            encoder(config.obs),
+        ),
+    };
     match config.method {
         MethodId::Ntg => {
-            let mut model_config = NtgConfig::for_domain(n, encoder(config.obs));
+            let mut model_config = NtgConfig::for_domain(n, row_encoder);
             model_config.seed = config.model_seed;
             config
                 .interpreter
@@ -334,13 +400,12 @@ pub fn train_run(
                 ..NtgTraining::default()
             };
             let step = NtgStep::new(&model, &dataset, training, device)?;
-            let model = fit(model, &step, &config.optim, run, device, None, |m| {
+            fit_either(model, step, frames, config, run, device, |m| {
                 on_epoch(m.log_line())
-            })?;
-            Ok(Box::new(model))
+            })
         }
         MethodId::Flat => {
-            let policy = FlatPolicyConfig::new(n, encoder(config.obs))
+            let policy = FlatPolicyConfig::new(n, row_encoder)
                 .with_seed(config.model_seed)
                 .with_memory_dim(config.memory.then_some(n))
                 .init(device)?;
@@ -349,12 +414,53 @@ pub fn train_run(
                 memory: config.memory,
             };
             let step = FlatStep::new(&policy, &dataset, training, device)?;
-            let policy = fit(policy, &step, &config.optim, run, device, None, |m| {
+            fit_either(policy, step, frames, config, run, device, |m| {
                 on_epoch(m.log_line())
-            })?;
-            Ok(Box::new(policy))
+            })
         }
     }
+}
+
+/// Trains `model` with `step` on state rows, or (given the trained frame
+/// encoder) behind the frozen encoder on frame embeddings.
+fn fit_either<M, S>(
+    model: M,
+    step: S,
+    frames: Option<ntg_model::FrameStageNet>,
+    config: &CollectRunConfig,
+    run: &RunDir,
+    device: &Device,
+    on_epoch: impl FnMut(&S::Metrics),
+) -> anyhow::Result<Model>
+where
+    M: crate::fit::TrainedModel
+        + burn::module::ModuleDisplay
+        + EmbeddingReader
+        + TrainedPolicy
+        + 'static,
+    S: TrainStep<M>,
+    OnFrames<M>: TrainedPolicy,
+{
+    Ok(match frames {
+        Some(frames) => Box::new(fit(
+            OnFrames::new(frames, model)?,
+            &OnFramesStep(step),
+            &config.optim,
+            run,
+            device,
+            None,
+            on_epoch,
+        )?),
+        None => Box::new(fit(
+            model,
+            &step,
+            &config.optim,
+            run,
+            device,
+            None,
+            on_epoch,
+        )?),
+    })
 }
 
 /// Loads the trained model of a run (inference device).
@@ -416,12 +522,25 @@ pub fn test_episodes(n: usize, episodes: usize) -> anyhow::Result<Vec<Episode<Ta
 #[derive(Debug, Clone)]
 pub struct CollectDomain {
     obs: ObsKind,
+    /// Conditioning demos are videos timed by this (`--obs vid` runs
+    /// trained in stages), else one row per action.
+    video: Option<env_collect::VideoConfig>,
 }
 
 impl CollectDomain {
-    /// The domain seen through `obs` (frames are rendered only for `vid`).
+    /// The domain seen through `obs` (frames are rendered only for `vid`),
+    /// one conditioning row per action.
     pub fn new(obs: ObsKind) -> Self {
-        CollectDomain { obs }
+        CollectDomain { obs, video: None }
+    }
+
+    /// The domain as `config`'s run sees it (demo videos for runs trained
+    /// on them).
+    pub fn for_run(config: &CollectRunConfig) -> Self {
+        CollectDomain {
+            obs: config.obs,
+            video: config.video.as_ref().map(|v| v.frames.clone()),
+        }
     }
 }
 
@@ -454,14 +573,31 @@ impl Domain for CollectDomain {
     fn goals(&self, task: &Task, env: &CollectEnv) -> (usize, usize) {
         (env.delivered(), task.num_objects())
     }
+    fn record_demo(
+        &self,
+        env: &mut CollectEnv,
+        task: &Task,
+        seed: u64,
+    ) -> anyhow::Result<(Vec<Vec<f32>>, Vec<ctg_graph::ActionId>)> {
+        let Some(video) = &self.video else {
+            return domain::record_keyframes(self, env, seed);
+        };
+        let video =
+            env_collect::record_video_demo(task.clone(), env_config(self.obs), seed, video)?;
+        let rows = video
+            .frames()
+            .iter()
+            .map(env_collect::frame_to_chw)
+            .collect();
+        Ok((rows, video.actions().to_vec()))
+    }
 }
 
 /// Evaluates `model` on `episodes` unseen test episodes for each N in
 /// `objects`, in parallel.
 pub fn evaluate(
     model: &dyn TrainedPolicy,
-    method: MethodId,
-    obs: ObsKind,
+    config: &CollectRunConfig,
     objects: &[usize],
     episodes: usize,
 ) -> anyhow::Result<CollectEval> {
@@ -469,7 +605,8 @@ pub fn evaluate(
     for &n in objects {
         all.extend(test_episodes(n, episodes)?);
     }
-    let records = domain::evaluate(&CollectDomain::new(obs), model, &all)?;
+    let records = domain::evaluate(&CollectDomain::for_run(config), model, &all)?;
+    let method = config.method;
     let points = objects
         .iter()
         .map(|&n| NPoint {
@@ -565,6 +702,10 @@ impl DomainRuns for Collect {
         config.optim.batch_size = flags.batch_size;
         config.optim.learning_rate = flags.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE);
         config.optim.cosine_decay = flags.cosine_decay;
+        flags.check_encoder_flags()?;
+        if let Some(video) = config.video.as_mut() {
+            flags.apply_encoder_flags(&mut video.encoder);
+        }
         config.validate()?;
         // Before the run folder exists (see `blocks::Blocks::train`).
         training_tasks(&config)?;
@@ -601,13 +742,7 @@ impl DomainRuns for Collect {
             );
         }
         let model = load_model(run, &config)?;
-        let result = evaluate(
-            model.as_ref(),
-            config.method,
-            config.obs,
-            &EVAL_OBJECTS,
-            flags.test_tasks,
-        )?;
+        let result = evaluate(model.as_ref(), &config, &EVAL_OBJECTS, flags.test_tasks)?;
         std::fs::create_dir_all(run.eval_dir())?;
         let path = run
             .eval_dir()
@@ -664,6 +799,7 @@ mod tests {
                 cosine_decay: false,
                 gcn_from_other_demo: false,
             },
+            video: None,
         }
     }
 
@@ -688,7 +824,7 @@ mod tests {
             let run = RunDir::open_or_create(&dir.path().join(method.name()), &config).unwrap();
             let model = train_run(&run, &config, &device, |_| {}).unwrap();
             assert!(run.epoch_seconds().unwrap() > 0.0);
-            let eval = evaluate(model.as_ref(), method, ObsKind::State, &[1, 3], 2).unwrap();
+            let eval = evaluate(model.as_ref(), &config, &[1, 3], 2).unwrap();
             assert_eq!(eval.episodes.len(), 4);
             assert_eq!(eval.points.len(), 2);
             assert_eq!(eval.points[1].objects, 3);
@@ -842,6 +978,46 @@ mod tests {
     }
 
     #[test]
+    fn both_methods_train_on_demo_videos_in_stages_and_act_on_frames() {
+        let dir = tempfile::tempdir().unwrap();
+        let device = ntg_model::cpu_device().autodiff();
+        for method in [MethodId::Ntg, MethodId::Flat] {
+            let mut video = CollectVideo::default();
+            video.encoder.demos = 4;
+            video.encoder.epochs = 1;
+            let config = CollectRunConfig {
+                obs: ObsKind::Vid,
+                train_objects: vec![1],
+                video: Some(video),
+                ..config(method, 1)
+            };
+            let run = RunDir::open_or_create(&dir.path().join(method.name()), &config).unwrap();
+            let model = train_run(&run, &config, &device, |_| {}).unwrap();
+            // Stage A's run, the embedding cache, then the method on frames.
+            assert!(
+                run.root()
+                    .join(crate::video::STAGE_A_DIR)
+                    .join("metrics.jsonl")
+                    .is_file()
+            );
+            let embeddings =
+                DemoDataset::load(&run.root().join(crate::video::EMBEDDINGS_DIR)).unwrap();
+            assert!(embeddings.is_video() && embeddings.num_rows() > 2 * embeddings.demos().len());
+            assert!(crate::method::on_frames::is_video_model(
+                &run.checkpoint_dir()
+            ));
+            let loaded = load_model(&run, &config).unwrap();
+            let eval = evaluate(loaded.as_ref(), &config, &[1], 2).unwrap();
+            assert_eq!(eval.episodes.len(), 2);
+            let again = evaluate(model.as_ref(), &config, &[1], 2).unwrap();
+            assert_eq!(
+                again.episodes, eval.episodes,
+                "{method:?}: the saved model acts as the trained one"
+            );
+        }
+    }
+
+    #[test]
     fn runs_without_memory_or_end_still_train_and_evaluate() {
         let dir = tempfile::tempdir().unwrap();
         let device = ntg_model::cpu_device().autodiff();
@@ -853,7 +1029,7 @@ mod tests {
             };
             let run = RunDir::open_or_create(&dir.path().join(method.name()), &config).unwrap();
             let model = train_run(&run, &config, &device, |_| {}).unwrap();
-            let eval = evaluate(model.as_ref(), method, ObsKind::State, &[2], 2).unwrap();
+            let eval = evaluate(model.as_ref(), &config, &[2], 2).unwrap();
             assert_eq!(eval.episodes.len(), 2);
         }
     }

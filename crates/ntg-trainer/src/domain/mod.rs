@@ -148,6 +148,40 @@ pub struct TrainFlags {
     /// Continue the run in --out from its last checkpoint.
     #[arg(long)]
     pub resume: bool,
+    /// --obs vid: demo videos whose frames train the shared frame encoder
+    /// (stage A) [default: 1000].
+    #[arg(long, value_parser = crate::spec::parse::positive)]
+    pub encoder_demos: Option<usize>,
+    /// --obs vid: passes of stage A over those frames [default: 4].
+    #[arg(long, value_parser = crate::spec::parse::positive)]
+    pub encoder_epochs: Option<usize>,
+    /// --obs vid: fraction of each demo's frames besides its keyframes
+    /// that stage A trains on [default: 1].
+    #[arg(long, value_name = "F", value_parser = crate::spec::parse::fraction)]
+    pub encoder_frame_fraction: Option<f64>,
+}
+
+impl TrainFlags {
+    /// Refuses the frame-encoder flags on a run that has no frames.
+    pub fn check_encoder_flags(&self) -> anyhow::Result<()> {
+        if self.obs == ObsKind::State
+            && (self.encoder_demos.is_some()
+                || self.encoder_epochs.is_some()
+                || self.encoder_frame_fraction.is_some())
+        {
+            anyhow::bail!(
+                "--encoder-demos, --encoder-epochs and --encoder-frame-fraction set the frame encoder of --obs vid runs"
+            );
+        }
+        Ok(())
+    }
+
+    /// Overrides `stage`'s settings with the frame-encoder flags given.
+    pub fn apply_encoder_flags(&self, stage: &mut crate::video::EncoderStage) {
+        stage.demos = self.encoder_demos.unwrap_or(stage.demos);
+        stage.epochs = self.encoder_epochs.unwrap_or(stage.epochs);
+        stage.frame_fraction = self.encoder_frame_fraction.unwrap_or(stage.frame_fraction);
+    }
 }
 
 /// The flags of `ntg eval`.

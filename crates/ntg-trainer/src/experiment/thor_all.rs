@@ -166,13 +166,7 @@ pub fn run(
         let device = ntg_model::cpu_device().autodiff();
         let model = train_run(&run, &config, &device, |line| eprintln!("  {line}"))?;
         let eval = run.cached_eval(&format!("collect-{}.json", scale.test_episodes), || {
-            evaluate(
-                model.as_ref(),
-                method,
-                scale.obs,
-                &EVAL_OBJECTS,
-                scale.test_episodes,
-            )
+            evaluate(model.as_ref(), &config, &EVAL_OBJECTS, scale.test_episodes)
         })?;
         for p in &eval.points {
             eprintln!(
@@ -430,6 +424,7 @@ mod tests {
                     cosine_decay: ntg,
                     gcn_from_other_demo: false,
                 },
+                video: None,
             };
             assert_eq!(
                 experiment.run_config(Profile::Quick, method).unwrap(),

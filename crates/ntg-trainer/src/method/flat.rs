@@ -16,7 +16,7 @@ use rand::seq::IndexedRandom;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::DemoDataset;
-use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel, scalar};
+use crate::fit::{StepContext, StepReport, TrainStep, scalar};
 use crate::method::{Agent, Model, TrainedPolicy};
 
 /// Metrics of one Flat Policy epoch, as logged to `metrics.jsonl`.
@@ -113,7 +113,11 @@ impl TrainStep<FlatPolicy> for FlatStep<'_> {
             .map(|&i| {
                 let entry = &self.dataset.demos()[i];
                 let mut next = entry.actions.clone();
-                let mut queries = self.rows(i);
+                // The policy acts at the keyframes (every row of a demo
+                // without video) and attends over every row of the other.
+                let rows = self.rows(i);
+                let mut queries: Vec<Vec<f32>> =
+                    entry.keyframes().iter().map(|&k| rows[k].clone()).collect();
                 if learn_end {
                     next.push(Vocabulary::END);
                 } else {
@@ -176,7 +180,7 @@ impl crate::method::Method for Flat {
         "Flat Policy"
     }
     fn load(&self, dir: &std::path::Path, device: &Device) -> anyhow::Result<Model> {
-        Ok(Box::new(FlatPolicy::load_from(dir, device)?))
+        super::on_frames::load_either::<FlatPolicy>(dir, device)
     }
 }
 

@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 
 pub mod flat;
 pub mod ntg;
-pub mod ntg_video;
+pub mod on_frames;
 
 /// A registered method: its names and how to load a trained model of it.
 pub trait Method: Sync {

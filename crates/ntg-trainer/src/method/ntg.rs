@@ -37,8 +37,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::DemoDataset;
 use crate::fit::{
-    OptimConfig, Selection, StepContext, StepReport, TrainStep, TrainedModel, Validator, fit,
-    scalar,
+    OptimConfig, Selection, StepContext, StepReport, TrainStep, Validator, fit, scalar,
 };
 use crate::method::{Agent, Model, TrainedPolicy};
 use crate::run_dir::RunDir;
@@ -654,12 +653,7 @@ impl crate::method::Method for Ntg {
         "NTG (ours)"
     }
     fn load(&self, dir: &std::path::Path, device: &Device) -> anyhow::Result<Model> {
-        if super::ntg_video::is_video_model(dir) {
-            return Ok(Box::new(
-                <super::ntg_video::VideoNtgModel as TrainedModel>::load_from(dir, device)?,
-            ));
-        }
-        Ok(Box::new(NtgModel::load_from(dir, device)?))
+        super::on_frames::load_either::<NtgModel>(dir, device)
     }
 }
 

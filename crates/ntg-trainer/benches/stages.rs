@@ -1,0 +1,160 @@
+//! The staged video training against the state path, on the CPU backend:
+//!
+//! - `stage_b/state_step` and `stage_b/embedding_step`: one NTG training
+//!   step (forward, backward, Adam) of block stacking's recommended recipe,
+//!   32 demos, on state rows (one per action) and on frame embeddings (every
+//!   frame of a demo video, as stage B trains). The target: the
+//!   second at most 1.5x the first.
+//! - `stage_a/train`: one stage A step on 64 frames (the shared encoder
+//!   with the localizer's and edge head's losses), throughput in frames.
+//!   `../shared/reference/torch_step_reference.py --only a` times the same
+//!   CNN (batch 32, kernel 4) in PyTorch.
+//! - `stage_a/encode`: the frozen encoder over 256 frames (stage B's cache
+//!   and every policy step), throughput in frames.
+//!
+//! `cargo bench -p ntg-trainer --bench stages`
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use criterion::measurement::WallTime;
+use criterion::{BenchmarkGroup, Criterion, Throughput, criterion_group, criterion_main};
+use ctg_graph::Vocabulary;
+use ntg_model::FrameStageNet;
+use ntg_trainer::blocks::{self, BlocksDomain, Recipe};
+use ntg_trainer::dataset::DemoDataset;
+use ntg_trainer::domain::record_demos;
+use ntg_trainer::fit::{StepContext, TrainStep, TrainedModel};
+use ntg_trainer::method::ntg::{GcnSource, NtgStep, NtgTraining};
+use ntg_trainer::spec::ObsKind;
+use ntg_trainer::video::{EncoderStage, FrameStageStep, embedding_dataset, frame_dataset};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+const TASKS: usize = 16;
+const DEMOS_PER_TASK: usize = 4;
+const BATCH: usize = 32;
+
+/// Demo `j` of task `t` is recorded with seed `1000 t + j`.
+fn pairs() -> Vec<(usize, u64)> {
+    ntg_trainer::video::spread_pairs(TASKS, DEMOS_PER_TASK, 0)
+}
+
+fn record_video(t: usize, seed: u64) -> anyhow::Result<ctg_graph::VideoDemonstration<Vec<f32>>> {
+    let task = env_blocks::standard_tasks()?.swap_remove(t);
+    let v = env_blocks::record_video_demo(
+        env_blocks::BlocksTask::Stack(task),
+        blocks::env_config(ObsKind::Vid, true),
+        seed,
+        &env_blocks::VideoConfig::default(),
+    )?;
+    Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
+}
+
+fn ntg_step_bench(
+    group: &mut BenchmarkGroup<'_, WallTime>,
+    name: &str,
+    obs: ObsKind,
+    dataset: &DemoDataset,
+) {
+    let device = ntg_model::cpu_device().autodiff();
+    let config = Recipe::Recommended.config(obs, TASKS, DEMOS_PER_TASK, 1, 0);
+    let model = blocks::new_model(&config, &device).expect("model");
+    let training = NtgTraining {
+        gcn_source: GcnSource::OtherSeeded,
+        detach_gcn_from_edges: true,
+        ..NtgTraining::default()
+    };
+    let step = NtgStep::new(&model, dataset, training, &device).expect("step");
+    bench_train_step(group, name, model, &step, BATCH);
+}
+
+/// Times one training step of `model` with `step` on its first `batch`
+/// examples: the loss, its gradients and Adam's update.
+fn bench_train_step<M: TrainedModel, S: TrainStep<M>>(
+    group: &mut BenchmarkGroup<'_, WallTime>,
+    name: &str,
+    model: M,
+    step: &S,
+    batch: usize,
+) {
+    let batch: Vec<usize> = (0..batch).collect();
+    let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let mut slot = Some(model);
+    group.bench_function(name, |b| {
+        b.iter(|| {
+            let model = slot.take().expect("model");
+            let ctx = StepContext {
+                epoch: 0,
+                step: 0,
+                seed: 0,
+                rng: &mut rng,
+            };
+            let report = step.step(&model, &batch, ctx).expect("step");
+            let grads = GradientsParams::from_grads(report.loss.backward(), &model);
+            slot = Some(black_box(optimizer.step(1e-3, model, grads)));
+        })
+    });
+}
+
+fn stages(c: &mut Criterion) {
+    let tasks = &env_blocks::standard_tasks().expect("tasks")[..TASKS];
+    let state = record_demos(
+        &BlocksDomain::new(ObsKind::State, true),
+        tasks,
+        DEMOS_PER_TASK,
+        0,
+    )
+    .expect("state demos");
+    let vocab: Vocabulary = blocks::flat_vocabulary();
+    let device = ntg_model::cpu_device().autodiff();
+    let stage = EncoderStage::default();
+    let net: FrameStageNet = stage
+        .net_config(vocab.len(), 0)
+        .init(&device)
+        .expect("stage A net");
+    let embeddings =
+        embedding_dataset(&vocab, &pairs(), &record_video, &net).expect("embedding demos");
+    eprintln!(
+        "state: {} rows for {} demos; embeddings: {} rows (frames) for {} demos",
+        state.num_rows(),
+        state.demos().len(),
+        embeddings.num_rows(),
+        embeddings.demos().len()
+    );
+
+    let mut group = c.benchmark_group("stage_b");
+    group
+        .sample_size(20)
+        .warm_up_time(Duration::from_secs(2))
+        .measurement_time(Duration::from_secs(10));
+    ntg_step_bench(&mut group, "state_step", ObsKind::State, &state);
+    ntg_step_bench(&mut group, "embedding_step", ObsKind::Vid, &embeddings);
+    group.finish();
+
+    let frames =
+        frame_dataset(&vocab, &pairs()[..8], &record_video, 3 * 64 * 64, 1.0).expect("frames");
+    let step = FrameStageStep::new(&frames, &device).expect("stage A step");
+    let mut group = c.benchmark_group("stage_a");
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(2))
+        .measurement_time(Duration::from_secs(10));
+    group.throughput(Throughput::Elements(stage.batch_size as u64));
+    bench_train_step(&mut group, "train", net.clone(), &step, stage.batch_size);
+    let rows: Vec<Vec<f32>> = (0..256)
+        .map(|i| frames.row(i % frames.num_rows()))
+        .collect();
+    let frozen = net.valid();
+    group.throughput(Throughput::Elements(rows.len() as u64));
+    group.bench_function("encode", |b| {
+        b.iter(|| black_box(ntg_trainer::video::encode_rows(&frozen, &rows).expect("encode")))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, stages);
+criterion_main!(benches);
