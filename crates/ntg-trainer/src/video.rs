@@ -138,6 +138,9 @@ pub struct FrameAccuracy {
     pub localizer: f64,
     /// Fraction of frames whose next action the edge head names.
     pub edge: f64,
+    /// The localizer's accuracy on the keyframes alone (the scene after
+    /// each action: what the policy localizes at run time).
+    pub keyframe_localizer: f64,
 }
 
 /// Stage A's [`TrainStep`]: the examples are single frames of a dataset of
@@ -146,6 +149,8 @@ pub struct FrameStageStep<'a> {
     dataset: &'a DemoDataset,
     /// Per frame: (row, its label, the next action, its demo's task).
     frames: Vec<(usize, ActionId, ActionId, usize)>,
+    /// Indices into `frames` of the keyframes (what the policy acts on).
+    keyframes: Vec<usize>,
     graphs: std::collections::BTreeMap<usize, Ctg>,
     device: Device,
 }
@@ -153,7 +158,7 @@ pub struct FrameStageStep<'a> {
 impl<'a> FrameStageStep<'a> {
     /// The step over every frame of `dataset` (video demos).
     pub fn new(dataset: &'a DemoDataset, device: &Device) -> anyhow::Result<Self> {
-        let mut frames = Vec::new();
+        let (mut frames, mut keyframes) = (Vec::new(), Vec::new());
         for d in dataset.demos() {
             let ends = d
                 .segment_ends
@@ -166,6 +171,9 @@ impl<'a> FrameStageStep<'a> {
             let mut start = 0;
             for (s, &end) in ends.iter().enumerate() {
                 for k in start..end {
+                    if k + 1 == end {
+                        keyframes.push(frames.len());
+                    }
                     frames.push((d.first_row + k, nodes[s], next[s], d.task));
                 }
                 start = end;
@@ -174,6 +182,7 @@ impl<'a> FrameStageStep<'a> {
         Ok(FrameStageStep {
             dataset,
             frames,
+            keyframes,
             graphs: task_graphs(dataset)?,
             device: device.clone(),
         })
@@ -212,17 +221,23 @@ impl<'a> FrameStageStep<'a> {
     /// generalises.
     pub fn accuracy(&self, model: &FrameStageNet) -> anyhow::Result<FrameAccuracy> {
         let model = model.valid();
-        let (mut localizer, mut edge) = (0.0f64, 0.0f64);
+        let mean = |frames: &[usize]| -> anyhow::Result<(f64, f64)> {
+            let (mut localizer, mut edge) = (0.0f64, 0.0f64);
+            for batch in frames.chunks(256) {
+                let out = self.batch_loss(&model, batch)?;
+                localizer += f64::from(out.localizer.accuracy) * batch.len() as f64;
+                edge += f64::from(out.edge.accuracy) * batch.len() as f64;
+            }
+            let total = frames.len().max(1) as f64;
+            Ok((localizer / total, edge / total))
+        };
         let all: Vec<usize> = (0..self.frames.len()).collect();
-        for batch in all.chunks(256) {
-            let out = self.batch_loss(&model, batch)?;
-            localizer += f64::from(out.localizer.accuracy) * batch.len() as f64;
-            edge += f64::from(out.edge.accuracy) * batch.len() as f64;
-        }
-        let total = self.frames.len().max(1) as f64;
+        let (localizer, edge) = mean(&all)?;
+        let (keyframe_localizer, _) = mean(&self.keyframes)?;
         Ok(FrameAccuracy {
-            localizer: localizer / total,
-            edge: edge / total,
+            localizer,
+            edge,
+            keyframe_localizer,
         })
     }
 }
@@ -466,10 +481,11 @@ pub fn train_encoder(
         let step = held_out_step.as_ref().context("no validation videos")?;
         let acc = step.accuracy(net)?;
         eprintln!(
-            "  stage A held-out ({} frames of {} videos): localizer {:.3} | edges {:.3}",
+            "  stage A held-out ({} frames of {} videos): localizer {:.3} (keyframes {:.3}) | edges {:.3}",
             step.num_examples(),
             step.dataset.demos().len(),
             acc.localizer,
+            acc.keyframe_localizer,
             acc.edge
         );
         Ok(ValidationScore {

@@ -51,6 +51,12 @@ pub const ROLLOUT_SEED_BASE: u64 = 60_000_000;
 pub const TRAIN_TASK_SEED: u64 = 70_000;
 /// Seed of the order of test tasks (with N added).
 pub const TEST_TASK_SEED: u64 = 80_000;
+/// Seed of the order of validation tasks (with N added).
+pub const VALIDATION_TASK_SEED: u64 = 90_000;
+/// Seed base of the demo videos of validation tasks.
+pub const VALIDATION_SEED_BASE: u64 = 80_000_000;
+/// Validation tasks per N whose demo videos score stage A of a video run.
+pub const VALIDATION_TASKS_PER_N: usize = 25;
 /// The numbers of objects evaluated.
 pub const EVAL_OBJECTS: [usize; 5] = [1, 2, 3, 4, 5];
 
@@ -317,6 +323,28 @@ pub fn training_tasks(config: &CollectRunConfig) -> anyhow::Result<Vec<Task>> {
     Ok(tasks)
 }
 
+/// Up to `per_n` train-side tasks for each N in the run's training
+/// numbers of objects that the run does not train on (in a seeded order):
+/// held out from training, never from the test side, so that settings are
+/// chosen without looking at test tasks.
+pub fn validation_tasks(config: &CollectRunConfig, per_n: usize) -> anyhow::Result<Vec<Task>> {
+    let splitter = env_collect::TaskSplitter::default();
+    let training = training_tasks(config)?;
+    let mut tasks = Vec::new();
+    for &n in &config.train_objects {
+        let mut pool = splitter.tasks_with(n, Some(Split::Train))?;
+        pool.shuffle(&mut ChaCha8Rng::seed_from_u64(
+            VALIDATION_TASK_SEED + n as u64,
+        ));
+        tasks.extend(
+            pool.into_iter()
+                .filter(|t| !training.contains(t))
+                .take(per_n),
+        );
+    }
+    Ok(tasks)
+}
+
 /// Records the training demonstrations of a run, in parallel.
 pub fn build_dataset(config: &CollectRunConfig) -> anyhow::Result<DemoDataset> {
     let tasks = training_tasks(config)?;
@@ -354,6 +382,16 @@ pub fn train_run(
                 )?;
                 Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
             };
+            let validation = validation_tasks(config, VALIDATION_TASKS_PER_N)?;
+            let record_validation = |i: usize, seed: u64| {
+                let v = env_collect::record_video_demo(
+                    validation[i].clone(),
+                    env_config(ObsKind::Vid),
+                    seed,
+                    &video.frames,
+                )?;
+                Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
+            };
             let video_run = VideoRun {
                 vocabulary: env_collect::vocabulary(),
                 pairs: crate::video::spread_pairs(
@@ -365,7 +403,12 @@ pub fn train_run(
                 frame_dim: env_collect::FRAME_DIM,
                 encoder: &video.encoder,
                 seed: config.model_seed,
-                validation: None,
+                validation: Some(crate::video::ValidationVideos {
+                    pairs: (0..validation.len())
+                        .map(|i| (i, VALIDATION_SEED_BASE + i as u64))
+                        .collect(),
+                    record: &record_validation,
+                }),
             };
             let frames = crate::video::train_encoder(run, &video_run, device)?;
             let embeddings = crate::video::embeddings(run, &video_run, &frames)?;
@@ -975,6 +1018,20 @@ mod tests {
         c.tasks_per_n = 41;
         let err = format!("{:#}", training_tasks(&c).unwrap_err());
         assert!(err.contains("1 objects"), "{err}");
+    }
+
+    #[test]
+    fn validation_tasks_are_train_side_tasks_the_run_does_not_train_on() {
+        let config = config(MethodId::Ntg, 1);
+        let training = training_tasks(&config).unwrap();
+        let validation = validation_tasks(&config, 5).unwrap();
+        assert_eq!(validation.len(), 10);
+        let splitter = env_collect::TaskSplitter::default();
+        for t in &validation {
+            assert!(!training.contains(t), "{t} is a training task");
+            assert_eq!(splitter.split_of(t), Split::Train, "{t}");
+        }
+        assert_eq!(validation, validation_tasks(&config, 5).unwrap(), "seeded");
     }
 
     #[test]
