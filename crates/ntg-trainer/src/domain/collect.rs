@@ -373,25 +373,10 @@ pub fn train_run(
     let (frames, dataset, row_encoder) = match &config.video {
         Some(video) => {
             let tasks = training_tasks(config)?;
-            let record = |t: usize, seed: u64| {
-                let v = env_collect::record_video_demo(
-                    tasks[t].clone(),
-                    env_config(ObsKind::Vid),
-                    seed,
-                    &video.frames,
-                )?;
-                Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
-            };
+            let record = |t: usize, seed: u64| record_video_chw(&tasks[t], seed, &video.frames);
             let validation = validation_tasks(config, VALIDATION_TASKS_PER_N)?;
-            let record_validation = |i: usize, seed: u64| {
-                let v = env_collect::record_video_demo(
-                    validation[i].clone(),
-                    env_config(ObsKind::Vid),
-                    seed,
-                    &video.frames,
-                )?;
-                Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
-            };
+            let record_validation =
+                |i: usize, seed: u64| record_video_chw(&validation[i], seed, &video.frames);
             let video_run = VideoRun {
                 vocabulary: env_collect::vocabulary(),
                 pairs: crate::video::spread_pairs(
@@ -462,6 +447,16 @@ pub fn train_run(
             })
         }
     }
+}
+
+/// The demo video of `task` recorded with `seed`, frames featurised.
+fn record_video_chw(
+    task: &Task,
+    seed: u64,
+    frames: &env_collect::VideoConfig,
+) -> anyhow::Result<ctg_graph::VideoDemonstration<Vec<f32>>> {
+    let v = env_collect::record_video_demo(task.clone(), env_config(ObsKind::Vid), seed, frames)?;
+    Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
 }
 
 /// Trains `model` with `step` on state rows, or (given the trained frame
