@@ -60,7 +60,12 @@ impl Init {
         }
     }
 
-    /// A square-kernel 2-D convolution, uniform in `±1/√(c_in·k²)`.
+    /// A square-kernel 2-D convolution: weights uniform in `±1/√(c_in·k²)`
+    /// (PyTorch's default for `nn.Conv2d`), or with `he` in
+    /// `±√(6/(c_in·k²))` (He initialisation for a ReLU after it: variance
+    /// `2/fan_in` keeps activations at one scale through a stack of ReLU
+    /// layers, where PyTorch's default shrinks them about 2.4× per layer);
+    /// bias uniform in `±1/√(c_in·k²)`.
     pub(crate) fn conv2d(
         &mut self,
         c_in: usize,
@@ -68,16 +73,21 @@ impl Init {
         kernel: usize,
         stride: usize,
         padding: usize,
+        he: bool,
     ) -> Conv2d {
         let fan_in = c_in * kernel * kernel;
-        let bound = 1.0 / (fan_in.max(1) as f32).sqrt();
+        let bound = if he {
+            (6.0 / fan_in.max(1) as f32).sqrt()
+        } else {
+            1.0 / (fan_in.max(1) as f32).sqrt()
+        };
         let values = self.uniform(c_out * fan_in, bound);
         Conv2d {
             weight: Param::from_data(
                 TensorData::new(values, [c_out, c_in, kernel, kernel]),
                 &self.device,
             ),
-            bias: Some(self.vector(c_out, bound)),
+            bias: Some(self.vector(c_out, 1.0 / (fan_in.max(1) as f32).sqrt())),
             stride: [stride, stride],
             kernel_size: [kernel, kernel],
             dilation: [1, 1],

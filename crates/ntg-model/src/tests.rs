@@ -66,6 +66,18 @@ fn encoders_map_rows_to_embeddings() {
             3 * 16 * 16,
             32,
         ),
+        (
+            EncoderConfig::Frame(
+                FrameEncoderConfig::new()
+                    .with_image_size(16)
+                    .with_hidden(24)
+                    .with_he_init(true)
+                    .with_centre_input(true)
+                    .with_out_dim(32),
+            ),
+            3 * 16 * 16,
+            32,
+        ),
         (EncoderConfig::kinematics(3), 3 * 76, 128),
     ];
     for (cfg, d, h) in cases {
@@ -83,6 +95,32 @@ fn encoders_map_rows_to_embeddings() {
         EncoderConfig::Frame(FrameEncoderConfig::new().with_image_size(20)).init(0, &dev),
         Err(ModelError::Config(_))
     ));
+}
+
+#[test]
+fn he_initialised_centred_frame_encoder_keeps_its_activations_at_scale() {
+    // PyTorch's default initialisation shrinks a ReLU stack's activations
+    // about 2.4x per layer; He initialisation keeps them at one scale, so
+    // the embedding of random frames is an order of magnitude larger.
+    let dev = device();
+    let rng = ChaCha8Rng::seed_from_u64(3);
+    let d = 3 * 32 * 32;
+    let x = || rows_tensor(&random_rows(&mut rng.clone(), 16, d), d, &dev).unwrap();
+    let spread = |cfg: FrameEncoderConfig| {
+        let enc = EncoderConfig::Frame(cfg.with_image_size(32))
+            .init(1, &dev)
+            .unwrap();
+        let y = to_vec(enc.forward(x()).unwrap()).unwrap();
+        let mean = y.iter().sum::<f32>() / y.len() as f32;
+        (y.iter().map(|v| (v - mean).powi(2)).sum::<f32>() / y.len() as f32).sqrt()
+    };
+    let default = spread(FrameEncoderConfig::new());
+    let he = spread(
+        FrameEncoderConfig::new()
+            .with_he_init(true)
+            .with_centre_input(true),
+    );
+    assert!(he > 4.0 * default, "He {he} vs default {default}");
 }
 
 #[test]

@@ -1,67 +1,159 @@
-//! Scores the shared frame encoder of a block-stacking video run (its
-//! stage A network) on the frames of validation-task demo videos: the
-//! localizer's accuracy over every frame and over the keyframes, and the
-//! edge head's. Validation tasks only: choose stage A's settings here,
-//! never on test tasks.
+//! The shared frame encoder of block stacking (stage A) on validation-task
+//! demo videos: the localizer's accuracy over every frame and over the
+//! keyframes, and the edge head's. Validation tasks only: choose stage A's
+//! settings here, never on test tasks.
 //!
-//! `cargo run --release -p ntg-trainer --example encoder_heldout -- RUN [TASKS]`
-//! (default 100 tasks, one video each, recorded as `ntg train` records its
-//! validation videos).
+//! ```text
+//! cargo run --release -p ntg-trainer --example encoder_heldout -- score RUN [TASKS]
+//! cargo run --release -p ntg-trainer --example encoder_heldout -- \
+//!     train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [he] [centre] [tasks=TASKS]
+//! ```
+//!
+//! `score` scores the stage A network of a video run. `train` trains a new
+//! stage A network on the frames of the first `DEMOS` demo videos of a
+//! stage A frame dataset `FRAMES` (a run's `stage_a/dataset`, so that
+//! settings are compared on the same frames without re-rendering them),
+//! with an encoder hidden layer of `HIDDEN` (0: none), the other settings
+//! `EncoderStage`'s defaults unless given (`he`: He initialisation,
+//! `centre`: centred frames), scoring it after every epoch; its checkpoints
+//! go to the new folder `OUT`. `TASKS` (default 100): validation tasks, one video each, recorded as `ntg train`
+//! records its validation videos.
 
 use anyhow::Context;
 use ntg_model::FrameStageNet;
-use ntg_trainer::blocks::{self, BlocksRunConfig, VALIDATION_DEMO_SEED_BASE};
+use ntg_trainer::blocks::{self, BlocksRunConfig};
+use ntg_trainer::dataset::DemoDataset;
+use ntg_trainer::fit::{Selection, TrainStep, ValidationScore, fit};
 use ntg_trainer::run_dir::RunDir;
-use ntg_trainer::spec::ObsKind;
-use ntg_trainer::video::{FrameStageStep, STAGE_A_DIR, frame_dataset};
+use ntg_trainer::video::{
+    EncoderEpochMetrics, EncoderStage, FrameStageStep, STAGE_A_DIR, frame_dataset,
+};
+
+const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [he] [centre] [tasks=TASKS]";
+
+fn count(args: &[String], i: usize, name: &str, default: Option<usize>) -> anyhow::Result<usize> {
+    match (args.get(i), default) {
+        (Some(v), _) => v
+            .parse()
+            .with_context(|| format!("{name}: {v:?} is not a count")),
+        (None, Some(d)) => Ok(d),
+        (None, None) => anyhow::bail!("{name} missing; {USAGE}"),
+    }
+}
+
+/// The frames of one demo video per validation task.
+fn validation_frames(
+    tasks: usize,
+    failures: bool,
+    video: &env_blocks::VideoConfig,
+) -> anyhow::Result<DemoDataset> {
+    let validation = env_blocks::validation_tasks(tasks)?;
+    let record =
+        |i: usize, seed: u64| blocks::record_video(validation[i].clone(), failures, video, seed);
+    frame_dataset(
+        &blocks::flat_vocabulary(),
+        &blocks::validation_video_pairs(tasks),
+        &record,
+        3 * 64 * 64,
+        1.0,
+    )
+}
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let run = args.first().context("usage: encoder_heldout RUN [TASKS]")?;
-    let tasks: usize = match args.get(1) {
-        Some(t) => t
-            .parse()
-            .with_context(|| format!("TASKS: {t:?} is not a count"))?,
-        None => 100,
-    };
-    let run = RunDir::open(std::path::Path::new(run))?;
-    let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
-    let video = config
-        .video
-        .context("not a video run (no `video` settings)")?;
-    let stage_a = RunDir::open(&run.root().join(STAGE_A_DIR))?;
-    let dir = match ntg_trainer::fit::selected_epoch(&stage_a)? {
-        Some(_) => stage_a.best_dir(),
-        None => stage_a.checkpoint_dir(),
-    };
-    let device = ntg_model::cpu_device();
-    let net = FrameStageNet::load(&dir, &device)
-        .with_context(|| format!("loading the stage A network in {}", dir.display()))?;
-    let validation = env_blocks::validation_tasks(tasks)?;
-    let env_cfg = blocks::env_config(ObsKind::Vid, config.failures);
-    let record = |i: usize, seed: u64| {
-        let v = env_blocks::record_video_demo(
-            env_blocks::BlocksTask::Stack(validation[i].clone()),
-            env_cfg,
-            seed,
-            &video.frames,
-        )?;
-        Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
-    };
-    let pairs: Vec<(usize, u64)> = (0..tasks)
-        .map(|i| (i, VALIDATION_DEMO_SEED_BASE + i as u64))
-        .collect();
-    let vocab = blocks::flat_vocabulary();
-    let frames = frame_dataset(&vocab, &pairs, &record, 3 * 64 * 64, 1.0)?;
-    let step = FrameStageStep::new(&frames, &device)?;
-    let acc = step.accuracy(&net)?;
-    println!(
-        "{}: {} validation videos, localizer {:.3} (keyframes {:.3}), edges {:.3}",
-        run.root().display(),
-        tasks,
-        acc.localizer,
-        acc.keyframe_localizer,
-        acc.edge
-    );
+    let device = ntg_model::cpu_device().autodiff();
+    match args.first().map(String::as_str) {
+        Some("score") => {
+            let run = args.get(1).context(USAGE)?;
+            let tasks = count(&args, 2, "TASKS", Some(100))?;
+            let run = RunDir::open(std::path::Path::new(run))?;
+            let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+            let video = config
+                .video
+                .context("not a video run (no `video` settings)")?;
+            let stage_a = RunDir::open(&run.root().join(STAGE_A_DIR))?;
+            let dir = match ntg_trainer::fit::selected_epoch(&stage_a)? {
+                Some(_) => stage_a.best_dir(),
+                None => stage_a.checkpoint_dir(),
+            };
+            let net = FrameStageNet::load(&dir, &device)
+                .with_context(|| format!("loading the stage A network in {}", dir.display()))?;
+            let frames = validation_frames(tasks, config.failures, &video.frames)?;
+            let acc = FrameStageStep::new(&frames, &device)?.accuracy(&net)?;
+            println!(
+                "{}: {} validation videos, localizer {:.3} (keyframes {:.3}), edges {:.3}",
+                run.root().display(),
+                tasks,
+                acc.localizer,
+                acc.keyframe_localizer,
+                acc.edge
+            );
+        }
+        Some("train") => {
+            let (frames_dir, out) = (args.get(1).context(USAGE)?, args.get(2).context(USAGE)?);
+            let demos = count(&args, 3, "DEMOS", None)?;
+            let epochs = count(&args, 4, "EPOCHS", None)?;
+            let hidden = count(&args, 5, "HIDDEN", None)?;
+            let mut stage = EncoderStage {
+                demos,
+                epochs,
+                hidden,
+                ..EncoderStage::default()
+            };
+            let mut tasks = 100;
+            for option in &args[6..] {
+                match option.split_once('=') {
+                    Some(("lr", v)) => stage.learning_rate = v.parse().context("lr=")?,
+                    Some(("batch", v)) => stage.batch_size = v.parse().context("batch=")?,
+                    Some(("tasks", v)) => tasks = v.parse().context("tasks=")?,
+                    None if option == "he" => stage.he_init = true,
+                    None if option == "centre" => stage.centre_input = true,
+                    _ => anyhow::bail!("unknown option {option:?}; {USAGE}"),
+                }
+            }
+            let frames = DemoDataset::load(std::path::Path::new(frames_dir))?;
+            let demos = demos.min(frames.demos().len());
+            let step = FrameStageStep::new(&frames, &device)?.first_demos(demos);
+            let run = RunDir::open_or_create(std::path::Path::new(out), &stage)?;
+            let held_out = validation_frames(tasks, true, &env_blocks::VideoConfig::default())?;
+            let held_out = FrameStageStep::new(&held_out, &device)?;
+            let mut validator = |net: &FrameStageNet| -> anyhow::Result<ValidationScore> {
+                let acc = held_out.accuracy(net)?;
+                println!(
+                    "  held-out: localizer {:.3} (keyframes {:.3}) | edges {:.3}",
+                    acc.localizer, acc.keyframe_localizer, acc.edge
+                );
+                Ok(ValidationScore {
+                    success: acc.keyframe_localizer,
+                    goal_fraction: acc.localizer,
+                })
+            };
+            println!(
+                "stage A: {} frames of {demos} demos: {stage:?}",
+                step.num_examples()
+            );
+            let net = stage
+                .net_config(frames.vocabulary().len(), 0)
+                .init(&device)?;
+            fit(
+                net,
+                &step,
+                &stage.optim(0),
+                &run,
+                &device,
+                Some(Selection {
+                    validator: &mut validator,
+                    every: 1,
+                }),
+                |m: &EncoderEpochMetrics| {
+                    println!(
+                        "epoch {}: localizer {:.3} | edges {:.3} | {:.0}s",
+                        m.epoch, m.localizer_accuracy, m.edge_accuracy, m.seconds
+                    )
+                },
+            )?;
+        }
+        _ => anyhow::bail!(USAGE),
+    }
     Ok(())
 }

@@ -70,6 +70,18 @@ pub struct EncoderStage {
     /// it: 1 (every frame).
     #[serde(default = "one")]
     pub frame_fraction: f64,
+    /// Width of the encoder's hidden layer between its feature map and the
+    /// embedding (0: none; absent in runs saved before it: 0).
+    #[serde(default)]
+    pub hidden: usize,
+    /// He initialisation of the encoder's convolutions (absent in runs
+    /// saved before it: false, PyTorch's default).
+    #[serde(default)]
+    pub he_init: bool,
+    /// Centre the frames' values on 0 (absent in runs saved before it:
+    /// false).
+    #[serde(default)]
+    pub centre_input: bool,
 }
 
 fn one() -> f64 {
@@ -85,6 +97,9 @@ impl Default for EncoderStage {
             learning_rate: 1e-3,
             kernel: 3,
             frame_fraction: 1.0,
+            hidden: 0,
+            he_init: false,
+            centre_input: false,
         }
     }
 }
@@ -95,10 +110,28 @@ impl EncoderStage {
         FrameStageConfig::new(
             num_nodes,
             ntg_model::EncoderConfig::Frame(
-                ntg_model::FrameEncoderConfig::new().with_kernel(self.kernel),
+                ntg_model::FrameEncoderConfig::new()
+                    .with_kernel(self.kernel)
+                    .with_hidden(self.hidden)
+                    .with_he_init(self.he_init)
+                    .with_centre_input(self.centre_input),
             ),
         )
         .with_seed(seed)
+    }
+
+    /// Stage A's optimiser settings, shuffling seeded by `seed`: the
+    /// stage's epochs, batch size and rate, decaying along a half cosine.
+    pub fn optim(&self, seed: u64) -> OptimConfig {
+        OptimConfig {
+            epochs: self.epochs,
+            batch_size: self.batch_size,
+            learning_rate: self.learning_rate,
+            seed,
+            token_dropout: 0.0,
+            gcn_from_other_demo: false,
+            cosine_decay: true,
+        }
     }
 
     /// Size of the embeddings stage B trains on.
@@ -186,6 +219,19 @@ impl<'a> FrameStageStep<'a> {
             graphs: task_graphs(dataset)?,
             device: device.clone(),
         })
+    }
+
+    /// The same step over the frames of the dataset's first `demos` demos
+    /// only (all of them when it has fewer).
+    pub fn first_demos(mut self, demos: usize) -> Self {
+        let end = self
+            .dataset
+            .demos()
+            .get(demos)
+            .map_or(usize::MAX, |d| d.first_row);
+        self.frames.retain(|f| f.0 < end);
+        self.keyframes.retain(|&k| k < self.frames.len());
+        self
     }
 
     /// The stage's losses on the frames `batch` (indices into the frames).
@@ -497,19 +543,10 @@ pub fn train_encoder(
         validator: &mut validator as &mut dyn crate::fit::Validator<FrameStageNet>,
         every: 1,
     });
-    let optim = OptimConfig {
-        epochs: stage.epochs,
-        batch_size: stage.batch_size,
-        learning_rate: stage.learning_rate,
-        seed: video.seed,
-        token_dropout: 0.0,
-        gcn_from_other_demo: false,
-        cosine_decay: true,
-    };
     fit(
         net,
         &step,
-        &optim,
+        &stage.optim(video.seed),
         &dir,
         device,
         selection,
@@ -584,6 +621,34 @@ mod tests {
             keep_frames(video(400), 0.25, 7, &vocab).unwrap().frames(),
             "seeded"
         );
+    }
+
+    #[test]
+    fn first_demos_keeps_the_frames_and_keyframes_of_the_first_demos() {
+        let vocab = Vocabulary::from_sequences([["a", "b"].as_slice()]).unwrap();
+        let actions = vocab.parse_sequence("a b").unwrap();
+        // Demo i: a start segment of 1 frame, then 2 + i frames per action.
+        let videos = (0..3).map(|i| {
+            let n = 2 + i;
+            let frames = (0..1 + 2 * n).map(|f| vec![f as f32]).collect();
+            let video =
+                VideoDemonstration::new(frames, vec![1, 1 + n, 1 + 2 * n], actions.clone(), &vocab)
+                    .unwrap();
+            (0, i as u64, video)
+        });
+        let dataset = DemoDataset::from_videos(vocab.clone(), 1, videos).unwrap();
+        let device = ntg_model::cpu_device();
+        let all = FrameStageStep::new(&dataset, &device).unwrap();
+        assert_eq!((all.num_examples(), all.keyframes.len()), (5 + 7 + 9, 9));
+        let two = FrameStageStep::new(&dataset, &device)
+            .unwrap()
+            .first_demos(2);
+        assert_eq!((two.num_examples(), two.keyframes.len()), (5 + 7, 6));
+        assert!(two.frames.iter().all(|f| f.0 < 12));
+        let more = FrameStageStep::new(&dataset, &device)
+            .unwrap()
+            .first_demos(10);
+        assert_eq!(more.num_examples(), all.num_examples());
     }
 
     #[test]

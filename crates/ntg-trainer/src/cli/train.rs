@@ -155,13 +155,19 @@ mod tests {
                 .iter()
                 .chain(args);
             match Cli::try_parse_from(argv).unwrap().command {
-                Command::Train(train) => train.own.collect.location_step_prior(),
+                Command::Train(train) => train.own.collect.location_step_prior(train.flags.obs),
                 other => panic!("parsed as {other:?}"),
             }
         };
         assert_eq!(prior(&[]), Some(crate::collect::LOCATION_STEP_PRIOR));
         assert_eq!(prior(&["--method", "flat"]), None);
         assert_eq!(prior(&["--interpreter", "luong"]), None);
+        // Demo videos take the paper's interpreter, which has none.
+        assert_eq!(prior(&["--obs", "vid"]), None);
+        assert_eq!(
+            prior(&["--obs", "vid", "--interpreter", "stepping"]),
+            Some(crate::collect::LOCATION_STEP_PRIOR)
+        );
         assert_eq!(prior(&["--location-step-prior", "0.5"]), Some(0.5));
         // An explicit 0 is no prior: what runs saved before the option hold.
         assert_eq!(prior(&["--location-step-prior", "0"]), None);

@@ -127,6 +127,19 @@ impl InterpreterKind {
         config.location_step_prior = step_prior;
     }
 
+    /// The interpreter new NTG runs on `obs` use: stepping on state
+    /// sequences (one row per action, any length), the paper's on demo
+    /// videos. The stepping interpreter's location-aware attention moves
+    /// −1..=2 frames per token, and a video has 2–9 frames per action:
+    /// on videos its training token accuracy stalled at 0.76 where the
+    /// paper's reached 0.98 (`docs/results/video-2026-11-24.md`).
+    pub fn default_for(obs: ObsKind) -> Self {
+        match obs {
+            ObsKind::State => InterpreterKind::Stepping,
+            ObsKind::Vid => InterpreterKind::Luong,
+        }
+    }
+
     /// The initial weight of the location-aware attention's shift +1 that
     /// new runs of this kind start from ([`LOCATION_STEP_PRIOR`] for
     /// `Stepping`; the paper's interpreter has no location-aware attention).
@@ -222,9 +235,9 @@ impl CollectRunConfig {
     /// other flags: `tasks_per_n` tasks per N in `train_objects` x
     /// `demos_per_task` demos, `epochs` epochs in batches of 32 at the
     /// paper's learning rate (constant), weights and shuffling seeded by
-    /// `seed`; NTG with the stepping interpreter and its location step
-    /// prior, learning from random stretches of demos too; neither `<end>`
-    /// nor a memory.
+    /// `seed`; NTG with the interpreter of [`InterpreterKind::default_for`]
+    /// `obs` (and the stepping one's location step prior), learning from
+    /// random stretches of demos too; neither `<end>` nor a memory.
     pub fn new(
         method: MethodId,
         obs: ObsKind,
@@ -234,7 +247,7 @@ impl CollectRunConfig {
         epochs: usize,
         seed: u64,
     ) -> Self {
-        let interpreter = InterpreterKind::Stepping;
+        let interpreter = InterpreterKind::default_for(obs);
         CollectRunConfig {
             domain: "collect".into(),
             method,
@@ -686,9 +699,10 @@ pub struct CollectFlags {
     /// NTG's edge classifier reads the task-graph nodes not yet executed).
     #[arg(long)]
     pub memory: bool,
-    /// NTG: which demo interpreter.
-    #[arg(long, value_enum, default_value_t = InterpreterKind::Stepping)]
-    pub interpreter: InterpreterKind,
+    /// NTG: which demo interpreter [default: stepping for --obs state,
+    /// luong (the paper's) for --obs vid].
+    #[arg(long, value_enum)]
+    pub interpreter: Option<InterpreterKind>,
     /// NTG with the stepping interpreter: initial weight of its
     /// location-aware attention's shift +1, a bias towards reading the next
     /// frame (0 = no preference) [default: 0.3 for NTG with the stepping
@@ -698,15 +712,22 @@ pub struct CollectFlags {
 }
 
 impl CollectFlags {
-    /// The location step prior of the run: the flag, else the
+    /// The interpreter of a run on `obs`: the flag, else
+    /// [`InterpreterKind::default_for`] `obs`.
+    pub fn interpreter(&self, obs: ObsKind) -> InterpreterKind {
+        self.interpreter
+            .unwrap_or_else(|| InterpreterKind::default_for(obs))
+    }
+
+    /// The location step prior of a run on `obs`: the flag, else the
     /// interpreter's default for NTG (none for the Flat Policy). An
     /// explicit 0 is no prior, as in runs saved before the option existed,
     /// so those resume with `--location-step-prior 0`.
-    pub fn location_step_prior(&self) -> Option<f32> {
+    pub fn location_step_prior(&self, obs: ObsKind) -> Option<f32> {
         match (self.location_step_prior, self.method) {
             (Some(0.0), _) => None,
             (Some(w), _) => Some(w),
-            (None, MethodId::Ntg) => self.interpreter.default_step_prior(),
+            (None, MethodId::Ntg) => self.interpreter(obs).default_step_prior(),
             (None, MethodId::Flat) => None,
         }
     }
@@ -735,8 +756,8 @@ impl DomainRuns for Collect {
         config.segments = !c.no_segments;
         config.learn_end = c.learn_end;
         config.memory = c.memory;
-        config.interpreter = c.interpreter;
-        config.location_step_prior = c.location_step_prior();
+        config.interpreter = c.interpreter(flags.obs);
+        config.location_step_prior = c.location_step_prior(flags.obs);
         config.optim.batch_size = flags.batch_size;
         config.optim.learning_rate = flags.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE);
         config.optim.cosine_decay = flags.cosine_decay;

@@ -159,6 +159,13 @@ pub struct TrainFlags {
     /// that stage A trains on [default: 1].
     #[arg(long, value_name = "F", value_parser = crate::spec::parse::fraction)]
     pub encoder_frame_fraction: Option<f64>,
+    /// --obs vid: width of the frame encoder's hidden layer between its
+    /// feature map and the embedding, 0 for none [default: the domain's].
+    #[arg(long, value_name = "WIDTH")]
+    pub encoder_hidden: Option<usize>,
+    /// --obs vid: stage A's Adam learning rate [default: the domain's].
+    #[arg(long, value_name = "LR", value_parser = crate::spec::parse::positive_real)]
+    pub encoder_lr: Option<f64>,
 }
 
 impl TrainFlags {
@@ -167,10 +174,12 @@ impl TrainFlags {
         if self.obs == ObsKind::State
             && (self.encoder_demos.is_some()
                 || self.encoder_epochs.is_some()
-                || self.encoder_frame_fraction.is_some())
+                || self.encoder_frame_fraction.is_some()
+                || self.encoder_hidden.is_some()
+                || self.encoder_lr.is_some())
         {
             anyhow::bail!(
-                "--encoder-demos, --encoder-epochs and --encoder-frame-fraction set the frame encoder of --obs vid runs"
+                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden and --encoder-lr set the frame encoder of --obs vid runs"
             );
         }
         Ok(())
@@ -181,6 +190,8 @@ impl TrainFlags {
         stage.demos = self.encoder_demos.unwrap_or(stage.demos);
         stage.epochs = self.encoder_epochs.unwrap_or(stage.epochs);
         stage.frame_fraction = self.encoder_frame_fraction.unwrap_or(stage.frame_fraction);
+        stage.hidden = self.encoder_hidden.unwrap_or(stage.hidden);
+        stage.learning_rate = self.encoder_lr.unwrap_or(stage.learning_rate);
     }
 }
 

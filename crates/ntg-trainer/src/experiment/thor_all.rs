@@ -251,7 +251,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
     );
     let _ = writeln!(
         s,
-        "Input: **the {}**{}. Trained on N = {:?} only: {} training-side tasks per N × {} demos, batch {}, Adam at {} (NTG: {} epochs, the rate decaying per step along a half cosine to a tenth; Flat Policy: {} epochs at a constant rate; each the setting under which it trained well), seed 0. Tested on {} episodes per N (tasks from the held-out side of the split; the conditioning demo and the rollout are different scenes).\n\nProtocol (both methods, see `ntg_trainer::collect`): {} each training demo is imitated while conditioned on *another* demo of its task (the Flat Policy attends over it; NTG's GCN completes its path, whose `NE_gcn` the edge classifier reads), as at test time; NTG's demo interpreter is the paper's seq2seq with Luong attention made length-independent (local annotations, input feeding, location-aware attention whose weights start biased towards the next frame (`--location-step-prior`, 0.3: without it one seed in four never learned to step), a decoder without memory; `--interpreter luong` trains the paper's) and also learns from one random contiguous stretch of each demo.\n",
+        "Input: **the {}**{}. Trained on N = {:?} only: {} training-side tasks per N × {} demos, batch {}, Adam at {} (NTG: {} epochs, the rate decaying per step along a half cosine to a tenth; Flat Policy: {} epochs at a constant rate; each the setting under which it trained well), seed 0. Tested on {} episodes per N (tasks from the held-out side of the split; the conditioning demo and the rollout are different scenes).\n\nProtocol (both methods, see `ntg_trainer::collect`): {} each training demo is imitated while conditioned on *another* demo of its task (the Flat Policy attends over it; NTG's GCN completes its path, whose `NE_gcn` the edge classifier reads), as at test time; NTG's demo interpreter {} and also learns from one random contiguous stretch of each demo.\n",
         obs_name(sc.obs),
         if sc.obs == ObsKind::State {
             ", not the 64×64 frames: the frame encoders are too slow to train on 2 CPU cores within this profile's budget (`ntg train --domain collect --obs vid` trains on frames)"
@@ -267,6 +267,12 @@ pub fn report_section(result: &ThorAllResult) -> String {
         sc.flat_epochs,
         sc.test_episodes,
         protocol(sc),
+        match sc.obs {
+            ObsKind::State =>
+                "is the paper's seq2seq with Luong attention made length-independent (local annotations, input feeding, location-aware attention whose weights start biased towards the next frame (`--location-step-prior`, 0.3: without it one seed in four never learned to step), a decoder without memory; `--interpreter luong` trains the paper's)",
+            ObsKind::Vid =>
+                "is the paper's seq2seq with Luong attention (on demo videos, whose actions span 2 to 9 frames, the length-independent stepping variant of the state input stalls: it moves its attention at most 2 frames per token)",
+        },
     );
     let _ = write!(s, "| method | training time |");
     for n in EVAL_OBJECTS {
