@@ -254,6 +254,9 @@ where
     if optim.batch_size == 0 {
         bail!("batch size must be positive");
     }
+    if !device.is_autodiff() {
+        bail!("training needs an autodiff device (`device.autodiff()`), got {device:?}");
+    }
     let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
     let ckpt = run.checkpoint_dir();
     let progress_path = ckpt.join("progress.json");

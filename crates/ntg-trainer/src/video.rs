@@ -623,20 +623,44 @@ mod tests {
         );
     }
 
-    #[test]
-    fn first_demos_keeps_the_frames_and_keyframes_of_the_first_demos() {
+    /// Three videos of task 0 ("a b") with `dim`-value frames: a start
+    /// segment of 1 frame, then `2 + i` frames per action in demo `i`.
+    fn three_videos(dim: usize) -> DemoDataset {
         let vocab = Vocabulary::from_sequences([["a", "b"].as_slice()]).unwrap();
         let actions = vocab.parse_sequence("a b").unwrap();
-        // Demo i: a start segment of 1 frame, then 2 + i frames per action.
         let videos = (0..3).map(|i| {
             let n = 2 + i;
-            let frames = (0..1 + 2 * n).map(|f| vec![f as f32]).collect();
+            let frames = (0..1 + 2 * n).map(|f| vec![f as f32 / 10.0; dim]).collect();
             let video =
                 VideoDemonstration::new(frames, vec![1, 1 + n, 1 + 2 * n], actions.clone(), &vocab)
                     .unwrap();
             (0, i as u64, video)
         });
-        let dataset = DemoDataset::from_videos(vocab.clone(), 1, videos).unwrap();
+        DemoDataset::from_videos(vocab.clone(), dim, videos).unwrap()
+    }
+
+    #[test]
+    fn training_on_a_device_without_autodiff_is_an_error_not_a_panic() {
+        let dataset = three_videos(3 * 8 * 8);
+        let device = ntg_model::cpu_device();
+        let step = FrameStageStep::new(&dataset, &device).unwrap();
+        let stage = EncoderStage::default();
+        let mut config = stage.net_config(dataset.vocabulary().len(), 0);
+        config.encoder = ntg_model::EncoderConfig::Frame(
+            ntg_model::FrameEncoderConfig::new().with_image_size(8),
+        );
+        let net = config.init(&device).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::create(&dir.path().join("run")).unwrap();
+        let err = fit(net, &step, &stage.optim(0), &run, &device, None, |_| {})
+            .err()
+            .expect("an error");
+        assert!(err.to_string().contains("autodiff"), "{err}");
+    }
+
+    #[test]
+    fn first_demos_keeps_the_frames_and_keyframes_of_the_first_demos() {
+        let dataset = three_videos(1);
         let device = ntg_model::cpu_device();
         let all = FrameStageStep::new(&dataset, &device).unwrap();
         assert_eq!((all.num_examples(), all.keyframes.len()), (5 + 7 + 9, 9));
