@@ -615,12 +615,20 @@ pub fn standard_split() -> Result<StandardSplit, BlocksError> {
 /// The seed of the validation tasks (see [`validation_tasks`]).
 pub const VALIDATION_SEED: u64 = 20_190_617;
 
-/// `count` validation tasks, ids `val_0`..: drawn like the standard set
+/// The most validation tasks [`validation_tasks`] draws.
+pub const MAX_VALIDATION_TASKS: usize = 10_000;
+
+/// `count` (at most [`MAX_VALIDATION_TASKS`]) validation tasks, ids `val_0`..: drawn like the standard set
 /// (same distribution, from [`VALIDATION_SEED`]) but with end
 /// configurations that occur nowhere in the standard set, so a trainer can
 /// select among checkpoints on them without touching training or test
 /// tasks.
 pub fn validation_tasks(count: usize) -> Result<Vec<StackTask>, BlocksError> {
+    if count > MAX_VALIDATION_TASKS {
+        return Err(BlocksError::Generator(format!(
+            "asked for {count} validation tasks; there are at most {MAX_VALIDATION_TASKS}"
+        )));
+    }
     let standard: HashSet<_> = standard_tasks()?
         .iter()
         .map(StackTask::configuration_key)
@@ -655,6 +663,8 @@ mod tests {
             .iter()
             .map(StackTask::configuration_key)
             .collect();
+        let too_many = validation_tasks(usize::MAX).unwrap_err().to_string();
+        assert!(too_many.contains("at most 10000"), "{too_many}");
         let val = validation_tasks(200).unwrap();
         assert_eq!(val.len(), 200);
         assert_eq!(val[7].id, "val_7");

@@ -44,9 +44,13 @@ pub struct TasksArgs {
     /// Print JSON instead of text.
     #[arg(long)]
     pub json: bool,
-    /// Write the task set in NTP format to FILE.
+    /// Write the task set in NTP format to FILE (refused if FILE exists,
+    /// unless --force).
     #[arg(long, value_name = "FILE")]
     pub write: Option<PathBuf>,
+    /// Overwrite an existing --write FILE.
+    #[arg(long, requires = "write")]
+    pub force: bool,
 }
 
 /// Options shared by the demo commands.
@@ -55,9 +59,14 @@ pub struct DemoOptions {
     /// Seed of the scene, the failures and the expert.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Output folder (created if needed).
+    /// Output folder (created if needed; refused if it holds anything,
+    /// unless --force).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
+    /// Write into a --out folder that is not empty, replacing the files of
+    /// the same names.
+    #[arg(long)]
+    pub force: bool,
     /// Turn the stochastic failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
@@ -169,6 +178,12 @@ fn find_sort_task<'a>(tasks: &'a [SortTask], key: &str) -> anyhow::Result<&'a So
 pub fn run_tasks(args: &TasksArgs, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     let tasks = load_tasks(args.source.as_deref())?;
     if let Some(path) = &args.write {
+        if path.exists() && !args.force {
+            bail!(
+                "{} already exists; pass --force to overwrite it",
+                path.display()
+            );
+        }
         std::fs::write(path, write_ntp_tasks(&tasks))
             .with_context(|| format!("writing {}", path.display()))?;
         writeln!(out, "wrote {} tasks to {}", tasks.len(), path.display())?;
@@ -219,6 +234,13 @@ pub fn write_demo(
     opts: &DemoOptions,
     out: &mut impl std::io::Write,
 ) -> anyhow::Result<()> {
+    let occupied = std::fs::read_dir(&opts.out).is_ok_and(|mut d| d.next().is_some());
+    if occupied && !opts.force {
+        bail!(
+            "{} is not empty; pass --force to write the demo into it anyway, or choose another --out",
+            opts.out.display()
+        );
+    }
     let mut config = EnvConfig::default();
     if opts.no_failures {
         config = config.without_failures();
@@ -284,6 +306,7 @@ mod tests {
             source: Some(fixture()),
             json: true,
             write: None,
+            force: false,
         };
         let mut out = Vec::new();
         run_tasks(&args, &mut out).unwrap();
@@ -300,9 +323,50 @@ mod tests {
             source: Some("/nonexistent.json".into()),
             json: false,
             write: None,
+            force: false,
         };
         let err = run_tasks(&args, &mut Vec::new()).unwrap_err();
         assert!(format!("{err:#}").contains("/nonexistent.json"), "{err:#}");
+    }
+
+    #[test]
+    fn existing_files_are_not_overwritten_without_force() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("tasks.json");
+        std::fs::write(&file, "mine").unwrap();
+        let mut args = TasksArgs {
+            stats: false,
+            source: Some(fixture()),
+            json: false,
+            write: Some(file.clone()),
+            force: false,
+        };
+        let err = run_tasks(&args, &mut Vec::new()).unwrap_err();
+        assert!(format!("{err:#}").contains("--force"), "{err:#}");
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
+        args.force = true;
+        run_tasks(&args, &mut Vec::new()).unwrap();
+        assert_eq!(read_ntp_tasks(&file).unwrap().len(), 3);
+
+        let note = dir.path().join("notes.txt");
+        std::fs::write(&note, "mine").unwrap();
+        let tasks = load_tasks(Some(&fixture())).unwrap();
+        let mut opts = DemoOptions {
+            seed: 1,
+            out: dir.path().to_owned(),
+            no_failures: true,
+            columns: 4,
+            scale: 2,
+            force: false,
+        };
+        let task = || BlocksTask::Stack(tasks[0].clone());
+        let err = write_demo(task(), &opts, &mut Vec::new()).unwrap_err();
+        assert!(format!("{err:#}").contains("not empty"), "{err:#}");
+        assert!(!dir.path().join("demo.json").exists());
+        opts.force = true;
+        write_demo(task(), &opts, &mut Vec::new()).unwrap();
+        assert!(dir.path().join("demo.json").exists());
+        assert_eq!(std::fs::read_to_string(&note).unwrap(), "mine");
     }
 
     #[test]
@@ -316,6 +380,7 @@ mod tests {
             no_failures: true,
             columns: 4,
             scale: 2,
+            force: false,
         };
         write_demo(BlocksTask::Stack(task), &opts, &mut Vec::new()).unwrap();
         let json: serde_json::Value =
