@@ -83,6 +83,25 @@ pub enum CtgError {
         /// Number of nodes.
         n: usize,
     },
+    /// A serialised graph that declares more nodes than may be read.
+    #[error("graph declares {n} nodes, more than the {max} a graph may have")]
+    TooManyNodes {
+        /// Nodes declared.
+        n: usize,
+        /// The most allowed.
+        max: usize,
+    },
+    /// A serialised graph that lists one edge twice.
+    #[error("edge {from:?} -> {to:?} is listed twice")]
+    DuplicateEdge {
+        /// Source node.
+        from: ActionId,
+        /// Target node.
+        to: ActionId,
+    },
+    /// A serialised graph in neither of the known layouts.
+    #[error("malformed graph: {0}")]
+    GraphFormat(String),
     /// An edge weight that is not a finite number in `[0, 1]`.
     #[error("edge weight {weight} on {from:?} -> {to:?} is not a number in [0, 1]")]
     InvalidWeight {

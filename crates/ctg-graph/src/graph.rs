@@ -36,19 +36,52 @@ pub struct Ctg {
     weights: Vec<f32>,
 }
 
-/// The serialised form of a [`Ctg`]: its size and the row-major weights.
+/// The serialised form of a [`Ctg`]: its size and its edges as
+/// `[from, to, weight]` triples, row by row (a graph is sparse: a dense
+/// matrix of 10,000 actions would be 10⁸ numbers). Graphs written before
+/// the edge list hold the row-major `adjacency` matrix instead, still read.
 #[cfg(feature = "serde")]
 #[derive(serde::Serialize, serde::Deserialize)]
 struct CtgRepr {
     num_nodes: usize,
-    adjacency: Vec<f32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    edges: Option<Vec<(usize, usize, f32)>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    adjacency: Option<Vec<f32>>,
 }
+
+/// The most nodes a serialised [`Ctg`] may declare: the graph is stored as
+/// a dense matrix, and a corrupt size must not allocate gigabytes.
+pub const MAX_SERIALISED_NODES: usize = 16_384;
 
 #[cfg(feature = "serde")]
 impl TryFrom<CtgRepr> for Ctg {
     type Error = CtgError;
     fn try_from(repr: CtgRepr) -> Result<Self> {
-        Ctg::from_adjacency(repr.num_nodes, repr.adjacency)
+        let n = repr.num_nodes;
+        if n > MAX_SERIALISED_NODES {
+            return Err(CtgError::TooManyNodes {
+                n,
+                max: MAX_SERIALISED_NODES,
+            });
+        }
+        match (repr.edges, repr.adjacency) {
+            (Some(edges), None) => {
+                let mut graph = Ctg::empty(n);
+                for (from, to, weight) in edges {
+                    let (from, to) = (ActionId::new(from), ActionId::new(to));
+                    if graph.has_edge(from, to) {
+                        return Err(CtgError::DuplicateEdge { from, to });
+                    }
+                    graph.set_weight(from, to, weight)?;
+                }
+                Ok(graph)
+            }
+            (None, Some(adjacency)) => Ctg::from_adjacency(n, adjacency),
+            _ => Err(CtgError::GraphFormat(
+                "a graph needs exactly one of `edges` and `adjacency`".into(),
+            )),
+        }
     }
 }
 
@@ -57,7 +90,13 @@ impl From<Ctg> for CtgRepr {
     fn from(graph: Ctg) -> Self {
         CtgRepr {
             num_nodes: graph.num_nodes,
-            adjacency: graph.weights,
+            edges: Some(
+                graph
+                    .edges()
+                    .map(|e| (e.from.index(), e.to.index(), e.weight))
+                    .collect(),
+            ),
+            adjacency: None,
         }
     }
 }

@@ -90,6 +90,6 @@ pub use exec::{
     ActionDistribution, EdgeScorer, ExecutedStep, GraphExecutor, NodeScorer, NodeSelection,
     OracleEdgeScorer, OracleNodeScorer, Rollout, UniformEdgeScorer, UniformNodeScorer,
 };
-pub use graph::{Ctg, Edge};
+pub use graph::{Ctg, Edge, MAX_SERIALISED_NODES};
 pub use video::VideoDemonstration;
 pub use vocab::{ActionId, Vocabulary};

@@ -94,12 +94,30 @@ proptest! {
 }
 
 #[test]
+fn graphs_are_written_as_edge_lists_and_old_matrices_still_read() {
+    let mut graph = Ctg::empty(3);
+    graph.add_edge(ActionId::new(0), ActionId::new(2)).unwrap();
+    graph
+        .set_weight(ActionId::new(2), ActionId::new(1), 0.25)
+        .unwrap();
+    let json = serde_json::to_string(&graph).unwrap();
+    assert_eq!(json, r#"{"num_nodes":3,"edges":[[0,2,1.0],[2,1,0.25]]}"#);
+    let old = r#"{"num_nodes":3,"adjacency":[0,0,1,0,0,0,0,0.25,0]}"#;
+    assert_eq!(serde_json::from_str::<Ctg>(old).unwrap(), graph);
+}
+
+#[test]
 fn corrupt_json_is_an_error_not_a_panic() {
     for bad in [
         r#"{"num_nodes": 2, "adjacency": [0.0, 1.0, 0.0]}"#,
         r#"{"num_nodes": 1, "adjacency": [7.0]}"#,
         r#"{"num_nodes": 1}"#,
         r#"[1, 2]"#,
+        r#"{"num_nodes": 2, "edges": [[0, 2, 1.0]]}"#,
+        r#"{"num_nodes": 2, "edges": [[0, 1, 1.5]]}"#,
+        r#"{"num_nodes": 2, "edges": [[0, 1, 1.0], [0, 1, 0.5]]}"#,
+        r#"{"num_nodes": 2, "edges": [], "adjacency": [0, 0, 0, 0]}"#,
+        r#"{"num_nodes": 18446744073709551615, "edges": []}"#,
     ] {
         assert!(serde_json::from_str::<Ctg>(bad).is_err(), "{bad}");
     }

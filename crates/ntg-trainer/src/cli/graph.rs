@@ -23,7 +23,8 @@ pub struct GraphArgs {
 pub enum GraphFormat {
     /// Graphviz DOT, nodes named by action.
     Dot,
-    /// JSON: `{"vocabulary": [...], "graph": {"num_nodes", "adjacency"}}`.
+    /// JSON: `{"vocabulary": [...], "graph": {"num_nodes", "edges"}}`, each
+    /// edge a `[from, to, weight]` triple of node ids.
     Json,
 }
 
