@@ -2,6 +2,13 @@
 //! `model.bpk` (burn's burnpack). Shared by [`crate::NtgModel`] and
 //! [`crate::FlatPolicy`]; every failure is a [`ModelError::File`] naming
 //! the file.
+//!
+//! Every file saved here (and the optimizer state of
+//! [`crate::save_optimizer`]) gets a sidecar `FILE.sha256` with its SHA-256,
+//! written after it and checked before it is read: a file changed or
+//! damaged after it was saved is an error that says so, not a confusing
+//! failure deep in the decoder. Files saved before the sidecars existed
+//! load unchecked.
 
 use std::path::Path;
 
@@ -20,11 +27,54 @@ pub(crate) fn save<M: Module, C: Serialize>(module: &M, config: &C, dir: &Path) 
     let json =
         serde_json::to_string_pretty(config).map_err(|e| ModelError::file(&config_path, e))?;
     std::fs::write(&config_path, json).map_err(|e| ModelError::file(&config_path, e))?;
+    seal(&config_path)?;
     let weights = dir.join(WEIGHTS_FILE);
     module
         .clone()
         .save_file(&weights)
-        .map_err(|e| ModelError::file(&weights, e))
+        .map_err(|e| ModelError::file(&weights, e))?;
+    seal(&weights)
+}
+
+/// The sidecar that holds `path`'s checksum: `path` with `.sha256` added.
+fn sidecar(path: &Path) -> std::path::PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(".sha256");
+    name.into()
+}
+
+fn sha256_hex(path: &Path) -> Result<String> {
+    use sha2::Digest;
+    let bytes = std::fs::read(path).map_err(|e| ModelError::file(path, e))?;
+    let digest = sha2::Sha256::digest(&bytes);
+    Ok(digest.iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// Writes the checksum of the file `path` beside it (`path.sha256`).
+pub(crate) fn seal(path: &Path) -> Result<()> {
+    let side = sidecar(path);
+    std::fs::write(&side, sha256_hex(path)? + "\n").map_err(|e| ModelError::file(&side, e))
+}
+
+/// Checks the file `path` against its checksum, when it has one.
+pub(crate) fn verify(path: &Path) -> Result<()> {
+    let side = sidecar(path);
+    let expected = match std::fs::read_to_string(&side) {
+        Ok(text) => text.trim().to_owned(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(ModelError::file(&side, e)),
+    };
+    let found = sha256_hex(path)?;
+    if found != expected {
+        return Err(ModelError::file(
+            path,
+            format!(
+                "checksum mismatch: the file changed or was damaged after it was saved (SHA-256 {found}, {} says {expected})",
+                side.display()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Reads `dir/config.json` and checks it with `validate`.
@@ -34,6 +84,7 @@ pub(crate) fn load_config<C: DeserializeOwned>(
 ) -> Result<C> {
     let path = dir.join(CONFIG_FILE);
     let text = std::fs::read_to_string(&path).map_err(|e| ModelError::file(&path, e))?;
+    verify(&path)?;
     let config: C = serde_json::from_str(&text).map_err(|e| ModelError::file(&path, e))?;
     validate(&config).map_err(|e| ModelError::file(&path, e))?;
     Ok(config)
@@ -46,6 +97,7 @@ pub(crate) fn load_weights<M: Module>(module: M, dir: &Path) -> Result<M> {
     if !weights.is_file() {
         return Err(ModelError::file(&weights, "no such file"));
     }
+    verify(&weights)?;
     module
         .try_load_file(&weights)
         .map_err(|e| ModelError::file(&weights, e))

@@ -365,7 +365,10 @@ impl NtgModel {
 /// Saves an optimizer's state (e.g. Adam's moments) to `path` (burnpack).
 pub fn save_optimizer(optimizer: &ModuleOptimizer, path: impl AsRef<Path>) -> Result<()> {
     let path = path.as_ref();
-    optimizer.save(path).map_err(|e| ModelError::file(path, e))
+    optimizer
+        .save(path)
+        .map_err(|e| ModelError::file(path, e))?;
+    crate::checkpoint::seal(path)
 }
 
 /// Loads optimizer state saved by [`save_optimizer`] into `optimizer`
@@ -378,6 +381,7 @@ pub fn load_optimizer(
     if !path.is_file() {
         return Err(ModelError::file(path, "no such file"));
     }
+    crate::checkpoint::verify(path)?;
     optimizer.load(path).map_err(|e| ModelError::file(path, e))
 }
 

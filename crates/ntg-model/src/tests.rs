@@ -760,10 +760,58 @@ fn save_then_load_gives_identical_outputs() {
         serde_json::to_string(&cfg).unwrap(),
     )
     .unwrap();
+    // (Without its checksum, as a config edited by hand in a run saved
+    // before checksums: the shapes are what is checked.)
+    std::fs::remove_file(other.path().join(format!("{CONFIG_FILE}.sha256"))).unwrap();
     assert!(matches!(
         NtgModel::load(other.path(), &dev),
         Err(ModelError::File { .. })
     ));
+}
+
+#[test]
+fn damaged_checkpoint_files_fail_their_checksum_naming_the_file() {
+    let dev = device();
+    let model = NtgModel::new(small_config(13), &dev).unwrap();
+    let saved = tempfile::tempdir().unwrap();
+    model.save(saved.path()).unwrap();
+    let weights = std::fs::read(saved.path().join(WEIGHTS_FILE)).unwrap();
+    let damaged = |edit: &dyn Fn(&mut Vec<u8>)| {
+        let dir = tempfile::tempdir().unwrap();
+        model.save(dir.path()).unwrap();
+        let mut bytes = weights.clone();
+        edit(&mut bytes);
+        std::fs::write(dir.path().join(WEIGHTS_FILE), bytes).unwrap();
+        match NtgModel::load(dir.path(), &dev) {
+            Err(e @ ModelError::File { .. }) => {
+                let message = e.to_string();
+                assert!(message.contains(WEIGHTS_FILE), "{message}");
+                assert!(message.contains("checksum mismatch"), "{message}");
+            }
+            other => panic!("expected a checksum error, got {other:?}"),
+        }
+        dir
+    };
+    // 20 bytes flipped in the middle (the weights, not the header).
+    damaged(&|b: &mut Vec<u8>| {
+        let mid = b.len() / 2;
+        for x in &mut b[mid..mid + 20] {
+            *x = !*x;
+        }
+    });
+    damaged(&|b: &mut Vec<u8>| b.truncate(b.len() / 3));
+    // The optimizer state too.
+    let opt = saved.path().join("optimizer.bpk");
+    save_optimizer(&burn::optim::AdamConfig::new().init(), &opt).unwrap();
+    std::fs::write(&opt, b"garbage").unwrap();
+    let err = load_optimizer(burn::optim::AdamConfig::new().init(), &opt)
+        .err()
+        .expect("a checksum error");
+    assert!(err.to_string().contains("checksum mismatch"), "{err}");
+    // A checkpoint saved before checksums (no sidecars) loads unchecked.
+    std::fs::remove_file(saved.path().join(format!("{WEIGHTS_FILE}.sha256"))).unwrap();
+    std::fs::remove_file(saved.path().join(format!("{CONFIG_FILE}.sha256"))).unwrap();
+    assert!(NtgModel::load(saved.path(), &dev).is_ok());
 }
 
 #[test]
@@ -1186,6 +1234,8 @@ fn checkpoints_without_the_optional_settings_still_load() {
     assert!(edge.remove("fusion_hidden").is_some());
     assert!(edge.remove("memory_dim").is_some());
     std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+    // Nor had they checksums.
+    std::fs::remove_file(dir.path().join("config.json.sha256")).unwrap();
     let loaded = NtgModel::load(dir.path(), &dev).unwrap();
     assert!(!loaded.config.uses_soft_edges());
     assert_eq!(loaded.edges.memory_dim, 0);
