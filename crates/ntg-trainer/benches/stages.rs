@@ -7,8 +7,9 @@
 //!   second at most 1.5x the first.
 //! - `stage_a/train`: one stage A step on 64 frames (the shared encoder
 //!   with the localizer's and edge head's losses), throughput in frames.
-//!   `../shared/reference/torch_step_reference.py --only a` times the same
-//!   CNN (batch 32, kernel 4) in PyTorch.
+//!   `benches/pytorch/stage_a.py` (its own `requirements.txt`) times the
+//!   same network, losses and batch in PyTorch: run it right after this
+//!   bench on the same quiet machine.
 //! - `stage_a/encode`: the frozen encoder over 256 frames (stage B's cache
 //!   and every policy step), throughput in frames.
 //!
