@@ -71,10 +71,10 @@ pub struct DemoOptions {
     #[arg(long)]
     pub no_failures: bool,
     /// Frames per row of the contact sheet.
-    #[arg(long, default_value_t = 6)]
+    #[arg(long, default_value_t = 6, value_parser = crate::spec::parse::positive)]
     pub columns: usize,
-    /// Integer upscaling of the frames in the contact sheet.
-    #[arg(long, default_value_t = 3)]
+    /// Integer upscaling of the frames in the contact sheet (1 to 16).
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub scale: u32,
 }
 

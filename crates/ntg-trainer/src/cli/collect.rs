@@ -12,7 +12,7 @@
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 use clap::{Args, Subcommand, ValueEnum};
 use env_collect::{CollectConfig, Split, TaskSplitter, export};
 use rand::SeedableRng;
@@ -122,6 +122,15 @@ pub fn run(command: CollectCommand) -> anyhow::Result<()> {
 
 /// `ntg collect demo`: writes the demonstration and prints a summary.
 pub fn demo(args: &DemoArgs, out: &mut impl Write) -> anyhow::Result<()> {
+    let room =
+        env_collect::domain::NUM_CATEGORIES - args.objects.min(env_collect::domain::NUM_CATEGORIES);
+    if args.max_distractors > room {
+        bail!(
+            "--max-distractors {}: a scene with {} target objects has room for at most {room} distractors (one per other category)",
+            args.max_distractors,
+            args.objects
+        );
+    }
     let splitter = TaskSplitter::default();
     let mut rng = ChaCha8Rng::seed_from_u64(args.task_seed.unwrap_or(args.seed));
     let task = splitter
@@ -190,6 +199,25 @@ pub fn tasks(args: &TasksArgs, out: &mut impl Write) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn more_distractors_than_the_scene_has_room_for_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = DemoArgs {
+            objects: 5,
+            seed: 0,
+            out: dir.path().join("demo"),
+            task_seed: None,
+            split: SplitArg::Test,
+            max_distractors: 4,
+        };
+        let err = demo(&args, &mut Vec::new()).unwrap_err().to_string();
+        assert!(
+            err.contains("--max-distractors 4") && err.contains("at most 3"),
+            "{err}"
+        );
+        assert!(!args.out.exists(), "nothing written");
+    }
 
     #[test]
     fn demo_writes_the_files_and_summarises() {

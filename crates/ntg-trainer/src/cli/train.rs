@@ -212,6 +212,29 @@ mod tests {
                 &["eval", "--run", "r", "--edge-threshold", "2"][..],
                 "--edge-threshold",
             ),
+            (
+                &[
+                    "blocks",
+                    "demo",
+                    "--task",
+                    "1",
+                    "--out",
+                    "d",
+                    "--columns",
+                    "0",
+                ][..],
+                "--columns",
+            ),
+            (
+                &[
+                    "blocks", "demo", "--task", "1", "--out", "d", "--scale", "0",
+                ][..],
+                "--scale",
+            ),
+            (
+                &["train", "--out", "r", "--obs", "vid", "--encoder-lr", "NaN"][..],
+                "--encoder-lr",
+            ),
         ] {
             let err = refused(args);
             assert!(err.contains(flag), "{args:?}: {err}");
