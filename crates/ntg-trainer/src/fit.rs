@@ -257,6 +257,7 @@ where
     if !device.is_autodiff() {
         bail!("training needs an autodiff device (`device.autodiff()`), got {device:?}");
     }
+    let _writer = run.lock()?;
     let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
     let ckpt = run.checkpoint_dir();
     let progress_path = ckpt.join("progress.json");

@@ -11,10 +11,13 @@
 //!   best/            the weights of the epoch that scored best on them,
 //!                    and `selection.json` saying which epoch that was
 //!   eval/            evaluation results
+//!   train.lock       while a process trains the run: its process id
 //! ```
 //!
 //! Nothing the user wrote is overwritten: creating a run in a non-empty
-//! folder is an error unless the caller resumes it.
+//! folder is an error unless the caller resumes it. A run has one writer at
+//! a time: training holds [`RunDir::lock`], and a second process that tries
+//! is told which process holds it.
 
 use std::fs::{self, OpenOptions};
 use std::io::Write;
@@ -23,6 +26,31 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
+
+/// The writer lock's file name in a run folder.
+pub const LOCK_FILE: &str = "train.lock";
+
+/// A held run-folder lock ([`RunDir::lock`]); dropping it releases it.
+#[derive(Debug)]
+pub struct RunLock {
+    path: PathBuf,
+}
+
+impl Drop for RunLock {
+    fn drop(&mut self) {
+        let _ = fs::remove_file(&self.path);
+    }
+}
+
+/// Whether process `pid` runs (on Linux, from `/proc`; elsewhere assumed,
+/// so a stale lock is left for the user to delete).
+fn process_is_running(pid: u32) -> bool {
+    if cfg!(target_os = "linux") {
+        pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists()
+    } else {
+        true
+    }
+}
 
 /// A run folder.
 #[derive(Debug, Clone)]
@@ -168,6 +196,44 @@ impl RunDir {
         }
         let lines: Vec<Seconds> = read_jsonl(&self.metrics_path())?;
         Ok(lines.iter().map(|l| l.seconds).sum())
+    }
+
+    /// Takes the run's writer lock (`train.lock`, holding this process's
+    /// id) until the returned guard is dropped. Errors, naming the holder,
+    /// if a live process holds it; a lock left by a process that no longer
+    /// runs (killed) is taken over.
+    pub fn lock(&self) -> anyhow::Result<RunLock> {
+        let path = self.root.join(LOCK_FILE);
+        for _ in 0..2 {
+            match OpenOptions::new().write(true).create_new(true).open(&path) {
+                Ok(mut file) => {
+                    write!(file, "{}", std::process::id())
+                        .with_context(|| format!("writing {}", path.display()))?;
+                    return Ok(RunLock { path });
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
+                    let text = fs::read_to_string(&path).unwrap_or_default();
+                    let holder: Option<u32> = text.trim().parse().ok();
+                    match holder {
+                        Some(pid) if !process_is_running(pid) => {
+                            fs::remove_file(&path).with_context(|| {
+                                format!("removing the stale {}", path.display())
+                            })?;
+                        }
+                        _ => bail!(
+                            "{} is being written by another process ({}: {}); wait for it to finish, or delete the file if no such process runs",
+                            self.root.display(),
+                            path.display(),
+                            holder.map_or_else(|| format!("{text:?}"), |p| format!("process {p}"))
+                        ),
+                    }
+                }
+                Err(e) => {
+                    return Err(e).with_context(|| format!("creating {}", path.display()));
+                }
+            }
+        }
+        bail!("could not take {}", path.display())
     }
 
     /// The folder itself.
@@ -395,6 +461,38 @@ pub fn read_jsonl<T: DeserializeOwned>(path: &Path) -> anyhow::Result<Vec<T>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn one_writer_at_a_time_and_stale_locks_are_taken_over() {
+        let tmp = tempfile::tempdir().unwrap();
+        let run = RunDir::create(&tmp.path().join("run")).unwrap();
+        let held = run.lock().unwrap();
+        let err = run.lock().unwrap_err().to_string();
+        assert!(
+            err.contains(&format!("process {}", std::process::id())),
+            "{err}"
+        );
+        drop(held);
+        assert!(!run.root().join(LOCK_FILE).exists());
+        let again = run.lock().unwrap();
+        drop(again);
+        // A lock left by a killed process (no such pid) is taken over.
+        fs::write(run.root().join(LOCK_FILE), "4194304999").unwrap();
+        let taken = run.lock().unwrap();
+        assert_eq!(
+            fs::read_to_string(run.root().join(LOCK_FILE)).unwrap(),
+            std::process::id().to_string()
+        );
+        drop(taken);
+        // A lock file that names no process is left to the user.
+        fs::write(run.root().join(LOCK_FILE), "someone").unwrap();
+        assert!(
+            run.lock()
+                .unwrap_err()
+                .to_string()
+                .contains("delete the file")
+        );
+    }
 
     #[test]
     fn start_or_resume_checks_the_saved_configuration() {
