@@ -1,0 +1,381 @@
+//! The bad-input corpus: `ntg` invoked the way a user gets it wrong (bad
+//! flags, flags of another domain, missing or malformed files, damaged
+//! checkpoints, outputs that already exist). Every case must exit non-zero
+//! without a panic, with a message naming the flag or file at fault, and
+//! leave every file in its working folder as it was.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use common::ntg;
+
+/// Every file under `dir` (relative path → contents).
+fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
+    let mut files = BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                files.insert(path.strip_prefix(dir).unwrap().to_path_buf(), Vec::new());
+                stack.push(path);
+            } else {
+                let bytes = std::fs::read(&path).unwrap();
+                files.insert(path.strip_prefix(dir).unwrap().to_path_buf(), bytes);
+            }
+        }
+    }
+    files
+}
+
+/// A tiny trained block-stacking run in `dir/run` (state input, 1 epoch).
+fn train_tiny_run(dir: &Path) -> PathBuf {
+    let run = dir.join("run");
+    let (code, _, err) = ntg(&[
+        "train",
+        "--domain",
+        "blocks",
+        "--train-tasks",
+        "2",
+        "--demos-per-task",
+        "2",
+        "--epochs",
+        "1",
+        "--validation-tasks",
+        "0",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "training the fixture run failed: {err}");
+    run
+}
+
+/// Copies the folder `from` to `to` (files and folders only).
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let path = entry.unwrap().path();
+        let target = to.join(path.file_name().unwrap());
+        if path.is_dir() {
+            copy_dir(&path, &target);
+        } else {
+            std::fs::copy(&path, &target).unwrap();
+        }
+    }
+}
+
+#[test]
+fn every_bad_input_is_a_clean_error_that_changes_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let root = tmp.path();
+    let p = |name: &str| root.join(name).to_str().unwrap().to_owned();
+
+    // Fixtures.
+    std::fs::write(root.join("existing.json"), "mine").unwrap();
+    std::fs::create_dir(root.join("nonempty")).unwrap();
+    std::fs::write(root.join("nonempty/notes.txt"), "mine").unwrap();
+    std::fs::write(root.join("malformed.json"), "{ not json").unwrap();
+    std::fs::write(root.join("tasks.json"), r#"{"stack_0": "nope"}"#).unwrap();
+    std::fs::create_dir(root.join("norun")).unwrap();
+    std::fs::create_dir(root.join("badconfig")).unwrap();
+    std::fs::write(root.join("badconfig/config.json"), r#"{"obs": 3}"#).unwrap();
+    std::fs::create_dir(root.join("emptyjigsaws")).unwrap();
+    let run = train_tiny_run(root);
+    let run_s = run.to_str().unwrap().to_owned();
+    // Damaged copies of the run.
+    let damaged = |name: &str, edit: &dyn Fn(&Path)| -> String {
+        let dir = root.join(name);
+        copy_dir(&run, &dir);
+        edit(&dir);
+        dir.to_str().unwrap().to_owned()
+    };
+    let flipped = damaged("flipped", &|d| {
+        let path = d.join("checkpoint/model.bpk");
+        let mut bytes = std::fs::read(&path).unwrap();
+        let mid = bytes.len() / 2;
+        for b in &mut bytes[mid..mid + 20] {
+            *b = !*b;
+        }
+        std::fs::write(&path, bytes).unwrap();
+    });
+    let truncated = damaged("truncated", &|d| {
+        let path = d.join("checkpoint/model.bpk");
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..bytes.len() / 3]).unwrap();
+    });
+    let wrong_type = damaged("wrongtype", &|d| {
+        let path = d.join("config.json");
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::write(
+            &path,
+            text.replace("\"train_tasks\": 2", "\"train_tasks\": \"two\""),
+        )
+        .unwrap();
+    });
+    let no_weights = damaged("noweights", &|d| {
+        std::fs::remove_file(d.join("checkpoint/model.bpk")).unwrap();
+    });
+
+    let train = |extra: &[&str]| -> Vec<String> {
+        let mut args = vec!["train".to_owned(), "--out".to_owned(), p("new-run")];
+        args.extend(extra.iter().map(|s| s.to_string()));
+        args
+    };
+    let s = |args: &[&str]| -> Vec<String> { args.iter().map(|a| a.to_string()).collect() };
+    let cases: Vec<(Vec<String>, String)> = vec![
+        // Numbers out of range, refused at parse time.
+        (train(&["--lr", "NaN"]), "--lr".into()),
+        (train(&["--lr", "inf"]), "--lr".into()),
+        (train(&["--lr=-1"]), "--lr".into()),
+        (train(&["--epochs", "0"]), "--epochs".into()),
+        (train(&["--batch-size", "0"]), "--batch-size".into()),
+        (train(&["--train-tasks", "0"]), "--train-tasks".into()),
+        (
+            train(&["--demos-per-task", "many"]),
+            "--demos-per-task".into(),
+        ),
+        (train(&["--retry-weight", "NaN"]), "--retry-weight".into()),
+        (train(&["--token-dropout", "1"]), "--token-dropout".into()),
+        (train(&["--obs", "pixels"]), "--obs".into()),
+        (train(&["--domain", "chess"]), "--domain".into()),
+        (train(&["--recipe", "secret"]), "--recipe".into()),
+        (
+            train(&["--obs", "vid", "--encoder-lr", "NaN"]),
+            "--encoder-lr".into(),
+        ),
+        (
+            train(&["--obs", "vid", "--encoder-frame-fraction", "2"]),
+            "--encoder-frame-fraction".into(),
+        ),
+        (
+            train(&["--obs", "vid", "--encoder-demos", "0"]),
+            "--encoder-demos".into(),
+        ),
+        (train(&["--lr", "1e-3", "--lr", "2e-3"]), "--lr".into()),
+        // Flags of another domain or another input.
+        (
+            train(&["--domain", "blocks", "--memory"]),
+            "--memory".into(),
+        ),
+        (
+            train(&["--domain", "collect", "--location-step-prior", "inf"]),
+            "--location-step-prior".into(),
+        ),
+        (train(&["--encoder-demos", "10"]), "--encoder-demos".into()),
+        (
+            train(&["--encoder-hidden", "64"]),
+            "--encoder-hidden".into(),
+        ),
+        // Too much asked, refused before the run folder exists.
+        (train(&["--train-tasks", "5000"]), "--train-tasks".into()),
+        // Missing flags and subcommands.
+        (s(&["train"]), "--out".into()),
+        (s(&["eval"]), "--run".into()),
+        (s(&["fly"]), "fly".into()),
+        // Run folders that are not there, or not runs, or damaged.
+        (s(&["eval", "--run", &p("missing")]), p("missing")),
+        (s(&["eval", "--run", &p("norun")]), "config.json".into()),
+        (s(&["eval", "--run", &p("badconfig")]), "config.json".into()),
+        (s(&["eval", "--run", &wrong_type]), "config.json".into()),
+        (s(&["eval", "--run", &flipped]), "model.bpk".into()),
+        (s(&["eval", "--run", &truncated]), "model.bpk".into()),
+        (s(&["eval", "--run", &no_weights]), "model.bpk".into()),
+        (
+            s(&["eval", "--run", &run_s, "--test-tasks", "0"]),
+            "--test-tasks".into(),
+        ),
+        (
+            s(&["eval", "--run", &run_s, "--edge-threshold", "2"]),
+            "--edge-threshold".into(),
+        ),
+        (
+            s(&[
+                "eval",
+                "--run",
+                &run_s,
+                "--split",
+                "validation",
+                "--test-tasks",
+                "18446744073709551615",
+            ]),
+            "10000".into(),
+        ),
+        (
+            s(&["train", "--out", &p("missing"), "--resume"]),
+            p("missing"),
+        ),
+        (s(&["train", "--out", &p("nonempty")]), p("nonempty")),
+        (
+            s(&[
+                "train",
+                "--domain",
+                "blocks",
+                "--train-tasks",
+                "2",
+                "--demos-per-task",
+                "2",
+                "--epochs",
+                "3",
+                "--validation-tasks",
+                "0",
+                "--out",
+                &run_s,
+                "--resume",
+            ]),
+            "epochs".into(),
+        ),
+        (
+            s(&[
+                "trace",
+                "--run",
+                &p("missing"),
+                "--task",
+                "0",
+                "--out",
+                &p("t"),
+            ]),
+            p("missing"),
+        ),
+        (
+            s(&[
+                "trace",
+                "--run",
+                &run_s,
+                "--task",
+                "0",
+                "--out",
+                &p("nonempty"),
+            ]),
+            p("nonempty"),
+        ),
+        (
+            s(&[
+                "trace",
+                "--run",
+                &run_s,
+                "--task",
+                "stack_nope",
+                "--out",
+                &p("t"),
+            ]),
+            "stack_nope".into(),
+        ),
+        // Block-stacking task files and demos.
+        (
+            s(&["blocks", "tasks", "--source", &p("missing.json")]),
+            p("missing.json"),
+        ),
+        (
+            s(&["blocks", "tasks", "--source", &p("malformed.json")]),
+            p("malformed.json"),
+        ),
+        (
+            s(&["blocks", "tasks", "--source", &p("tasks.json")]),
+            p("tasks.json"),
+        ),
+        (
+            s(&["blocks", "tasks", "--write", &p("existing.json")]),
+            "--force".into(),
+        ),
+        (
+            s(&["blocks", "demo", "--task", "1", "--out", &p("nonempty")]),
+            p("nonempty"),
+        ),
+        (
+            s(&["blocks", "demo", "--task", "nope", "--out", &p("d")]),
+            "nope".into(),
+        ),
+        (
+            s(&[
+                "blocks",
+                "demo",
+                "--task",
+                "1",
+                "--out",
+                &p("d"),
+                "--columns",
+                "0",
+            ]),
+            "--columns".into(),
+        ),
+        (
+            s(&[
+                "blocks",
+                "demo",
+                "--task",
+                "1",
+                "--out",
+                &p("d"),
+                "--scale",
+                "0",
+            ]),
+            "--scale".into(),
+        ),
+        // Object collection.
+        (
+            s(&[
+                "collect",
+                "demo",
+                "--objects",
+                "5",
+                "--max-distractors",
+                "4",
+                "--seed",
+                "0",
+                "--out",
+                &p("c"),
+            ]),
+            "--max-distractors".into(),
+        ),
+        (s(&["collect", "tasks", "--objects", "9"]), "objects".into()),
+        // Graphs and JIGSAWS.
+        (s(&["graph", "--demo", ""]), "demo".into()),
+        (s(&["graph", "--demo", "a <start> b"]), "<start>".into()),
+        (
+            s(&["graph", "--demo", "a", "--format", "xml"]),
+            "--format".into(),
+        ),
+        (
+            s(&["jigsaws", "stats", "--root", &p("missing")]),
+            p("missing"),
+        ),
+        (
+            s(&["jigsaws", "stats", "--root", &p("emptyjigsaws")]),
+            p("emptyjigsaws"),
+        ),
+    ];
+    assert!(cases.len() >= 40, "{} cases", cases.len());
+
+    let before = snapshot(root);
+    let mut failures = Vec::new();
+    for (args, expected) in &cases {
+        let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (code, out, err) = ntg(&argv);
+        let text = format!("{out}{err}");
+        let problem = if code == 0 {
+            Some("exit 0")
+        } else if code < 0 || text.contains("panicked") {
+            Some("panicked or killed")
+        } else if !text.contains(expected.as_str()) {
+            Some("message does not name the input")
+        } else {
+            None
+        };
+        if let Some(problem) = problem {
+            failures.push(format!("{argv:?}: {problem} (exit {code}): {text}"));
+        }
+        let after = snapshot(root);
+        if after != before {
+            let changed: Vec<_> = after
+                .keys()
+                .chain(before.keys())
+                .filter(|k| after.get(*k) != before.get(*k))
+                .collect();
+            failures.push(format!("{argv:?} changed files: {changed:?}"));
+            break;
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n\n"));
+}
