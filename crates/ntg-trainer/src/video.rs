@@ -652,9 +652,8 @@ mod tests {
         let net = config.init(&device).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let run = RunDir::create(&dir.path().join("run")).unwrap();
-        let err = fit(net, &step, &stage.optim(0), &run, &device, None, |_| {})
-            .err()
-            .expect("an error");
+        let err =
+            fit(net, &step, &stage.optim(0), &run, &device, None, |_| {}).expect_err("an error");
         assert!(err.to_string().contains("autodiff"), "{err}");
     }
 
