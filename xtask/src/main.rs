@@ -5,6 +5,9 @@
 //!   build); run folders go to `runs/figures/<profile>/` (finished runs are
 //!   reused), figures, `results.json` and `REPORT.md` to `docs/figures/`.
 //! - `ci`: runs exactly what CI runs (`.ci/run`).
+//! - `soak [--kills N]`: SIGKILLs a small training run N times, resumes it
+//!   to the end and checks it ends exactly as an uninterrupted run
+//!   (see `soak.rs`).
 //!
 //! xtask stays light (clap + anyhow): it drives the `ntg` binary and cargo
 //! as subprocesses instead of linking the networks, so it builds in seconds.
@@ -14,6 +17,8 @@ use std::process::Command;
 
 use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
+
+mod soak;
 
 #[derive(Debug, Parser)]
 #[command(name = "cargo xtask", about = "ntg-rs project automation")]
@@ -37,6 +42,29 @@ enum Task {
     },
     /// Run what CI runs: formatting, clippy, the test suite (see .ci/run).
     Ci,
+    /// Kill a small training run again and again (SIGKILL), resume it to
+    /// the end, and check it ends bit for bit where an uninterrupted run
+    /// ends, with no stray files.
+    Soak {
+        /// How many kills.
+        #[arg(long, default_value_t = 50)]
+        kills: usize,
+        /// Seed of the delays before each kill.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Shortest delay before a kill, in seconds.
+        #[arg(long, default_value_t = 0.3)]
+        min_delay: f64,
+        /// Longest delay before a kill, in seconds.
+        #[arg(long, default_value_t = 0.9)]
+        max_delay: f64,
+        /// Soak the release build of ntg (default: the dev build).
+        #[arg(long)]
+        release: bool,
+        /// Working folder (replaced).
+        #[arg(long, default_value = "target/soak")]
+        work: PathBuf,
+    },
 }
 
 /// Experiment scale (see docs/ARCHITECTURE.md and the design's EXPERIMENTS.md).
@@ -118,6 +146,35 @@ fn main() -> std::process::ExitCode {
             jigsaws_root,
         } => reproduce_figures(profile, jigsaws_root),
         Task::Ci => ci(),
+        Task::Soak {
+            kills,
+            seed,
+            min_delay,
+            max_delay,
+            release,
+            work,
+        } => {
+            if !(min_delay.is_finite()
+                && max_delay.is_finite()
+                && 0.0 <= min_delay
+                && min_delay <= max_delay)
+            {
+                eprintln!("error: --min-delay and --max-delay: need 0 <= min <= max seconds");
+                return std::process::ExitCode::FAILURE;
+            }
+            let root = workspace_root();
+            soak::run(
+                &root,
+                &root.join(work),
+                &soak::Soak {
+                    kills,
+                    seed,
+                    min_delay: std::time::Duration::from_secs_f64(min_delay),
+                    max_delay: std::time::Duration::from_secs_f64(max_delay),
+                    release,
+                },
+            )
+        }
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -425,15 +425,22 @@ pub fn drop_lines_from_epoch(path: &Path, epochs_done: usize) -> anyhow::Result<
             path.display()
         );
     }
-    let kept: Vec<&serde_json::Value> = lines
-        .iter()
-        .filter(|v| epoch(v).is_none_or(|e| e < epochs_done as u64))
+    // The kept lines are written back as they were (not re-serialised,
+    // which would reorder their keys).
+    let original =
+        fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let kept: Vec<&str> = original
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .zip(&lines)
+        .filter(|(_, v)| epoch(v).is_none_or(|e| e < epochs_done as u64))
+        .map(|(l, _)| l)
         .collect();
     let dropped = lines.len() - kept.len();
     if dropped > 0 {
         let mut text = String::new();
-        for v in kept {
-            text.push_str(&serde_json::to_string(v)?);
+        for line in kept {
+            text.push_str(line);
             text.push('\n');
         }
         let tmp = path.with_extension("jsonl.tmp");
@@ -650,10 +657,19 @@ mod tests {
         let tmp = tempfile::tempdir().unwrap();
         let path = tmp.path().join("metrics.jsonl");
         assert_eq!(drop_lines_from_epoch(&path, 3).unwrap(), 0);
-        fs::write(&path, "{\"epoch\":0}\n{\"epoch\":1}\n{\"epoch\":2}\n").unwrap();
+        fs::write(
+            &path,
+            "{\"epoch\":0,\"success\":0.5,\"goal\":1}\n{\"epoch\":1}\n{\"epoch\":2}\n",
+        )
+        .unwrap();
         assert_eq!(drop_lines_from_epoch(&path, 3).unwrap(), 0);
         assert_eq!(drop_lines_from_epoch(&path, 2).unwrap(), 1);
-        assert_eq!(read_jsonl::<serde_json::Value>(&path).unwrap().len(), 2);
+        // The kept lines are the same text (keys not reordered), so a
+        // resumed run's logs equal an uninterrupted run's byte for byte.
+        assert_eq!(
+            fs::read_to_string(&path).unwrap(),
+            "{\"epoch\":0,\"success\":0.5,\"goal\":1}\n{\"epoch\":1}\n"
+        );
         let err = drop_lines_from_epoch(&path, 0).unwrap_err().to_string();
         assert!(
             err.contains("logs epoch 1") && err.contains("metrics.jsonl"),

@@ -1,0 +1,303 @@
+//! `cargo xtask soak`: kill a small training run with SIGKILL again and
+//! again, resume it to the end, and check that it ends exactly where an
+//! uninterrupted run with the same seed ends.
+//!
+//! Both runs are `ntg train --domain blocks` at a tiny scale (state input,
+//! validation on, so `best/` is exercised too). The soaked run is started,
+//! killed after a seeded random delay, resumed with `--resume`, killed
+//! again, ... `kills` times, then resumed without a kill until it finishes.
+//! Every resume must start cleanly (a resume that exits with an error, not
+//! by the kill, fails the soak). At the end the soaked run's final
+//! weights, optimizer state, selected weights and metrics (times aside)
+//! must equal the uninterrupted run's byte for byte (burn's random
+//! parameter ids aside, see [`without_param_ids`]), and no temporary file,
+//! staging folder or lock may be left in it.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+
+/// Settings of one soak.
+pub struct Soak {
+    /// How many times to kill the run.
+    pub kills: usize,
+    /// Seed of the kill delays.
+    pub seed: u64,
+    /// Shortest delay before a kill.
+    pub min_delay: Duration,
+    /// Longest delay before a kill.
+    pub max_delay: Duration,
+    /// Use the release build of `ntg` (else the dev build, which CI has).
+    pub release: bool,
+}
+
+/// A small seeded generator (xorshift64*) for the kill delays: xtask stays
+/// free of dependencies beyond clap and anyhow.
+struct Delays(u64);
+
+impl Delays {
+    fn next_unit(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        let x = self.0.wrapping_mul(0x2545_f491_4f6c_dd1d);
+        (x >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// The run's arguments: `epochs` epochs of a tiny block-stacking run.
+fn train_args(out: &Path, epochs: usize) -> Vec<String> {
+    [
+        "train",
+        "--domain",
+        "blocks",
+        "--train-tasks",
+        "6",
+        "--demos-per-task",
+        "3",
+        "--batch-size",
+        "4",
+        "--validation-tasks",
+        "3",
+        "--seed",
+        "5",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .chain([
+        "--epochs".to_owned(),
+        epochs.to_string(),
+        "--out".to_owned(),
+        out.display().to_string(),
+    ])
+    .collect()
+}
+
+fn build_ntg(root: &Path, release: bool) -> anyhow::Result<PathBuf> {
+    let mut args = vec!["build", "--quiet", "-p", "ntg-trainer", "--bin", "ntg"];
+    if release {
+        args.push("--release");
+    }
+    let status = Command::new(env!("CARGO"))
+        .args(&args)
+        .current_dir(root)
+        .status()
+        .context("could not start cargo")?;
+    if !status.success() {
+        bail!("building ntg failed ({status})");
+    }
+    let profile = if release { "release" } else { "debug" };
+    let target = std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| root.join("target"));
+    Ok(target.join(profile).join("ntg"))
+}
+
+/// Files and folders under `dir`, relative, sorted.
+fn listing(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).with_context(|| format!("reading {}", d.display()))? {
+            let path = entry?.path();
+            out.push(path.strip_prefix(dir)?.to_path_buf());
+            if path.is_dir() {
+                stack.push(path);
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// A burnpack file with its parameter ids zeroed. burn draws a random id
+/// for every parameter it creates (the optimizer keys its state by them),
+/// so two runs with the same seed differ in these ids and nowhere else:
+/// the tensors, their names and their order are the same bytes. (The
+/// optimizer's own file is keyed, and ordered, by those ids, so it is not
+/// compared as bytes; its state shows in every later step instead: the
+/// final weights and every epoch's losses match only if each resume
+/// restored it exactly.)
+fn without_param_ids(mut bytes: Vec<u8>) -> Vec<u8> {
+    const KEY: &[u8] = b"param_id";
+    let mut i = 0;
+    while let Some(at) = bytes[i..].windows(KEY.len()).position(|w| w == KEY) {
+        let head = i + at + KEY.len();
+        // A CBOR unsigned integer: 0x18..=0x1b, then 1, 2, 4 or 8 bytes.
+        let len = match bytes.get(head) {
+            Some(0x18) => 1,
+            Some(0x19) => 2,
+            Some(0x1a) => 4,
+            Some(0x1b) => 8,
+            _ => 0,
+        };
+        let end = (head + 1 + len).min(bytes.len());
+        bytes[(head + 1).min(end)..end].fill(0);
+        i = head;
+    }
+    bytes
+}
+
+/// `metrics.jsonl`-style lines with their `"seconds"` fields removed.
+fn without_seconds(path: &Path) -> anyhow::Result<Vec<String>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(text
+        .lines()
+        .map(|line| {
+            line.split(',')
+                .filter(|field| !field.contains("\"seconds\""))
+                .collect::<Vec<_>>()
+                .join(",")
+        })
+        .collect())
+}
+
+/// Runs the soak in `work` (created afresh) and prints its report.
+pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
+    let ntg = build_ntg(root, soak.release)?;
+    if work.exists() {
+        std::fs::remove_dir_all(work).with_context(|| format!("removing {}", work.display()))?;
+    }
+    std::fs::create_dir_all(work).with_context(|| format!("creating {}", work.display()))?;
+    let straight = work.join("straight");
+    let soaked = work.join("soaked");
+    // An epoch takes about 0.15 s (dev build, 2 cores): 4 per kill keeps
+    // the run training until the last kill lands.
+    let epochs = (4 * soak.kills).max(20);
+
+    let started = Instant::now();
+    let status = Command::new(&ntg)
+        .args(train_args(&straight, epochs))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .context("could not start ntg")?;
+    if !status.success() {
+        bail!("the uninterrupted run failed ({status})");
+    }
+    let straight_time = started.elapsed();
+
+    let mut delays = Delays(soak.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1);
+    let mut killed = 0usize;
+    let started = Instant::now();
+    for k in 0..soak.kills {
+        let mut args = train_args(&soaked, epochs);
+        if soaked.join("config.json").is_file() {
+            args.push("--resume".into());
+        }
+        let mut child = Command::new(&ntg)
+            .args(&args)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .context("could not start ntg")?;
+        let span = soak.max_delay.saturating_sub(soak.min_delay);
+        let delay = soak.min_delay + span.mul_f64(delays.next_unit());
+        let deadline = Instant::now() + delay;
+        let exited = loop {
+            if let Some(status) = child.try_wait()? {
+                break Some(status);
+            }
+            if Instant::now() >= deadline {
+                break None;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        match exited {
+            None => {
+                child.kill().context("killing ntg")?;
+                child.wait()?;
+                killed += 1;
+            }
+            Some(status) if status.success() => {
+                bail!(
+                    "the run finished after {killed} kills, before kill {}: the soak needs a longer run",
+                    k + 1
+                );
+            }
+            Some(status) => {
+                let mut err = String::new();
+                if let Some(mut pipe) = child.stderr.take() {
+                    use std::io::Read;
+                    let _ = pipe.read_to_string(&mut err);
+                }
+                bail!("resume {k} failed ({status}) after {killed} kills:\n{err}");
+            }
+        }
+    }
+    let mut args = train_args(&soaked, epochs);
+    if soaked.join("config.json").is_file() {
+        args.push("--resume".into());
+    }
+    let output = Command::new(&ntg)
+        .args(&args)
+        .output()
+        .context("could not start ntg")?;
+    if !output.status.success() {
+        bail!(
+            "the final resume failed ({}):\n{}",
+            output.status,
+            String::from_utf8_lossy(&output.stderr)
+        );
+    }
+    let soak_time = started.elapsed();
+
+    let mut problems = Vec::new();
+    for file in [
+        "checkpoint/model.bpk",
+        "checkpoint/config.json",
+        "best/model.bpk",
+        "best/selection.json",
+    ] {
+        let (a, b) = (straight.join(file), soaked.join(file));
+        let (a, b) = (
+            std::fs::read(&a).with_context(|| format!("reading {}", a.display()))?,
+            std::fs::read(&b).with_context(|| format!("reading {}", b.display()))?,
+        );
+        if without_param_ids(a) != without_param_ids(b) {
+            problems.push(format!("{file} differs from the uninterrupted run's"));
+        }
+    }
+    for file in ["metrics.jsonl", "validation.jsonl"] {
+        if without_seconds(&straight.join(file))? != without_seconds(&soaked.join(file))? {
+            problems.push(format!(
+                "{file} differs (times aside) from the uninterrupted run's"
+            ));
+        }
+    }
+    let stray: Vec<PathBuf> = listing(&soaked)?
+        .into_iter()
+        .filter(|p| {
+            let name = p.to_string_lossy();
+            name.ends_with(".tmp")
+                || name.ends_with(".next")
+                || name.ends_with(".old")
+                || name.contains(".tmp")
+                || name.ends_with("train.lock")
+        })
+        .collect();
+    if !stray.is_empty() {
+        problems.push(format!("stray files left: {stray:?}"));
+    }
+    if listing(&straight)? != listing(&soaked)? {
+        problems.push("the two run folders hold different files".into());
+    }
+
+    println!("soak: {killed} kills during a {epochs}-epoch run, then resumed to the end");
+    println!(
+        "time: uninterrupted run {:.1}s; soak {:.1}s",
+        straight_time.as_secs_f64(),
+        soak_time.as_secs_f64()
+    );
+    if problems.is_empty() {
+        println!(
+            "ok: every resume started cleanly; the final weights, the selected weights and every epoch's metrics equal the uninterrupted run's; no stray files"
+        );
+        Ok(())
+    } else {
+        bail!("soak failed:\n- {}", problems.join("\n- "))
+    }
+}
