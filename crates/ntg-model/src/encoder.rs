@@ -50,7 +50,7 @@ pub struct StateEncoderConfig {
 
 /// A CNN over `S×S` RGB frames: three `k×k` convolutions (`k` = 3 or 4)
 /// of stride 2 and padding 1 (`S → S/2 → S/4 → S/8`) with ReLU, then a
-/// linear layer to `H`, or (with `hidden > 0`) a one-hidden-layer MLP to
+/// linear layer to `H`, or (with a `hidden` width) a one-hidden-layer MLP to
 /// `H`.
 #[derive(Config, Debug)]
 pub struct FrameEncoderConfig {
@@ -68,21 +68,20 @@ pub struct FrameEncoderConfig {
     #[config(default = 3)]
     pub kernel: usize,
     /// Width of a hidden layer between the flattened feature map and `H`
-    /// (0: none, the feature map maps linearly to `H`). A linear read-out
+    /// (the feature map maps linearly to `H` without it). A linear read-out
     /// of the feature map can only add up what each position sees; which
     /// cube sits under the gripper is a relation between positions.
-    #[config(default = 0)]
-    pub hidden: usize,
+    /// (`None` or 0: none; an `Option` so that checkpoints saved before it
+    /// load.)
+    pub hidden: Option<usize>,
     /// He initialisation of the convolutions (weight variance `2/fan_in`,
     /// made for the ReLU after each) instead of PyTorch's default (a third
     /// of `1/fan_in`), under which the activations shrink about 2.4× per
-    /// layer and the encoder starts near zero.
-    #[config(default = false)]
-    pub he_init: bool,
+    /// layer and the encoder starts near zero. `None`: off.
+    pub he_init: Option<bool>,
     /// Shift the frame's values from `[0, 1]` to `[-0.5, 0.5]` before the
-    /// first convolution.
-    #[config(default = false)]
-    pub centre_input: bool,
+    /// first convolution. `None`: off.
+    pub centre_input: Option<bool>,
     /// Embedding size `H`.
     #[config(default = 128)]
     pub out_dim: usize,
@@ -232,12 +231,13 @@ impl EncoderConfig {
                 let [c1, c2, c3] = c.conv_channels;
                 let side = c.image_size / 8;
                 let flat = c3 * side * side;
-                let mut conv =
-                    |c_in: usize, c_out: usize| init.conv2d(c_in, c_out, c.kernel, 2, 1, c.he_init);
+                let mut conv = |c_in: usize, c_out: usize| {
+                    init.conv2d(c_in, c_out, c.kernel, 2, 1, c.he_init == Some(true))
+                };
                 let (conv1, conv2, conv3) = (conv(c.channels, c1), conv(c1, c2), conv(c2, c3));
-                let (fc, head) = if c.hidden > 0 {
-                    let fc = init.linear(flat, c.hidden, true);
-                    (fc, Some(init.linear(c.hidden, c.out_dim, true)))
+                let (fc, head) = if let Some(hidden) = c.hidden.filter(|&h| h > 0) {
+                    let fc = init.linear(flat, hidden, true);
+                    (fc, Some(init.linear(hidden, c.out_dim, true)))
                 } else {
                     (init.linear(flat, c.out_dim, true), None)
                 };
@@ -247,7 +247,11 @@ impl EncoderConfig {
                     conv3,
                     fc,
                     head,
-                    input_shift: if c.centre_input { -0.5 } else { 0.0 },
+                    input_shift: if c.centre_input == Some(true) {
+                        -0.5
+                    } else {
+                        0.0
+                    },
                     channels: c.channels,
                     image_size: c.image_size,
                 })

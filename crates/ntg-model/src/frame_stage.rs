@@ -275,4 +275,24 @@ mod tests {
         let b = crate::nn::to_vec(back.encode(x).unwrap()).unwrap();
         assert_eq!(a, b);
     }
+
+    /// Stage A networks saved before the encoder's optional settings
+    /// existed (no `hidden`, `he_init`, `centre_input`) still load.
+    #[test]
+    fn networks_saved_without_the_optional_encoder_settings_still_load() {
+        let device = Device::flex();
+        let net = small().init(&device).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        net.save(dir.path()).unwrap();
+        let path = dir.path().join("config.json");
+        let mut json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        let frame = json["encoder"]["Frame"].as_object_mut().unwrap();
+        for field in ["hidden", "he_init", "centre_input"] {
+            frame.remove(field);
+        }
+        std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
+        std::fs::remove_file(dir.path().join("config.json.sha256")).unwrap();
+        assert!(FrameStageNet::load(dir.path(), &device).is_ok());
+    }
 }

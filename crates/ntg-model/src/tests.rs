@@ -70,9 +70,9 @@ fn encoders_map_rows_to_embeddings() {
             EncoderConfig::Frame(
                 FrameEncoderConfig::new()
                     .with_image_size(16)
-                    .with_hidden(24)
-                    .with_he_init(true)
-                    .with_centre_input(true)
+                    .with_hidden(Some(24))
+                    .with_he_init(Some(true))
+                    .with_centre_input(Some(true))
                     .with_out_dim(32),
             ),
             3 * 16 * 16,
@@ -117,8 +117,8 @@ fn he_initialised_centred_frame_encoder_keeps_its_activations_at_scale() {
     let default = spread(FrameEncoderConfig::new());
     let he = spread(
         FrameEncoderConfig::new()
-            .with_he_init(true)
-            .with_centre_input(true),
+            .with_he_init(Some(true))
+            .with_centre_input(Some(true)),
     );
     assert!(he > 4.0 * default, "He {he} vs default {default}");
 }

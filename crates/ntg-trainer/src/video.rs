@@ -112,9 +112,9 @@ impl EncoderStage {
             ntg_model::EncoderConfig::Frame(
                 ntg_model::FrameEncoderConfig::new()
                     .with_kernel(self.kernel)
-                    .with_hidden(self.hidden)
-                    .with_he_init(self.he_init)
-                    .with_centre_input(self.centre_input),
+                    .with_hidden((self.hidden > 0).then_some(self.hidden))
+                    .with_he_init(self.he_init.then_some(true))
+                    .with_centre_input(self.centre_input.then_some(true)),
             ),
         )
         .with_seed(seed)
