@@ -98,7 +98,40 @@ pub(crate) fn load_weights<M: Module>(module: M, dir: &Path) -> Result<M> {
         return Err(ModelError::file(&weights, "no such file"));
     }
     verify(&weights)?;
-    module
+    let module = module
         .try_load_file(&weights)
-        .map_err(|e| ModelError::file(&weights, e))
+        .map_err(|e| ModelError::file(&weights, e))?;
+    let mut check = NonFinite::default();
+    module.visit(&mut check);
+    if check.tensors > 0 {
+        return Err(ModelError::file(
+            &weights,
+            format!(
+                "{} of its weight tensors hold NaN or infinite values (the run that saved them diverged); use an earlier checkpoint or retrain with a lower learning rate",
+                check.tensors
+            ),
+        ));
+    }
+    Ok(module)
+}
+
+/// Counts the float parameters that hold a NaN or an infinity.
+#[derive(Default)]
+struct NonFinite {
+    tensors: usize,
+}
+
+impl burn::module::ModuleVisitor for NonFinite {
+    fn visit_float<const D: usize>(
+        &mut self,
+        param: &burn::module::Param<burn::tensor::Tensor<D>>,
+    ) {
+        let finite = param.val().is_finite().all().into_data();
+        if finite
+            .try_to_vec::<bool>()
+            .map_or(true, |v| v.contains(&false))
+        {
+            self.tensors += 1;
+        }
+    }
 }

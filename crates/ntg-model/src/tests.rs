@@ -770,6 +770,24 @@ fn save_then_load_gives_identical_outputs() {
 }
 
 #[test]
+fn weights_that_diverged_to_nan_are_refused_at_load_naming_the_file() {
+    let dev = device();
+    let mut model = NtgModel::new(small_config(14), &dev).unwrap();
+    let [n, h] = model.localizer.nodes.val().dims();
+    model.localizer.nodes = burn::module::Param::from_data(
+        burn::tensor::TensorData::new(vec![f32::NAN; n * h], [n, h]),
+        &dev,
+    );
+    let dir = tempfile::tempdir().unwrap();
+    model.save(dir.path()).unwrap();
+    let err = NtgModel::load(dir.path(), &dev).unwrap_err().to_string();
+    assert!(
+        err.contains(WEIGHTS_FILE) && err.contains("1 of its weight tensors hold NaN"),
+        "{err}"
+    );
+}
+
+#[test]
 fn damaged_checkpoint_files_fail_their_checksum_naming_the_file() {
     let dev = device();
     let model = NtgModel::new(small_config(13), &dev).unwrap();
