@@ -285,11 +285,24 @@ impl RunDir {
         Ok(())
     }
 
-    /// Reads JSON from `path`, naming the file in any error.
+    /// Reads JSON from `path`, naming the file and (for a value of the
+    /// wrong shape) the field in any error.
     pub fn read_json<T: DeserializeOwned>(path: &Path) -> anyhow::Result<T> {
         let text =
             fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        serde_json::from_str(&text).with_context(|| format!("{}: invalid contents", path.display()))
+        let mut json = serde_json::Deserializer::from_str(&text);
+        let value: T = serde_path_to_error::deserialize(&mut json).map_err(|e| {
+            let field = e.path().to_string();
+            let at = if field == "." {
+                String::new()
+            } else {
+                format!(" field `{field}`:")
+            };
+            anyhow::anyhow!("{}:{at} {}", path.display(), e.into_inner())
+        })?;
+        json.end()
+            .with_context(|| format!("{}: invalid contents", path.display()))?;
+        Ok(value)
     }
 
     /// Appends one line to `metrics.jsonl`.

@@ -117,6 +117,15 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
     let no_weights = damaged("noweights", &|d| {
         std::fs::remove_file(d.join("checkpoint/model.bpk")).unwrap();
     });
+    let other_obs = damaged("otherobs", &|d| {
+        let path = d.join("config.json");
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::write(
+            &path,
+            text.replace("\"obs\": \"state\"", "\"obs\": \"vid\""),
+        )
+        .unwrap();
+    });
 
     let train = |extra: &[&str]| -> Vec<String> {
         let mut args = vec!["train".to_owned(), "--out".to_owned(), p("new-run")];
@@ -178,10 +187,17 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         (s(&["eval", "--run", &p("missing")]), p("missing")),
         (s(&["eval", "--run", &p("norun")]), "config.json".into()),
         (s(&["eval", "--run", &p("badconfig")]), "config.json".into()),
-        (s(&["eval", "--run", &wrong_type]), "config.json".into()),
+        (
+            s(&["eval", "--run", &wrong_type]),
+            "config.json: field `train_tasks`".into(),
+        ),
         (s(&["eval", "--run", &flipped]), "model.bpk".into()),
         (s(&["eval", "--run", &truncated]), "model.bpk".into()),
         (s(&["eval", "--run", &no_weights]), "model.bpk".into()),
+        (
+            s(&["eval", "--run", &other_obs]),
+            "reads state observations".into(),
+        ),
         (
             s(&["eval", "--run", &run_s, "--test-tasks", "0"]),
             "--test-tasks".into(),

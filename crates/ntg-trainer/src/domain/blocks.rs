@@ -1134,8 +1134,10 @@ pub fn load_trained(
                 .with_context(context)?,
         )
     } else {
-        TrainedBlocks::State(NtgModel::load(dir, device).with_context(context)?)
+        TrainedBlocks::State(NtgModel::load(&dir, device).with_context(context)?)
     };
+    let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+    crate::method::on_frames::check_model_obs(&dir, config.obs, &run.config_path())?;
     if let Some(t) = edge_threshold {
         if !(0.0..=1.0).contains(&t) {
             bail!("--edge-threshold must be in [0, 1], got {t}");

@@ -517,10 +517,16 @@ where
 /// Loads the trained model of a run (inference device).
 pub fn load_model(run: &RunDir, config: &CollectRunConfig) -> anyhow::Result<Model> {
     let device = ntg_model::cpu_device();
-    config
+    let model = config
         .method
         .load(&run.checkpoint_dir(), &device)
-        .with_context(|| format!("{} has no trained model yet", run.root().display()))
+        .with_context(|| format!("{} has no trained model yet", run.root().display()))?;
+    crate::method::on_frames::check_model_obs(
+        &run.checkpoint_dir(),
+        config.obs,
+        &run.config_path(),
+    )?;
+    Ok(model)
 }
 
 /// Success at one N.

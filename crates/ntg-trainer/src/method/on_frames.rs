@@ -13,6 +13,7 @@ use ntg_model::{EdgeCounts, FlatPolicy, FrameStageNet, NtgModel, rows_tensor};
 
 use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel};
 use crate::method::{Agent, Model, TrainedPolicy};
+use crate::spec::ObsKind;
 
 /// Folder of the frozen encoder inside a saved [`OnFrames`] model.
 pub const ENCODER_DIR: &str = "frame_encoder";
@@ -113,6 +114,26 @@ impl<M: TrainedModel + ModuleDisplay + EmbeddingReader> TrainedModel for OnFrame
 /// state rows).
 pub fn is_video_model(dir: &Path) -> bool {
     dir.join(ENCODER_DIR).is_dir()
+}
+
+/// Checks that the model saved in `dir` reads the observations `obs` that
+/// the run configuration `config` (its path, for the message) says; a
+/// mismatch means the run folder was changed by hand.
+pub fn check_model_obs(dir: &Path, obs: ObsKind, config: &Path) -> anyhow::Result<()> {
+    let saved = if is_video_model(dir) {
+        ObsKind::Vid
+    } else {
+        ObsKind::State
+    };
+    anyhow::ensure!(
+        saved == obs,
+        "{} says \"obs\": \"{}\", but the model in {} reads {} observations: the run folder was changed by hand; restore the run's config.json or train a new run",
+        config.display(),
+        obs.name(),
+        dir.display(),
+        saved.name()
+    );
+    Ok(())
 }
 
 /// Loads the model saved in `dir`: on frames if it holds a frame encoder,
