@@ -6,7 +6,7 @@
 //! ```text
 //! cargo run --release -p ntg-trainer --example encoder_heldout -- score RUN [TASKS]
 //! cargo run --release -p ntg-trainer --example encoder_heldout -- \
-//!     train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [he] [centre] [tasks=TASKS]
+//!     train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [tasks=TASKS]
 //! ```
 //!
 //! `score` scores the stage A network of a video run. `train` trains a new
@@ -29,7 +29,7 @@ use ntg_trainer::video::{
     EncoderEpochMetrics, EncoderStage, FrameStageStep, STAGE_A_DIR, frame_dataset,
 };
 
-const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [he] [centre] [tasks=TASKS]";
+const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [tasks=TASKS]";
 
 fn count(args: &[String], i: usize, name: &str, default: Option<usize>) -> anyhow::Result<usize> {
     match (args.get(i), default) {
@@ -105,6 +105,7 @@ fn main() -> anyhow::Result<()> {
                 match option.split_once('=') {
                     Some(("lr", v)) => stage.learning_rate = v.parse().context("lr=")?,
                     Some(("batch", v)) => stage.batch_size = v.parse().context("batch=")?,
+                    Some(("recon", v)) => stage.reconstruction = v.parse().context("recon=")?,
                     Some(("tasks", v)) => tasks = v.parse().context("tasks=")?,
                     None if option == "he" => stage.he_init = true,
                     None if option == "centre" => stage.centre_input = true,
@@ -147,8 +148,8 @@ fn main() -> anyhow::Result<()> {
                 }),
                 |m: &EncoderEpochMetrics| {
                     println!(
-                        "epoch {}: localizer {:.3} | edges {:.3} | {:.0}s",
-                        m.epoch, m.localizer_accuracy, m.edge_accuracy, m.seconds
+                        "epoch {}: localizer {:.3} | edges {:.3} | reconstruction {:?} | {:.0}s",
+                        m.epoch, m.localizer_accuracy, m.edge_accuracy, m.reconstruction, m.seconds
                     )
                 },
             )?;

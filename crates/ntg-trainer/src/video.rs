@@ -82,6 +82,13 @@ pub struct EncoderStage {
     /// false).
     #[serde(default)]
     pub centre_input: bool,
+    /// Weight of a frame-reconstruction loss (a decoder rebuilds each frame
+    /// at half resolution from its embedding, so that the embedding keeps
+    /// the scene and not only what tells actions apart; see
+    /// `ntg_model::FrameStageConfig::reconstruction`). 0: none (absent in
+    /// runs saved before it: 0).
+    #[serde(default)]
+    pub reconstruction: f32,
 }
 
 fn one() -> f64 {
@@ -100,6 +107,7 @@ impl Default for EncoderStage {
             hidden: 0,
             he_init: false,
             centre_input: false,
+            reconstruction: 0.0,
         }
     }
 }
@@ -118,6 +126,7 @@ impl EncoderStage {
             ),
         )
         .with_seed(seed)
+        .with_reconstruction((self.reconstruction > 0.0).then_some(self.reconstruction))
     }
 
     /// Stage A's optimiser settings, shuffling seeded by `seed`: the
@@ -160,6 +169,10 @@ pub struct EncoderEpochMetrics {
     pub edge_loss: f32,
     /// Edge accuracy.
     pub edge_accuracy: f32,
+    /// Mean squared error of the rebuilt frames (with a reconstruction
+    /// weight).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reconstruction: Option<f32>,
     /// Wall-clock seconds of the epoch.
     pub seconds: f32,
 }
@@ -302,14 +315,18 @@ impl TrainStep<FrameStageNet> for FrameStageStep<'_> {
         _ctx: StepContext<'_>,
     ) -> anyhow::Result<StepReport> {
         let out = self.batch_loss(model, batch)?;
+        let mut values = vec![
+            scalar(out.loss.clone())?,
+            scalar(out.localizer.loss)?,
+            out.localizer.accuracy,
+            scalar(out.edge.loss)?,
+            out.edge.accuracy,
+        ];
+        if let Some(r) = out.reconstruction {
+            values.push(scalar(r)?);
+        }
         Ok(StepReport {
-            values: vec![
-                scalar(out.loss.clone())?,
-                scalar(out.localizer.loss)?,
-                out.localizer.accuracy,
-                scalar(out.edge.loss)?,
-                out.edge.accuracy,
-            ],
+            values,
             loss: out.loss,
             edges: EdgeCounts::default(),
         })
@@ -329,6 +346,7 @@ impl TrainStep<FrameStageNet> for FrameStageStep<'_> {
             localizer_accuracy: m[2],
             edge_loss: m[3],
             edge_accuracy: m[4],
+            reconstruction: m.get(5).copied(),
             seconds,
         }
     }

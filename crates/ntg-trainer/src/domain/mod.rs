@@ -166,6 +166,10 @@ pub struct TrainFlags {
     /// --obs vid: stage A's Adam learning rate [default: the domain's].
     #[arg(long, value_name = "LR", value_parser = crate::spec::parse::positive_real)]
     pub encoder_lr: Option<f64>,
+    /// --obs vid: weight of stage A's frame-reconstruction loss (a decoder
+    /// rebuilds each frame from its embedding), 0 for none [default: 0].
+    #[arg(long, value_name = "W", value_parser = crate::spec::parse::non_negative)]
+    pub encoder_reconstruction: Option<f32>,
 }
 
 impl TrainFlags {
@@ -176,10 +180,11 @@ impl TrainFlags {
                 || self.encoder_epochs.is_some()
                 || self.encoder_frame_fraction.is_some()
                 || self.encoder_hidden.is_some()
-                || self.encoder_lr.is_some())
+                || self.encoder_lr.is_some()
+                || self.encoder_reconstruction.is_some())
         {
             anyhow::bail!(
-                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden and --encoder-lr set the frame encoder of --obs vid runs"
+                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr and --encoder-reconstruction set the frame encoder of --obs vid runs"
             );
         }
         Ok(())
@@ -192,6 +197,7 @@ impl TrainFlags {
         stage.frame_fraction = self.encoder_frame_fraction.unwrap_or(stage.frame_fraction);
         stage.hidden = self.encoder_hidden.unwrap_or(stage.hidden);
         stage.learning_rate = self.encoder_lr.unwrap_or(stage.learning_rate);
+        stage.reconstruction = self.encoder_reconstruction.unwrap_or(stage.reconstruction);
     }
 }
 
