@@ -98,9 +98,11 @@ pub(crate) fn load_weights<M: Module>(module: M, dir: &Path) -> Result<M> {
         return Err(ModelError::file(&weights, "no such file"));
     }
     verify(&weights)?;
-    let module = module
-        .try_load_file(&weights)
-        .map_err(|e| ModelError::file(&weights, e))?;
+    let module = decode(&weights, || {
+        module
+            .try_load_file(&weights)
+            .map_err(|e| ModelError::file(&weights, e))
+    })?;
     let mut check = NonFinite::default();
     module.visit(&mut check);
     if check.tensors > 0 {
@@ -113,6 +115,30 @@ pub(crate) fn load_weights<M: Module>(module: M, dir: &Path) -> Result<M> {
         ));
     }
     Ok(module)
+}
+
+/// Runs `load`, burn's decoder of the file `path`, turning a panic inside
+/// it into an error naming the file: burn panics on some malformed records
+/// (e.g. an optimizer record without parameter ids, found by the
+/// `checkpoint` fuzz target) instead of returning an error. The panic hook
+/// is silenced meanwhile, so the user sees the error alone; files are
+/// loaded before training starts its worker threads.
+pub(crate) fn decode<T>(path: &Path, load: impl FnOnce() -> Result<T>) -> Result<T> {
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(load));
+    std::panic::set_hook(hook);
+    outcome.unwrap_or_else(|payload| {
+        let why = payload
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "the decoder failed".into());
+        Err(ModelError::file(
+            path,
+            format!("not a valid checkpoint file ({why}); use another checkpoint or retrain"),
+        ))
+    })
 }
 
 /// Counts the float parameters that hold a NaN or an infinity.

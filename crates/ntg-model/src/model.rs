@@ -382,7 +382,9 @@ pub fn load_optimizer(
         return Err(ModelError::file(path, "no such file"));
     }
     crate::checkpoint::verify(path)?;
-    optimizer.load(path).map_err(|e| ModelError::file(path, e))
+    crate::checkpoint::decode(path, || {
+        optimizer.load(path).map_err(|e| ModelError::file(path, e))
+    })
 }
 
 /// The result of [`NtgModel::complete_graph`].

@@ -787,6 +787,29 @@ fn weights_that_diverged_to_nan_are_refused_at_load_naming_the_file() {
     );
 }
 
+/// Found by the `checkpoint` fuzz target: burn panics on an optimizer
+/// record whose tensors carry no parameter id; loading it (with no checksum
+/// sidecar, as for files saved before sidecars) is an error naming the file.
+#[test]
+fn an_optimizer_file_that_makes_burn_panic_is_an_error_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("optimizer.bpk");
+    std::fs::write(
+        &path,
+        include_bytes!("testdata/optimizer-without-param-ids.bpk"),
+    )
+    .unwrap();
+    let fresh: burn::optim::ModuleOptimizer = burn::optim::AdamConfig::new().init();
+    let Err(err) = crate::load_optimizer(fresh, &path) else {
+        panic!("a malformed optimizer record loaded");
+    };
+    let err = err.to_string();
+    assert!(
+        err.contains("optimizer.bpk") && err.contains("not a valid checkpoint file"),
+        "{err}"
+    );
+}
+
 #[test]
 fn damaged_checkpoint_files_fail_their_checksum_naming_the_file() {
     let dev = device();
