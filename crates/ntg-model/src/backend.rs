@@ -85,6 +85,33 @@ impl BackendKind {
     }
 }
 
+impl BackendKind {
+    /// The backend's inference device after checking that it works: a
+    /// tiny computation runs on it and is read back. A missing feature, or
+    /// a GPU backend that finds no device (burn panics there), is an
+    /// error that says so.
+    pub fn working_device(self) -> Result<Device> {
+        let device = self.device()?;
+        let probe = device.clone();
+        crate::checkpoint::quietly(move || {
+            let sum = burn::tensor::Tensor::<1>::ones([4], &probe)
+                .sum()
+                .into_data();
+            sum.try_to_vec::<f32>()
+                .map(|_| ())
+                .map_err(|e| format!("{e:?}"))
+        })
+        .and_then(|read| read)
+        .map_err(|why| {
+            ModelError::Config(format!(
+                "backend `{}` found no usable device ({why})",
+                self.name()
+            ))
+        })?;
+        Ok(device)
+    }
+}
+
 impl fmt::Display for BackendKind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
@@ -108,4 +135,23 @@ impl FromStr for BackendKind {
 /// The default CPU device: `flex`.
 pub fn cpu_device() -> Device {
     Device::flex()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cpu_backend_passes_its_probe_and_missing_features_are_named() {
+        assert!(BackendKind::Flex.working_device().is_ok());
+        for kind in BackendKind::ALL {
+            if !kind.is_available() {
+                let err = kind.working_device().unwrap_err().to_string();
+                assert!(
+                    err.contains(&format!("--features {}", kind.name())),
+                    "{err}"
+                );
+            }
+        }
+    }
 }

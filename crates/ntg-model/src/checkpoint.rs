@@ -124,20 +124,28 @@ pub(crate) fn load_weights<M: Module>(module: M, dir: &Path) -> Result<M> {
 /// is silenced meanwhile, so the user sees the error alone; files are
 /// loaded before training starts its worker threads.
 pub(crate) fn decode<T>(path: &Path, load: impl FnOnce() -> Result<T>) -> Result<T> {
-    let hook = std::panic::take_hook();
-    std::panic::set_hook(Box::new(|_| {}));
-    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(load));
-    std::panic::set_hook(hook);
-    outcome.unwrap_or_else(|payload| {
-        let why = payload
-            .downcast_ref::<&str>()
-            .map(|s| (*s).to_owned())
-            .or_else(|| payload.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "the decoder failed".into());
+    quietly(load).unwrap_or_else(|why| {
         Err(ModelError::file(
             path,
             format!("not a valid checkpoint file ({why}); use another checkpoint or retrain"),
         ))
+    })
+}
+
+/// Runs `f`, returning the message of a panic inside it (burn's) as an
+/// error instead of unwinding further; the panic hook is silenced
+/// meanwhile, so nothing is printed.
+pub(crate) fn quietly<T>(f: impl FnOnce() -> T) -> std::result::Result<T, String> {
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+    std::panic::set_hook(hook);
+    outcome.map_err(|payload| {
+        payload
+            .downcast_ref::<&str>()
+            .map(|s| (*s).to_owned())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "a panic without a message".into())
     })
 }
 

@@ -1,5 +1,6 @@
 //! The words a run is specified in, shared by every domain, method and
-//! figure: the observation kind and the experiment scale (profile).
+//! figure: the observation kind, the experiment scale (profile) and the
+//! device the networks run on.
 //!
 //! Architecture invariant: this module imports nothing else of the crate,
 //! so every other module may use it without forming a cycle.
@@ -49,6 +50,53 @@ impl Profile {
             Profile::Paper => "paper",
         }
     }
+}
+
+/// Where the networks run (`ntg train|eval|reproduce --device`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+pub enum DeviceKind {
+    /// burn's `flex` CPU backend (every build).
+    #[default]
+    Cpu,
+    /// WebGPU (a build with `--features wgpu`).
+    Wgpu,
+    /// CUDA device 0 (a build with `--features cuda`).
+    Cuda,
+}
+
+static DEVICE: std::sync::OnceLock<burn::tensor::Device> = std::sync::OnceLock::new();
+
+/// Makes `kind` the device every network of this process runs on (see
+/// [`device`]); once, before any training or evaluation. Errors, saying
+/// how to get it, if this build lacks the backend or it finds no device.
+pub fn select_device(kind: DeviceKind) -> anyhow::Result<()> {
+    let backend = match kind {
+        DeviceKind::Cpu => ntg_model::BackendKind::Flex,
+        DeviceKind::Wgpu => ntg_model::BackendKind::Wgpu,
+        DeviceKind::Cuda => ntg_model::BackendKind::Cuda,
+    };
+    if !backend.is_available() {
+        anyhow::bail!(
+            "--device {0}: this ntg was built without the {0} backend; rebuild it with `cargo build --release -p ntg-trainer --features {0}`",
+            backend.name()
+        );
+    }
+    let device = backend.working_device()?;
+    if let Some(chosen) = DEVICE.get() {
+        anyhow::ensure!(
+            *chosen == device,
+            "the device was already chosen ({chosen:?})"
+        );
+        return Ok(());
+    }
+    let _ = DEVICE.set(device);
+    Ok(())
+}
+
+/// The device networks are built on: the one [`select_device`] chose, or
+/// the CPU (`flex`). Training adds `.autodiff()`.
+pub fn device() -> burn::tensor::Device {
+    DEVICE.get().cloned().unwrap_or_else(ntg_model::cpu_device)
 }
 
 /// Command-line parsers that refuse out-of-range numbers at parse time, so
@@ -126,6 +174,22 @@ pub mod parse {
             Ok(v)
         } else {
             Err(format!("must be a finite number, got {v}"))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_cpu_is_the_default_device_and_gpu_backends_need_their_feature() {
+        assert_eq!(device(), ntg_model::cpu_device());
+        select_device(DeviceKind::Cpu).unwrap();
+        assert_eq!(device(), ntg_model::cpu_device());
+        if !cfg!(feature = "cuda") {
+            let err = select_device(DeviceKind::Cuda).unwrap_err().to_string();
+            assert!(err.contains("--features cuda"), "{err}");
         }
     }
 }

@@ -133,12 +133,13 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         args
     };
     let s = |args: &[&str]| -> Vec<String> { args.iter().map(|a| a.to_string()).collect() };
-    let cases: Vec<(Vec<String>, String)> = vec![
+    let mut cases: Vec<(Vec<String>, String)> = vec![
         // Numbers out of range, refused at parse time.
         (train(&["--lr", "NaN"]), "--lr".into()),
         (train(&["--lr", "inf"]), "--lr".into()),
         (train(&["--lr=-1"]), "--lr".into()),
         (train(&["--epochs", "0"]), "--epochs".into()),
+        (train(&["--device", "tpu"]), "--device".into()),
         (train(&["--batch-size", "0"]), "--batch-size".into()),
         (train(&["--train-tasks", "0"]), "--train-tasks".into()),
         (
@@ -362,6 +363,16 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             p("emptyjigsaws"),
         ),
     ];
+    // GPU backends a default build lacks.
+    if !cfg!(feature = "cuda") {
+        cases.push((train(&["--device", "cuda"]), "--features cuda".into()));
+    }
+    if !cfg!(feature = "wgpu") {
+        cases.push((
+            s(&["eval", "--run", &run_s, "--device", "wgpu"]),
+            "--features wgpu".into(),
+        ));
+    }
     assert!(cases.len() >= 40, "{} cases", cases.len());
 
     let before = snapshot(root);

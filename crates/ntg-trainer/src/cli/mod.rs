@@ -53,6 +53,15 @@ pub enum Command {
 
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
+    let device = match &cli.command {
+        Command::Train(args) => Some(args.flags.device),
+        Command::Eval(args) => Some(args.device),
+        Command::Reproduce(args) => Some(args.device),
+        _ => None,
+    };
+    if let Some(device) = device {
+        crate::spec::select_device(device)?;
+    }
     match cli.command {
         Command::Graph(args) => graph::run(&args, &mut std::io::stdout().lock()),
         Command::Train(args) => train::run_train(&args),

@@ -31,7 +31,7 @@ pub struct TraceArgs {
 pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
     let run = RunDir::open(&args.run)?;
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
-    let device = ntg_model::cpu_device();
+    let device = crate::spec::device();
     let crate::blocks::TrainedBlocks::State(model) =
         crate::blocks::load_trained(&run, args.edge_threshold, &device)?
     else {

@@ -48,6 +48,10 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
 /// Arguments of `ntg reproduce`.
 #[derive(Debug, Args)]
 pub struct ReproduceArgs {
+    /// Where the networks run: the CPU, or a GPU backend compiled in with
+    /// `--features wgpu` / `--features cuda`.
+    #[arg(long, value_enum, default_value_t = crate::spec::DeviceKind::Cpu)]
+    pub device: crate::spec::DeviceKind,
     /// Experiment scale.
     #[arg(long, value_enum, default_value_t = crate::spec::Profile::Quick)]
     pub profile: crate::spec::Profile,

@@ -1045,7 +1045,7 @@ impl DomainRuns for Blocks {
             flags.resume,
             "runs started before --recipe existed need --recipe paper; ",
         )?;
-        let device = ntg_model::cpu_device().autodiff();
+        let device = crate::spec::device().autodiff();
         eprintln!(
             "training NTG ({:?} observations) on {} tasks x {} demos for {} epochs -> {}",
             config.obs,
@@ -1075,7 +1075,7 @@ impl DomainRuns for Blocks {
 
     fn evaluate(&self, run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()> {
         let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
-        let device = ntg_model::cpu_device();
+        let device = crate::spec::device();
         let model = load_trained(run, flags.edge_threshold, &device)?;
         let mut name = format!("{}-{}", flags.variant.name(), flags.test_tasks);
         if let Some(t) = flags.edge_threshold {

@@ -516,7 +516,7 @@ where
 
 /// Loads the trained model of a run (inference device).
 pub fn load_model(run: &RunDir, config: &CollectRunConfig) -> anyhow::Result<Model> {
-    let device = ntg_model::cpu_device();
+    let device = crate::spec::device();
     let model = config
         .method
         .load(&run.checkpoint_dir(), &device)
@@ -785,7 +785,7 @@ impl DomainRuns for Collect {
             config.optim.epochs,
             run.root().display()
         );
-        let device = ntg_model::cpu_device().autodiff();
+        let device = crate::spec::device().autodiff();
         train_run(&run, &config, &device, |line| eprintln!("{line}"))?;
         eprintln!("done: weights in {}", run.checkpoint_dir().display());
         Ok(())

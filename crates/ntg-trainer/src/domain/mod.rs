@@ -116,6 +116,10 @@ impl DomainId {
 /// The `ntg train` flags every domain reads.
 #[derive(Debug, Clone, clap::Args)]
 pub struct TrainFlags {
+    /// Where the networks run: the CPU, or a GPU backend compiled in with
+    /// `--features wgpu` / `--features cuda`.
+    #[arg(long, value_enum, default_value_t = crate::spec::DeviceKind::Cpu)]
+    pub device: crate::spec::DeviceKind,
     /// Observation kind.
     #[arg(long, value_enum, default_value_t = ObsKind::State)]
     pub obs: ObsKind,
@@ -204,6 +208,10 @@ impl TrainFlags {
 /// The flags of `ntg eval`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct EvalFlags {
+    /// Where the networks run: the CPU, or a GPU backend compiled in with
+    /// `--features wgpu` / `--features cuda`.
+    #[arg(long, value_enum, default_value_t = crate::spec::DeviceKind::Cpu)]
+    pub device: crate::spec::DeviceKind,
     /// Run folder written by `ntg train`.
     #[arg(long)]
     pub run: PathBuf,

@@ -187,7 +187,7 @@ pub fn run(
                 scale.demos_per_task,
                 dir.display()
             );
-            let device = ntg_model::cpu_device().autodiff();
+            let device = crate::spec::device().autodiff();
             let model = blocks::train_run(&run, &config, &device, |m| {
                 eprintln!(
                     "  epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",

@@ -163,7 +163,7 @@ pub fn run(
             method.name(),
             dir.display()
         );
-        let device = ntg_model::cpu_device().autodiff();
+        let device = crate::spec::device().autodiff();
         let model = train_run(&run, &config, &device, |line| eprintln!("  {line}"))?;
         let eval = run.cached_eval(&format!("collect-{}.json", scale.test_episodes), || {
             evaluate(model.as_ref(), &config, &EVAL_OBJECTS, scale.test_episodes)

@@ -713,7 +713,7 @@ pub fn run_experiment(
         data.validation.iter().map(Vec::len).sum::<usize>(),
         data.test.len()
     ));
-    let device = ntg_model::cpu_device().autodiff();
+    let device = crate::spec::device().autodiff();
     let mut trained = Vec::new();
     let mut models: Vec<(Method, NtgModel)> = Vec::new();
     // The no-graph model first: the full method's head.
