@@ -82,6 +82,11 @@ pub struct FrameEncoderConfig {
     /// Shift the frame's values from `[0, 1]` to `[-0.5, 0.5]` before the
     /// first convolution. `None`: off.
     pub centre_input: Option<bool>,
+    /// Two coordinate channels (x and y, from −1 to 1) added to the frame
+    /// before the first convolution ("CoordConv"), so that where something
+    /// is in the frame is an input the convolutions can read, not only a
+    /// position in the feature map. `None`: off.
+    pub coord_channels: Option<bool>,
     /// Embedding size `H`.
     #[config(default = 128)]
     pub out_dim: usize,
@@ -234,7 +239,9 @@ impl EncoderConfig {
                 let mut conv = |c_in: usize, c_out: usize| {
                     init.conv2d(c_in, c_out, c.kernel, 2, 1, c.he_init == Some(true))
                 };
-                let (conv1, conv2, conv3) = (conv(c.channels, c1), conv(c1, c2), conv(c2, c3));
+                let coords = c.coord_channels == Some(true);
+                let c0 = c.channels + if coords { 2 } else { 0 };
+                let (conv1, conv2, conv3) = (conv(c0, c1), conv(c1, c2), conv(c2, c3));
                 let (fc, head) = if let Some(hidden) = c.hidden.filter(|&h| h > 0) {
                     let fc = init.linear(flat, hidden, true);
                     (fc, Some(init.linear(hidden, c.out_dim, true)))
@@ -254,6 +261,7 @@ impl EncoderConfig {
                     },
                     channels: c.channels,
                     image_size: c.image_size,
+                    coords,
                 })
             }
             EncoderConfig::Kinematics(c) => Encoder::Kinematics(KinematicsEncoder {
@@ -303,6 +311,8 @@ pub struct FrameEncoder {
     pub channels: usize,
     /// Frame side.
     pub image_size: usize,
+    /// With [`FrameEncoderConfig::coord_channels`].
+    pub coords: bool,
 }
 
 /// The kinematics-window encoder (see [`KinematicsEncoderConfig`]).
@@ -385,9 +395,13 @@ impl Encoder {
             }
             Encoder::Frame(e) => {
                 let s = e.image_size;
+                let obs_device = obs.device();
                 let mut x: Tensor<4> = obs.reshape([batch, e.channels, s, s]);
                 if e.input_shift != 0.0 {
                     x = x.add_scalar(e.input_shift);
+                }
+                if e.coords {
+                    x = Tensor::cat(vec![x, coordinate_channels(batch, s, &obs_device)], 1);
                 }
                 let x = relu(e.conv1.forward(x));
                 let x = relu(e.conv2.forward(x));
@@ -419,5 +433,36 @@ impl Encoder {
         }
         let flat = self.forward_unchecked(obs.reshape([batch * steps, dim]));
         Ok(flat.reshape([batch, steps, self.out_dim()]))
+    }
+}
+
+/// `[batch, 2, s, s]`: x then y of each pixel, from −1 to 1.
+fn coordinate_channels(batch: usize, s: usize, device: &burn::tensor::Device) -> Tensor<4> {
+    let at = |i: usize| 2.0 * i as f32 / (s.max(2) - 1) as f32 - 1.0;
+    let mut values = Vec::with_capacity(2 * s * s);
+    values.extend((0..s * s).map(|k| at(k % s)));
+    values.extend((0..s * s).map(|k| at(k / s)));
+    Tensor::<4>::from_data(burn::tensor::TensorData::new(values, [1, 2, s, s]), device)
+        .repeat_dim(0, batch)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn coordinate_channels_run_from_minus_one_to_one_along_x_then_y() {
+        let device = crate::cpu_device();
+        let c = super::coordinate_channels(2, 4, &device);
+        assert_eq!(c.dims(), [2, 2, 4, 4]);
+        let v = crate::nn::to_vec(c).unwrap();
+        let close = |a: [f32; 4]| {
+            a.iter()
+                .zip([-1.0, -1.0 / 3.0, 1.0 / 3.0, 1.0])
+                .all(|(x, y)| (x - y).abs() < 1e-6)
+        };
+        // Batch item 0: x channel row 0, then y channel column 0.
+        assert!(close([v[0], v[1], v[2], v[3]]), "{:?}", &v[..4]);
+        assert!(close([v[16], v[20], v[24], v[28]]), "{v:?}");
+        // Batch item 1 repeats item 0.
+        assert_eq!(&v[..32], &v[32..]);
     }
 }

@@ -78,6 +78,16 @@ fn encoders_map_rows_to_embeddings() {
             3 * 16 * 16,
             32,
         ),
+        (
+            EncoderConfig::Frame(
+                FrameEncoderConfig::new()
+                    .with_image_size(16)
+                    .with_coord_channels(Some(true))
+                    .with_out_dim(32),
+            ),
+            3 * 16 * 16,
+            32,
+        ),
         (EncoderConfig::kinematics(3), 3 * 76, 128),
     ];
     for (cfg, d, h) in cases {

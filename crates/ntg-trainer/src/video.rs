@@ -89,6 +89,11 @@ pub struct EncoderStage {
     /// runs saved before it: 0).
     #[serde(default)]
     pub reconstruction: f32,
+    /// Add x/y coordinate channels to the frames (see
+    /// `ntg_model::FrameEncoderConfig::coord_channels`; absent in runs
+    /// saved before it: false).
+    #[serde(default)]
+    pub coord_channels: bool,
 }
 
 fn one() -> f64 {
@@ -108,6 +113,7 @@ impl Default for EncoderStage {
             he_init: false,
             centre_input: false,
             reconstruction: 0.0,
+            coord_channels: false,
         }
     }
 }
@@ -122,7 +128,8 @@ impl EncoderStage {
                     .with_kernel(self.kernel)
                     .with_hidden((self.hidden > 0).then_some(self.hidden))
                     .with_he_init(self.he_init.then_some(true))
-                    .with_centre_input(self.centre_input.then_some(true)),
+                    .with_centre_input(self.centre_input.then_some(true))
+                    .with_coord_channels(self.coord_channels.then_some(true)),
             ),
         )
         .with_seed(seed)
