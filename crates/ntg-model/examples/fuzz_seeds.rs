@@ -5,7 +5,9 @@
 //! `cargo run -p ntg-model --example fuzz_seeds -- DIR`
 
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
-use ntg_model::{EncoderConfig, NtgConfig, NtgModel, StateEncoderConfig, cpu_device};
+use ntg_model::{NtgModel, cpu_device};
+
+include!("../fuzz/small_config.rs");
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = std::env::args_os()
@@ -13,14 +15,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .ok_or("usage: fuzz_seeds DIR (the folder to write the seeds to)")?;
     let out = std::path::PathBuf::from(out);
     std::fs::create_dir_all(&out)?;
-    // The fuzz target's small model (keep the two in step).
-    let encoder = EncoderConfig::State(StateEncoderConfig::new(9).with_hidden(16).with_out_dim(12));
-    let mut config = NtgConfig::for_domain(7, encoder);
-    config.interpreter.hidden = 16;
-    config.interpreter.token_embed = 8;
-    config.gcn.hidden = 10;
-    config.gcn.mlp_hidden = 8;
-    config.edge.gcn_dim = 10;
+    let config = small_config();
     let device = cpu_device().autodiff();
     let model = NtgModel::new(config, &device)?;
     let saved = tempfile::tempdir()?;

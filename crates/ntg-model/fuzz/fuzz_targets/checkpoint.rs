@@ -19,24 +19,14 @@ use std::sync::OnceLock;
 
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use libfuzzer_sys::fuzz_target;
-use ntg_model::{
-    EncoderConfig, NtgConfig, NtgModel, StateEncoderConfig, cpu_device, load_optimizer,
-};
+use ntg_model::{NtgConfig, NtgModel, cpu_device, load_optimizer};
 
-/// The small model the `model.bpk` inputs are loaded into (the same as
-/// the `fuzz_seeds` example saves).
+include!("../small_config.rs");
+
+/// The small model the `model.bpk` inputs are loaded into.
 fn config() -> &'static NtgConfig {
     static CONFIG: OnceLock<NtgConfig> = OnceLock::new();
-    CONFIG.get_or_init(|| {
-        let encoder = EncoderConfig::State(StateEncoderConfig::new(9).with_hidden(16).with_out_dim(12));
-        let mut config = NtgConfig::for_domain(7, encoder);
-        config.interpreter.hidden = 16;
-        config.interpreter.token_embed = 8;
-        config.gcn.hidden = 10;
-        config.gcn.mlp_hidden = 8;
-        config.edge.gcn_dim = 10;
-        config
-    })
+    CONFIG.get_or_init(small_config)
 }
 
 fuzz_target!(|data: &[u8]| {
