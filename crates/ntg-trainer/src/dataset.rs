@@ -427,9 +427,18 @@ impl DemoDataset {
     }
 }
 
-/// A progress bar for `len` items of work (hidden when stderr is not a terminal).
+/// A progress bar for `len` items of work. When stderr is not a terminal
+/// (a background run writing to a log), it is written as a plain line at
+/// most every 30 seconds instead, so the log shows that the work goes on.
 pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    use std::io::IsTerminal;
     let bar = ProgressBar::new(len);
+    if !std::io::stderr().is_terminal() {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::term_like_with_hz(
+            Box::new(LogLines::default()),
+            1,
+        ));
+    }
     bar.set_style(
         ProgressStyle::with_template("{prefix:>12} [{bar:30}] {pos}/{len} ({eta} left)")
             .unwrap_or_else(|_| ProgressStyle::default_bar())
@@ -437,6 +446,70 @@ pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
     );
     bar.set_prefix(what.to_owned());
     bar
+}
+
+/// A progress bar's draw target for logs: the drawn state as one line on
+/// stderr once [`LogLines::EVERY`] has passed since the bar started or its
+/// last line (work shorter than that prints nothing).
+#[derive(Debug)]
+struct LogLines {
+    last: std::sync::Mutex<std::time::Instant>,
+}
+
+impl Default for LogLines {
+    fn default() -> Self {
+        LogLines {
+            last: std::sync::Mutex::new(std::time::Instant::now()),
+        }
+    }
+}
+
+impl LogLines {
+    const EVERY: std::time::Duration = std::time::Duration::from_secs(30);
+
+    /// Prints `text` if its time has come; whether it did.
+    fn emit(&self, text: &str) -> bool {
+        let text = text.trim();
+        let mut last = self.last.lock().unwrap_or_else(|e| e.into_inner());
+        if text.is_empty() || last.elapsed() < Self::EVERY {
+            return false;
+        }
+        *last = std::time::Instant::now();
+        eprintln!("{text}");
+        true
+    }
+}
+
+impl indicatif::TermLike for LogLines {
+    fn width(&self) -> u16 {
+        100
+    }
+    fn move_cursor_up(&self, _: usize) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn move_cursor_down(&self, _: usize) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn move_cursor_right(&self, _: usize) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn move_cursor_left(&self, _: usize) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn write_line(&self, text: &str) -> std::io::Result<()> {
+        self.emit(text);
+        Ok(())
+    }
+    fn write_str(&self, text: &str) -> std::io::Result<()> {
+        self.emit(text);
+        Ok(())
+    }
+    fn clear_line(&self) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn flush(&self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 /// What the rows of a dataset are: the vocabulary of its actions, the
@@ -484,6 +557,21 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn progress_in_a_log_is_a_line_every_thirty_seconds_at_most() {
+        let lines = LogLines::default();
+        assert!(!lines.emit("epoch 0 [=>  ] 1/4"), "printed at once");
+        {
+            let mut last = lines.last.lock().unwrap();
+            *last = last
+                .checked_sub(LogLines::EVERY)
+                .expect("an uptime over 30 s");
+        }
+        assert!(!lines.emit("   "), "printed an empty line");
+        assert!(lines.emit("epoch 0 [==> ] 2/4"));
+        assert!(!lines.emit("epoch 0 [===>] 3/4"), "printed twice in 30 s");
+    }
     use ctg_graph::symbolic::{SequenceExpert, SequenceTask};
 
     fn dataset(dtype: ObsDtype) -> DemoDataset {
