@@ -95,6 +95,17 @@ mod tests {
         assert!(graph.has_edge(b, c) && graph.has_edge(c, b));
     }
 
+    /// A graph of 10,000 distinct actions (a dense matrix once printed
+    /// 1.1 GB of JSON for it) prints as an edge list: one edge per step.
+    #[test]
+    fn a_ten_thousand_action_graph_prints_as_a_short_edge_list() {
+        let demo: Vec<String> = (0..10_000).map(|i| format!("a{i}")).collect();
+        let json = run_to_string(&[demo.join(" ").as_str()], GraphFormat::Json).unwrap();
+        assert!(json.len() < 1_000_000, "{} bytes", json.len());
+        let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(value["graph"]["edges"].as_array().unwrap().len(), 10_001);
+    }
+
     #[test]
     fn empty_demo_is_an_error() {
         let err = run_to_string(&["a b", "  "], GraphFormat::Dot).unwrap_err();
