@@ -231,6 +231,18 @@ impl FrameStageNet {
         successors: Tensor<2, Bool>,
     ) -> Result<(Tensor<2>, Tensor<2>)> {
         let b = frames.dims()[0];
+        self.check_nodes(b, &nodes, &successors)?;
+        let encoded = self.encode(frames)?;
+        Ok(self.heads(encoded, nodes, successors))
+    }
+
+    /// Checks that `nodes` is `[b]` and `successors` `[b, N]`.
+    fn check_nodes(
+        &self,
+        b: usize,
+        nodes: &Tensor<1, Int>,
+        successors: &Tensor<2, Bool>,
+    ) -> Result<()> {
         let n = self.config.num_nodes;
         if nodes.dims() != [b] || successors.dims() != [b, n] {
             return Err(ModelError::shape(
@@ -239,8 +251,7 @@ impl FrameStageNet {
                 (nodes.dims(), successors.dims()),
             ));
         }
-        let encoded = self.encode(frames)?;
-        Ok(self.heads(encoded, nodes, successors))
+        Ok(())
     }
 
     /// [`FrameStageNet::forward`] from embeddings `[B, H]`.
@@ -276,14 +287,7 @@ impl FrameStageNet {
                 next.dims(),
             ));
         }
-        let n = self.config.num_nodes;
-        if labels.dims() != [b] || successors.dims() != [b, n] {
-            return Err(ModelError::shape(
-                "frame stage nodes / successors",
-                format!("[{b}] and [{b}, {n}]"),
-                (labels.dims(), successors.dims()),
-            ));
-        }
+        self.check_nodes(b, &labels, &successors)?;
         let encoded = self.encode(frames.clone())?;
         let reconstruction = self
             .decoder
