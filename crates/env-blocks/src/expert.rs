@@ -203,12 +203,22 @@ impl BlocksExpert {
 
     /// The next action at the environment's level.
     fn next(&mut self, env: &BlocksEnv) -> Result<BlocksAction> {
+        self.next_with_decision(env).map(|(action, _)| action)
+    }
+
+    /// The next action at the environment's level, with the flat decision
+    /// (`pick(X)`, `place(Y)` or `<end>`) it serves: a primitive-level
+    /// action is one primitive of that flat action.
+    pub(crate) fn next_with_decision(
+        &mut self,
+        env: &BlocksEnv,
+    ) -> Result<(BlocksAction, BlocksAction)> {
         let flat = self.decide(env)?.action;
         if env.config().level == ActionLevel::Flat {
-            return Ok(flat);
+            return Ok((flat, flat));
         }
         let world = env.world();
-        Ok(match flat {
+        let action = match flat {
             BlocksAction::End => BlocksAction::End,
             BlocksAction::Pick(i) => {
                 if world.move_target() == Some(Target::Object(i)) && world.held().is_none() {
@@ -225,7 +235,8 @@ impl BlocksExpert {
                 }
             }
             p @ BlocksAction::Primitive(_) => p,
-        })
+        };
+        Ok((action, flat))
     }
 }
 
@@ -417,10 +428,7 @@ pub fn record_rich_demo(task: BlocksTask, config: EnvConfig, seed: u64) -> Resul
         primitive_frames: config.render,
         ..config
     };
-    let mut env = BlocksEnv::new(task.clone(), config)?;
-    let mut expert = BlocksExpert::new();
-    let (first, _) = env.reset(seed)?;
-    expert.reset(&env, seed);
+    let (mut env, mut expert, first) = start_episode(&task, config, seed)?;
     let mut observations = vec![first];
     let mut steps = Vec::new();
     let mut primitive_frames = Vec::new();
@@ -446,18 +454,11 @@ pub fn record_rich_demo(task: BlocksTask, config: EnvConfig, seed: u64) -> Resul
         observations.push(step.observation);
         action_ids.push(id);
         if step.truncated {
-            return Err(CtgError::ExpertFailed(format!(
-                "hit the step limit ({}) before finishing (task {}, seed {seed})",
-                env.max_episode_steps(),
-                task.id()
-            )));
+            return Err(step_limit_hit(&env, seed));
         }
     }
     if steps.is_empty() {
-        return Err(CtgError::ExpertFailed(format!(
-            "task {} already holds at the start (seed {seed}); nothing to demonstrate",
-            task.id()
-        )));
+        return Err(nothing_to_demonstrate(&task, seed));
     }
     let root = match task {
         BlocksTask::Stack(_) => "stack",
@@ -480,6 +481,37 @@ pub fn record_rich_demo(task: BlocksTask, config: EnvConfig, seed: u64) -> Resul
         config,
         steps,
     })
+}
+
+/// An environment for `task` reset with `seed`, the expert reset for it,
+/// and the first observation.
+pub(crate) fn start_episode(
+    task: &BlocksTask,
+    config: EnvConfig,
+    seed: u64,
+) -> Result<(BlocksEnv, BlocksExpert, BlocksObservation)> {
+    let mut env = BlocksEnv::new(task.clone(), config)?;
+    let mut expert = BlocksExpert::new();
+    let (first, _) = env.reset(seed)?;
+    expert.reset(&env, seed);
+    Ok((env, expert, first))
+}
+
+/// The expert's error when an episode of `env` hit its step limit.
+pub(crate) fn step_limit_hit(env: &BlocksEnv, seed: u64) -> CtgError {
+    CtgError::ExpertFailed(format!(
+        "hit the step limit ({}) before finishing (task {}, seed {seed})",
+        env.max_episode_steps(),
+        env.task().id()
+    ))
+}
+
+/// The expert's error when `task` already holds at the start.
+pub(crate) fn nothing_to_demonstrate(task: &BlocksTask, seed: u64) -> CtgError {
+    CtgError::ExpertFailed(format!(
+        "task {} already holds at the start (seed {seed}); nothing to demonstrate",
+        task.id()
+    ))
 }
 
 // ---------------------------------------------------------------------------

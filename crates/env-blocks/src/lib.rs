@@ -12,6 +12,8 @@
 //!   (`pick(X)`, `place(Y)`) or NTP's primitive level;
 //! - [`expert`]: the scripted [`BlocksExpert`], NTP's hierarchical trace,
 //!   rich demos and parallel demo generation;
+//! - [`ntp`]: NTP's demonstrations, the expert's primitive-level episode
+//!   with its program call tree (the baselines' training signal);
 //! - [`video`]: demonstration videos, the expert's demo rendered along each
 //!   primitive's motion (several frames per flat action, seeded lengths);
 //! - [`sheet`]: contact sheets of frames and of videos.
@@ -21,6 +23,7 @@
 pub mod env;
 pub mod error;
 pub mod expert;
+pub mod ntp;
 pub mod render;
 pub mod sheet;
 pub mod sorting;
@@ -37,6 +40,7 @@ pub use expert::{
     BlocksExpert, ReplayStats, RichDemo, StepRecord, TraceNode, expert_demo, expert_success,
     generate_demos, generate_demos_sequential, record_rich_demo,
 };
+pub use ntp::{NtpCall, NtpDemo, NtpProgram, record_ntp_demo};
 pub use render::{FRAME_SIZE, Renderer};
 pub use sorting::{SortTask, generate_sort_tasks, standard_sort_tasks};
 pub use task::{

@@ -18,6 +18,8 @@
 //! - [`FlatPolicy`]: the Flat Policy baseline (Duan et al. 2017), attention
 //!   over the encoded demo with the current observation as the query, then
 //!   an MLP to the next action;
+//! - [`NtpNet`]: the Neural Task Programming baseline (Xu et al. 2018), a
+//!   program interpreter conditioned on the demo, run by a [`ProgramStack`];
 //! - [`NtgModel`] (the four together, with [`NtgConfig`], ablation switches
 //!   and checkpoints) and [`NtgPolicy`], which turns one demonstration into
 //!   `ctg_graph`'s [`NodeScorer`](ctg_graph::NodeScorer) and
@@ -47,6 +49,7 @@ mod interpreter;
 mod localizer;
 mod model;
 pub mod nn;
+mod ntp;
 mod policy;
 
 pub use backend::{BackendKind, cpu_device};
@@ -68,6 +71,10 @@ pub use localizer::{NodeLocalizer, NodeLocalizerConfig};
 pub use model::{
     AblationConfig, CONFIG_FILE, CompletedGraph, NtgConfig, NtgModel, SOFT_EDGE_FLOOR,
     WEIGHTS_FILE, load_optimizer, save_optimizer,
+};
+pub use ntp::{
+    ConditionedNtp, EncodedSpec, NtpBatch, NtpConfig, NtpCore, NtpDecision, NtpExample, NtpLoss,
+    NtpNet, NtpOutput, ProgramCall, ProgramStack, StackFrame, StackStep, scope_from_logits,
 };
 pub use policy::{MappedPolicy, NtgPolicy};
 

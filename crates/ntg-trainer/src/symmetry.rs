@@ -118,6 +118,11 @@ impl ObjectSymmetry {
 }
 
 impl Relabeling {
+    /// The renaming: object `i` becomes `perm()[i]`.
+    pub fn perm(&self) -> &[usize] {
+        &self.perm
+    }
+
     /// The renamed action.
     pub fn action(&self, a: ActionId) -> ActionId {
         self.actions[a.index()]

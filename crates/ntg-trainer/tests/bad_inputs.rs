@@ -174,6 +174,16 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             "--location-step-prior".into(),
         ),
         (train(&["--encoder-demos", "10"]), "--encoder-demos".into()),
+        // Methods a domain or an input does not have.
+        (
+            train(&["--domain", "collect", "--method", "ntp"]),
+            "--method ntp".into(),
+        ),
+        (
+            train(&["--method", "ntp-flat", "--obs", "vid"]),
+            "--method ntp-flat".into(),
+        ),
+        (train(&["--method", "flat"]), "--method flat".into()),
         (
             train(&["--encoder-hidden", "64"]),
             "--encoder-hidden".into(),

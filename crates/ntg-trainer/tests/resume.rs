@@ -27,6 +27,7 @@ fn config() -> BlocksRunConfig {
         detach_gcn_from_edges: true,
         soft_edges: true,
         video: None,
+        method: ntg_trainer::method::MethodId::Ntg,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,

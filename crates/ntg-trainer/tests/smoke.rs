@@ -38,6 +38,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         detach_gcn_from_edges: false,
         soft_edges: false,
         video: None,
+        method: ntg_trainer::method::MethodId::Ntg,
         optim: OptimConfig {
             epochs: 25,
             batch_size: 32,

@@ -159,7 +159,10 @@ mod tests {
                 .iter()
                 .chain(args);
             match Cli::try_parse_from(argv).unwrap().command {
-                Command::Train(train) => train.own.collect.location_step_prior(train.flags.obs),
+                Command::Train(train) => train
+                    .own
+                    .collect
+                    .location_step_prior(train.flags.obs, train.flags.method),
                 other => panic!("parsed as {other:?}"),
             }
         };

@@ -21,8 +21,10 @@ use crate::domain::{
     self, Domain, DomainFlags, DomainRuns, Episode, EpisodeRecord, EvalFlags, TrainFlags,
 };
 use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore, fit};
+use crate::method::MethodId;
 pub use crate::method::ntg::Variant;
 use crate::method::ntg::{EpochMetrics, GcnSource, NtgStep, NtgTraining, TrainExtras, train_with};
+use crate::method::ntp::{NtpDataset, NtpEpochMetrics, NtpKind, NtpRenaming, NtpStep, ntp_config};
 use crate::method::on_frames::{NtgBased, OnFramesStep, VideoNtgModel};
 use crate::run_dir::RunDir;
 pub use crate::spec::ObsKind;
@@ -166,6 +168,13 @@ pub struct BlocksRunConfig {
     /// state runs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub video: Option<BlocksVideo>,
+    /// The method trained: NTG, or an NTP baseline (which reads only
+    /// `obs`, the task and demo counts, `failures`, `model_seed`,
+    /// `state_hidden_layers`, `pairwise`, `validation_tasks`,
+    /// `validate_every`, the renaming fields and `optim`). Runs saved
+    /// before it: NTG.
+    #[serde(default, skip_serializing_if = "MethodId::is_ntg")]
+    pub method: MethodId,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -264,6 +273,7 @@ impl Recipe {
             detach_gcn_from_edges: recommended,
             soft_edges: recommended,
             video: (obs == ObsKind::Vid).then(|| BlocksVideo::new(recommended)),
+            method: MethodId::Ntg,
             optim: OptimConfig {
                 epochs,
                 batch_size: 32,
@@ -562,16 +572,21 @@ fn validation_score<M: NtgBased>(
         Seeds::VALIDATION,
         Variant::Full,
     )?;
+    Ok(validation_result(&result))
+}
+
+/// The score of a validation evaluation (printed).
+fn validation_result(result: &EvalResult) -> ValidationScore {
     eprintln!(
         "  validation ({} tasks): success {:.3}, goals met {:.3}",
-        tasks.len(),
+        result.tasks.len(),
         result.success.rate,
         result.mean_goal_fraction
     );
-    Ok(ValidationScore {
+    ValidationScore {
         success: result.success.rate,
         goal_fraction: result.mean_goal_fraction,
-    })
+    }
 }
 
 /// Values per frame row (64×64 RGB, CHW).
@@ -591,11 +606,7 @@ fn train_state_run(
     let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config, tasks))?;
     let model = new_model(config, device)?;
     let symmetry = config.permute_objects.then(object_symmetry);
-    let held_out = if config.permute_objects && config.exclude_held_out_renamings {
-        Some(HeldOutConfigurations::new()?)
-    } else {
-        None
-    };
+    let held_out = HeldOutConfigurations::for_run(config)?;
     let accept_renaming = held_out
         .as_ref()
         .map(|h| move |task: usize, perm: &[usize]| !h.contains_renamed(&tasks[task], perm));
@@ -628,6 +639,78 @@ fn train_state_run(
     )
 }
 
+/// Trains (or resumes) an NTP baseline's block-stacking run (state
+/// observations): the expert's primitive-level episodes of the training
+/// tasks (the same tasks and seeds as NTG's demos), NTP's encoder as the
+/// recipe's state encoder, cube renaming as the recipe's, validation on the
+/// same tasks as NTG.
+pub fn train_ntp_run(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    device: &Device,
+    mut on_epoch: impl FnMut(&NtpEpochMetrics),
+) -> anyhow::Result<ntg_model::NtpNet> {
+    let kind = match config.method {
+        MethodId::Ntp => NtpKind::Hierarchical,
+        MethodId::NtpFlat => NtpKind::Flat,
+        other => bail!("{} is not an NTP baseline", other.name()),
+    };
+    if config.obs != ObsKind::State {
+        bail!(
+            "{} on demo videos is not built yet: train it with --obs state",
+            config.method.name()
+        );
+    }
+    let split = env_blocks::standard_split()?;
+    let tasks = split.train(config.train_tasks)?;
+    let env = env_config(config.obs, config.failures);
+    let dataset = NtpDataset::record(tasks, config.demos_per_task, TRAIN_SEED_BASE, env, |o| {
+        featurize(o, config.obs)
+    })?;
+    let encoder = encoder(config.obs, config.state_hidden_layers, config.pairwise);
+    let net = ntp_config(encoder, config.obs == ObsKind::State, config.model_seed).init(device)?;
+    let held_out = HeldOutConfigurations::for_run(config)?;
+    let accept = held_out
+        .as_ref()
+        .map(|h| move |task: usize, perm: &[usize]| !h.contains_renamed(&tasks[task], perm));
+    let renaming = config.permute_objects.then(|| NtpRenaming {
+        symmetry: crate::symmetry::ObjectSymmetry {
+            action_families: Vec::new(),
+            ..object_symmetry()
+        },
+        accept: accept.as_ref().map(|f| f as RenamingFilter<'_>),
+    });
+    let step = NtpStep::new(&dataset, kind, renaming, device)?;
+    let validation = env_blocks::validation_tasks(config.validation_tasks)?;
+    let mut validator = |model: &ntg_model::NtpNet| {
+        let result = evaluate_ntp_tasks(
+            model,
+            config.obs,
+            config.failures,
+            &validation,
+            Seeds::VALIDATION,
+        )?;
+        Ok(validation_result(&result))
+    };
+    let selection = if validation.is_empty() {
+        None
+    } else {
+        Some(crate::fit::Selection {
+            validator: &mut validator as &mut dyn crate::fit::Validator<ntg_model::NtpNet>,
+            every: config.validate_every,
+        })
+    };
+    fit(
+        net,
+        &step,
+        &config.optim,
+        run,
+        device,
+        selection,
+        &mut on_epoch,
+    )
+}
+
 /// Validation tasks a renamed training demo may not be (see
 /// [`BlocksRunConfig::exclude_held_out_renamings`]): more than any run
 /// validates or `ntg eval --split validation` is used with here.
@@ -642,6 +725,16 @@ pub struct HeldOutConfigurations {
 }
 
 impl HeldOutConfigurations {
+    /// The configurations `config`'s renamings must avoid, if it renames
+    /// cubes and excludes held-out renamings.
+    pub fn for_run(config: &BlocksRunConfig) -> anyhow::Result<Option<Self>> {
+        if config.permute_objects && config.exclude_held_out_renamings {
+            Ok(Some(HeldOutConfigurations::new()?))
+        } else {
+            Ok(None)
+        }
+    }
+
     /// The held-out configurations of the standard split.
     pub fn new() -> anyhow::Result<Self> {
         let split = env_blocks::standard_split()?;
@@ -784,6 +877,22 @@ impl BlocksDomain {
     }
 }
 
+/// Step limit of NTP's primitive-level episodes: NTG's 40 flat actions,
+/// each of which is at most two primitives.
+pub const PRIMITIVE_STEP_LIMIT: usize = 80;
+
+impl BlocksDomain {
+    /// The same domain acted in at NTP's primitive level (`move(X)`,
+    /// `grasp`, `drop`), with [`PRIMITIVE_STEP_LIMIT`]; conditioning demos
+    /// have a row before every primitive and after the last.
+    pub fn at_primitive_level(mut self) -> Self {
+        self.env_config.level = env_blocks::ActionLevel::Primitive;
+        self.env_config.max_steps = Some(PRIMITIVE_STEP_LIMIT);
+        self.vocabulary = env_blocks::vocabulary(false, env_blocks::ActionLevel::Primitive);
+        self
+    }
+}
+
 impl Domain for BlocksDomain {
     type Task = StackTask;
     type Env = BlocksEnv;
@@ -898,6 +1007,37 @@ pub fn evaluate_tasks<M: NtgBased>(
 ) -> anyhow::Result<EvalResult> {
     let mut model = model.clone();
     model.ntg_mut().config.ablation = variant.ablation();
+    evaluate_on(
+        &BlocksDomain::new(obs, failures),
+        &model,
+        variant.name(),
+        tasks,
+        seeds,
+    )
+}
+
+/// Evaluates an NTP baseline on `tasks` with the given seeds, acting at the
+/// primitive level (see [`BlocksDomain::at_primitive_level`]).
+pub fn evaluate_ntp_tasks(
+    model: &ntg_model::NtpNet,
+    obs: ObsKind,
+    failures: bool,
+    tasks: &[StackTask],
+    seeds: Seeds,
+) -> anyhow::Result<EvalResult> {
+    let domain = BlocksDomain::new(obs, failures).at_primitive_level();
+    evaluate_on(&domain, model, "full", tasks, seeds)
+}
+
+/// One episode per task (conditioning demo and rollout seeded from
+/// `seeds`), evaluated in `domain`.
+fn evaluate_on(
+    domain: &BlocksDomain,
+    model: &dyn crate::method::TrainedPolicy,
+    variant: &str,
+    tasks: &[StackTask],
+    seeds: Seeds,
+) -> anyhow::Result<EvalResult> {
     let episodes: Vec<Episode<StackTask>> = tasks
         .iter()
         .enumerate()
@@ -909,9 +1049,9 @@ pub fn evaluate_tasks<M: NtgBased>(
             rollout_seed: seeds.rollout + i as u64,
         })
         .collect();
-    let records = domain::evaluate(&BlocksDomain::new(obs, failures), &model, &episodes)?;
+    let records = domain::evaluate(domain, model, &episodes)?;
     Ok(EvalResult {
-        variant: variant.name().to_owned(),
+        variant: variant.to_owned(),
         success: domain::success_rate(&records),
         mean_goal_fraction: domain::mean_goal_fraction(&records),
         tasks: records,
@@ -992,6 +1132,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
     });
     BlocksRunConfig {
         video,
+        method: flags.method,
         failures: !own.no_failures,
         state_hidden_layers: own.state_hidden_layers.unwrap_or(base.state_hidden_layers),
         pairwise: base.pairwise || own.pairwise,
@@ -1036,6 +1177,18 @@ impl DomainRuns for Blocks {
             );
         }
         flags.check_encoder_flags()?;
+        match config.method {
+            MethodId::Ntg => {}
+            MethodId::Ntp | MethodId::NtpFlat if config.obs == ObsKind::State => {}
+            MethodId::Ntp | MethodId::NtpFlat => bail!(
+                "--method {} reads states for now (--obs state); on demo videos it is not built yet",
+                config.method.name()
+            ),
+            other => bail!(
+                "--method {}: block stacking trains ntg, ntp or ntp-flat",
+                other.name()
+            ),
+        }
         env_blocks::standard_split()?
             .train(config.train_tasks)
             .with_context(|| format!("--train-tasks {}", config.train_tasks))?;
@@ -1047,14 +1200,19 @@ impl DomainRuns for Blocks {
         )?;
         let device = crate::spec::device().autodiff();
         eprintln!(
-            "training NTG ({:?} observations) on {} tasks x {} demos for {} epochs -> {}",
+            "training {} ({:?} observations) on {} tasks x {} demos for {} epochs -> {}",
+            config.method.legend(),
             config.obs,
             config.train_tasks,
             config.demos_per_task,
             config.optim.epochs,
             run.root().display()
         );
-        train_run(&run, &config, &device, |m| eprintln!("{}", m.log_line()))?;
+        if config.method.is_ntp() {
+            train_ntp_run(&run, &config, &device, |m| eprintln!("{}", m.log_line()))?;
+        } else {
+            train_run(&run, &config, &device, |m| eprintln!("{}", m.log_line()))?;
+        }
         match crate::fit::selected_epoch(&run)? {
             Some(best) => eprintln!(
                 "done: epoch {} scored best on the validation tasks (success {:.3}, goals met {:.3}); its weights are in {}",
@@ -1076,6 +1234,9 @@ impl DomainRuns for Blocks {
     fn evaluate(&self, run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()> {
         let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
         let device = crate::spec::device();
+        if config.method.is_ntp() {
+            return evaluate_ntp_run(run, &config, flags, &device);
+        }
         let model = load_trained(run, flags.edge_threshold, &device)?;
         let mut name = format!("{}-{}", flags.variant.name(), flags.test_tasks);
         if let Some(t) = flags.edge_threshold {
@@ -1095,23 +1256,66 @@ impl DomainRuns for Blocks {
                 )?
             }
         };
-        std::fs::create_dir_all(run.eval_dir())?;
-        let path = run.eval_dir().join(format!("{name}.json"));
-        RunDir::write_json(&path, &result)?;
-        let s = result.success;
-        println!(
-            "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); goals met {:.3}; records in {}",
-            result.variant,
-            s.successes,
-            s.trials,
-            s.rate,
-            s.ci_low,
-            s.ci_high,
-            result.mean_goal_fraction,
-            path.display()
-        );
-        Ok(())
+        write_eval(run, &name, &result)
     }
+}
+
+/// Writes `result` to the run's `eval/NAME.json` and prints its rates.
+fn write_eval(run: &RunDir, name: &str, result: &EvalResult) -> anyhow::Result<()> {
+    std::fs::create_dir_all(run.eval_dir())?;
+    let path = run.eval_dir().join(format!("{name}.json"));
+    RunDir::write_json(&path, result)?;
+    let s = result.success;
+    println!(
+        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); goals met {:.3}; records in {}",
+        result.variant,
+        s.successes,
+        s.trials,
+        s.rate,
+        s.ci_low,
+        s.ci_high,
+        result.mean_goal_fraction,
+        path.display()
+    );
+    Ok(())
+}
+
+/// `ntg eval` on an NTP baseline's run: the epoch selected on validation
+/// tasks (else the last checkpoint), on test or validation tasks.
+fn evaluate_ntp_run(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    flags: &EvalFlags,
+    device: &Device,
+) -> anyhow::Result<()> {
+    if flags.variant != Variant::Full || flags.edge_threshold.is_some() {
+        bail!(
+            "--variant and --edge-threshold choose NTG's policy; {} is a {} run",
+            run.root().display(),
+            config.method.legend()
+        );
+    }
+    let dir = match crate::fit::selected_epoch(run)? {
+        Some(_) => run.best_dir(),
+        None => run.checkpoint_dir(),
+    };
+    let model = <ntg_model::NtpNet as crate::fit::TrainedModel>::load_from(&dir, device)
+        .with_context(|| format!("loading the trained model of {}", run.root().display()))?;
+    let (mut name, tasks, seeds) = match flags.split {
+        crate::domain::EvalSplit::Test => (
+            String::new(),
+            test_tasks_of(flags.test_tasks)?.to_vec(),
+            Seeds::TEST,
+        ),
+        crate::domain::EvalSplit::Validation => (
+            "validation-".to_owned(),
+            env_blocks::validation_tasks(flags.test_tasks)?,
+            Seeds::VALIDATION,
+        ),
+    };
+    name.push_str(&format!("{}-{}", config.method.name(), flags.test_tasks));
+    let result = evaluate_ntp_tasks(&model, config.obs, config.failures, &tasks, seeds)?;
+    write_eval(run, &name, &result)
 }
 
 /// Loads the trained model of `run` (the epoch selected on validation

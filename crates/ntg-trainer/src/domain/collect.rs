@@ -16,7 +16,7 @@
 //! on 2 CPU cores for the profiles' budgets) or the rendered 64×64 frame
 //! (`--obs vid`).
 
-use anyhow::{Context, ensure};
+use anyhow::{Context, bail, ensure};
 use burn::tensor::Device;
 use clap::ValueEnum;
 
@@ -261,7 +261,7 @@ impl CollectRunConfig {
             interpreter,
             location_step_prior: match method {
                 MethodId::Ntg => interpreter.default_step_prior(),
-                MethodId::Flat => None,
+                _ => None,
             },
             model_seed: seed,
             optim: OptimConfig {
@@ -458,6 +458,12 @@ pub fn train_run(
             fit_either(policy, step, frames, config, run, device, |m| {
                 on_epoch(m.log_line())
             })
+        }
+        other => {
+            bail!(
+                "object collection trains NTG or the Flat Policy, not {}",
+                other.name()
+            )
         }
     }
 }
@@ -686,9 +692,6 @@ pub fn evaluate(
 #[derive(Debug, Clone, clap::Args)]
 #[command(next_help_heading = "Object collection (--domain collect)")]
 pub struct CollectFlags {
-    /// Which model to train.
-    #[arg(long, value_enum, default_value_t = MethodId::Ntg)]
-    pub method: MethodId,
     /// Numbers of target objects of the training tasks.
     #[arg(long, value_delimiter = ',', default_values_t = [2, 4])]
     pub objects: Vec<usize>,
@@ -729,12 +732,12 @@ impl CollectFlags {
     /// interpreter's default for NTG (none for the Flat Policy). An
     /// explicit 0 is no prior, as in runs saved before the option existed,
     /// so those resume with `--location-step-prior 0`.
-    pub fn location_step_prior(&self, obs: ObsKind) -> Option<f32> {
-        match (self.location_step_prior, self.method) {
+    pub fn location_step_prior(&self, obs: ObsKind, method: MethodId) -> Option<f32> {
+        match (self.location_step_prior, method) {
             (Some(0.0), _) => None,
             (Some(w), _) => Some(w),
             (None, MethodId::Ntg) => self.interpreter(obs).default_step_prior(),
-            (None, MethodId::Flat) => None,
+            (None, _) => None,
         }
     }
 }
@@ -750,8 +753,14 @@ impl DomainRuns for Collect {
 
     fn train(&self, flags: &TrainFlags, own: &DomainFlags) -> anyhow::Result<()> {
         let c = &own.collect;
+        if !matches!(flags.method, MethodId::Ntg | MethodId::Flat) {
+            bail!(
+                "--method {}: object collection trains ntg or flat (NTP's programs are block stacking's)",
+                flags.method.name()
+            );
+        }
         let mut config = CollectRunConfig::new(
-            c.method,
+            flags.method,
             flags.obs,
             c.objects.clone(),
             flags.train_tasks,
@@ -763,7 +772,7 @@ impl DomainRuns for Collect {
         config.learn_end = c.learn_end;
         config.memory = c.memory;
         config.interpreter = c.interpreter(flags.obs);
-        config.location_step_prior = c.location_step_prior(flags.obs);
+        config.location_step_prior = c.location_step_prior(flags.obs, flags.method);
         config.optim.batch_size = flags.batch_size;
         config.optim.learning_rate = flags.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE);
         config.optim.cosine_decay = flags.cosine_decay;
@@ -850,7 +859,7 @@ mod tests {
             interpreter: InterpreterKind::Stepping,
             location_step_prior: match method {
                 MethodId::Ntg => Some(LOCATION_STEP_PRIOR),
-                MethodId::Flat => None,
+                _ => None,
             },
             model_seed: 0,
             optim: OptimConfig {

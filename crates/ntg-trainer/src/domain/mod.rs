@@ -120,6 +120,10 @@ pub struct TrainFlags {
     /// `--features wgpu` / `--features cuda`.
     #[arg(long, value_enum, default_value_t = crate::spec::DeviceKind::Cpu)]
     pub device: crate::spec::DeviceKind,
+    /// Which model to train: ntg, or a baseline (block stacking: ntp,
+    /// ntp-flat; object collection: flat).
+    #[arg(long, value_enum, default_value_t = crate::method::MethodId::Ntg)]
+    pub method: crate::method::MethodId,
     /// Observation kind.
     #[arg(long, value_enum, default_value_t = ObsKind::State)]
     pub obs: ObsKind,

@@ -355,6 +355,7 @@ mod tests {
             detach_gcn_from_edges: false,
             soft_edges: false,
             video: None,
+            method: crate::method::MethodId::Ntg,
             optim: crate::fit::OptimConfig {
                 epochs,
                 batch_size: 32,

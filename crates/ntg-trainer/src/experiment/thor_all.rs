@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::ensure;
+use anyhow::{bail, ensure};
 use serde::{Deserialize, Serialize};
 
 use crate::collect::{CollectRunConfig, EVAL_OBJECTS, NPoint, evaluate, train_run};
@@ -121,6 +121,11 @@ impl ThorAllExperiment {
         let epochs = match method {
             MethodId::Ntg => scale.ntg_epochs,
             MethodId::Flat => scale.flat_epochs,
+            other => bail!(
+                "{}: thor_all compares ntg and flat, not {}",
+                self.origin,
+                other.name()
+            ),
         };
         let mut config = CollectRunConfig::new(
             method,

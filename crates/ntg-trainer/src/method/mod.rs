@@ -1,5 +1,6 @@
 //! Training methods, one file each, registered in one list ([`MethodId`]):
-//! NTG ([`ntg`]) and the Flat Policy baseline ([`flat`]).
+//! NTG ([`ntg`]), the Flat Policy baseline ([`flat`]), and NTP and NTP
+//! Flat ([`ntp`]).
 //!
 //! A method is a model type that [`crate::fit::fit`] can train (a
 //! [`crate::fit::TrainedModel`] with a [`crate::fit::TrainStep`]), and that,
@@ -23,6 +24,7 @@ use serde::{Deserialize, Serialize};
 
 pub mod flat;
 pub mod ntg;
+pub mod ntp;
 pub mod on_frames;
 
 /// A registered method: its names and how to load a trained model of it.
@@ -73,7 +75,7 @@ macro_rules! methods {
     ($($(#[$doc:meta])* $id:ident => $method:expr,)*) => {
         /// The registered methods.
         #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-        #[serde(rename_all = "lowercase")]
+        #[serde(rename_all = "kebab-case")]
         pub enum MethodId {
             $($(#[$doc])* $id,)*
         }
@@ -97,9 +99,30 @@ methods! {
     Ntg => ntg::Ntg,
     /// The Flat Policy baseline (attention over the demo, then an MLP).
     Flat => flat::Flat,
+    /// Neural Task Programming (Xu et al. 2018), block stacking.
+    Ntp => ntp::Ntp,
+    /// NTP trained on the lowest level only, block stacking.
+    NtpFlat => ntp::NtpFlat,
+}
+
+impl Default for MethodId {
+    /// NTG, the method of runs saved before the field existed.
+    fn default() -> Self {
+        MethodId::Ntg
+    }
 }
 
 impl MethodId {
+    /// Whether it is NTG.
+    pub fn is_ntg(&self) -> bool {
+        *self == MethodId::Ntg
+    }
+
+    /// Whether it is one of the NTP baselines.
+    pub fn is_ntp(&self) -> bool {
+        matches!(self, MethodId::Ntp | MethodId::NtpFlat)
+    }
+
     /// Name in files, run folders and on the command line.
     pub fn name(self) -> &'static str {
         self.method().name()

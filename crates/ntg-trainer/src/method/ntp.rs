@@ -1,0 +1,656 @@
+//! Neural Task Programming (NTP) and NTP Flat, the block-stacking
+//! figure's baselines (`../shared/design/BASELINES.md`), as training
+//! methods: the network is [`ntg_model::NtpNet`], its program stack
+//! [`ntg_model::ProgramStack`], its training signal the expert's
+//! primitive-level episodes with NTP's call trees
+//! ([`env_blocks::record_ntp_demo`]).
+//!
+//! Our choices, where the paper and NTP's authors leave them open:
+//! - **Specification demo**: each training episode is imitated conditioned
+//!   on *another* demo of its task (as for the Flat Policy and NTG's GCN),
+//!   so the network cannot find its own observations in the demo. NTP
+//!   reads the demo at its own action level: one row per primitive (the
+//!   observation before it) and the last observation.
+//! - **Scopes across two demos**: a `pick_place` of the imitated episode
+//!   reads the spec's `pick_place` that moves the same cube onto the same
+//!   target (the k-th such call for the k-th, the last one when the spec has
+//!   fewer), its `pick` the spec call's last `pick`, its `place` the
+//!   spec's `place`. A call with no counterpart in the spec (a cube only
+//!   this episode had to clear) gets no scope target and reads its
+//!   caller's scope.
+//! - **NTP Flat**: the same network and demos; the root calls the
+//!   primitives directly and nothing has a scope.
+//! - **Step limit**: 80 primitives, as NTG's 40 flat actions (a flat
+//!   action is at most two primitives).
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::{Context, bail};
+use burn::module::Module;
+use burn::tensor::Device;
+use ctg_graph::{ActionId, Vocabulary};
+use env_blocks::world::{NUM_OBJECTS, Target};
+use env_blocks::{BlocksTask, EnvConfig, NtpCall, NtpProgram, StackTask};
+use ntg_model::{
+    ConditionedNtp, EdgeCounts, NtpBatch, NtpConfig, NtpExample, NtpNet, ProgramCall, ProgramStack,
+    StackStep,
+};
+use rand::seq::IndexedRandom;
+use serde::{Deserialize, Serialize};
+
+use crate::evaluate::in_parallel;
+use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel, scalar};
+use crate::method::{Agent, Model, TrainedPolicy};
+use crate::symmetry::{ObjectSymmetry, RenamingFilter};
+
+/// Programs the stack may nest: root, `pick_place`, `pick`/`place`.
+const MAX_DEPTH: usize = 3;
+
+/// Which NTP is trained: the hierarchy with scopes, or the root calling
+/// primitives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum NtpKind {
+    /// NTP with its program hierarchy and scopes.
+    Hierarchical,
+    /// NTP Flat: the lowest level only.
+    Flat,
+}
+
+/// The argument index of a `move` target: cubes first, then bins.
+pub fn argument_index(target: Target) -> usize {
+    match target {
+        Target::Object(i) => i,
+        Target::Bin(b) => NUM_OBJECTS + b,
+    }
+}
+
+/// The `move` target of argument index `index` (see [`argument_index`]).
+pub fn argument_target(index: usize) -> Target {
+    if index < NUM_OBJECTS {
+        Target::Object(index)
+    } else {
+        Target::Bin(index - NUM_OBJECTS)
+    }
+}
+
+/// NTP's network for block stacking on `encoder`'s observations: its 7
+/// programs and a `move` argument per cube; on state rows (`objects`) the
+/// argument is also read off the demo's cube positions (see
+/// [`NtpConfig::object_arguments`]).
+pub fn ntp_config(encoder: ntg_model::EncoderConfig, objects: bool, seed: u64) -> NtpConfig {
+    NtpConfig::new(NtpProgram::ALL.len(), NUM_OBJECTS, encoder)
+        .with_object_arguments(objects.then_some(NUM_OBJECTS))
+        .with_seed(seed)
+}
+
+/// One training episode: its task (index into the run's tasks), its
+/// observation rows (before each primitive, and the last) and its call
+/// tree.
+#[derive(Debug, Clone)]
+pub struct NtpEpisode {
+    /// Index of its task.
+    pub task: usize,
+    /// Observation rows, one more than primitives.
+    pub rows: Vec<Vec<f32>>,
+    /// NTP's call tree of the episode.
+    pub trace: NtpCall,
+}
+
+/// The training episodes of an NTP run.
+#[derive(Debug, Clone)]
+pub struct NtpDataset {
+    episodes: Vec<NtpEpisode>,
+    by_task: BTreeMap<usize, Vec<usize>>,
+}
+
+impl NtpDataset {
+    /// Records `demos_per_task` expert episodes of each of `tasks` at the
+    /// primitive level in parallel (episode `j` of task `t` with seed
+    /// `seed_base + 1000 t + j`, as NTG's demos), featurised by `featurize`.
+    pub fn record(
+        tasks: &[StackTask],
+        demos_per_task: usize,
+        seed_base: u64,
+        env: EnvConfig,
+        featurize: impl Fn(&env_blocks::BlocksObservation) -> Vec<f32> + Sync + Send,
+    ) -> anyhow::Result<Self> {
+        if demos_per_task < 2 {
+            bail!("NTP pairs every episode with another demo of its task: needs 2 demos per task");
+        }
+        let pairs: Vec<(usize, u64)> = (0..tasks.len())
+            .flat_map(|t| {
+                (0..demos_per_task).map(move |j| (t, seed_base + 1000 * t as u64 + j as u64))
+            })
+            .collect();
+        let episodes = in_parallel(&pairs, "NTP demos", |_, &(t, seed)| {
+            let task = BlocksTask::Stack(tasks[t].clone());
+            let demo = env_blocks::record_ntp_demo(&task, env, seed)
+                .with_context(|| format!("NTP demo of task {} (seed {seed})", tasks[t].id))?;
+            Ok(NtpEpisode {
+                task: t,
+                rows: demo.observations.iter().map(&featurize).collect(),
+                trace: demo.root,
+            })
+        })?;
+        Ok(Self::new(episodes))
+    }
+
+    /// A dataset of `episodes`.
+    pub fn new(episodes: Vec<NtpEpisode>) -> Self {
+        let mut by_task: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+        for (i, e) in episodes.iter().enumerate() {
+            by_task.entry(e.task).or_default().push(i);
+        }
+        NtpDataset { episodes, by_task }
+    }
+
+    /// The episodes.
+    pub fn episodes(&self) -> &[NtpEpisode] {
+        &self.episodes
+    }
+}
+
+/// What a `pick_place` call does: the cube it picks and where it puts it.
+type PickPlaceKey = (Option<Target>, Option<Target>);
+
+/// The `(picked cube, place target)` of a `pick_place` call: the `move` of
+/// its last `pick` and of its `place`.
+fn pick_place_key(call: &NtpCall) -> PickPlaceKey {
+    let move_of = |c: &NtpCall| {
+        c.children
+            .iter()
+            .find(|p| p.program == NtpProgram::Move)
+            .and_then(|p| p.argument)
+    };
+    let picked = call
+        .children
+        .iter()
+        .rev()
+        .find(|c| c.program == NtpProgram::Pick)
+        .and_then(move_of);
+    let placed = call
+        .children
+        .iter()
+        .find(|c| c.program == NtpProgram::Place)
+        .and_then(move_of);
+    (picked, placed)
+}
+
+/// `call` in the network's indices, without scopes.
+fn unscoped(call: &NtpCall) -> ProgramCall {
+    ProgramCall {
+        program: call.program.index(),
+        argument: call.argument.map(argument_index),
+        start: call.start,
+        end: call.end,
+        scope: None,
+        children: call.children.iter().map(unscoped).collect(),
+    }
+}
+
+/// The training trace of `episode` conditioned on the demo `spec` (see the
+/// module docs for how scopes are aligned); NTP Flat's is the flattened
+/// tree without scopes.
+pub fn training_trace(episode: &NtpCall, spec: &NtpCall, kind: NtpKind) -> ProgramCall {
+    if kind == NtpKind::Flat {
+        return unscoped(&episode.flattened());
+    }
+    let rows = |c: &NtpCall| Some((c.start, c.end));
+    let mut seen: Vec<(PickPlaceKey, usize)> = Vec::new();
+    let mut root = unscoped(episode);
+    for (pp, call) in episode.children.iter().zip(&mut root.children) {
+        let key = pick_place_key(pp);
+        let k = match seen.iter().position(|(seen_key, _)| *seen_key == key) {
+            Some(p) => &mut seen[p].1,
+            None => {
+                seen.push((key, 0));
+                &mut seen.last_mut().expect("just pushed").1
+            }
+        };
+        let matches: Vec<&NtpCall> = spec
+            .children
+            .iter()
+            .filter(|s| pick_place_key(s) == key)
+            .collect();
+        let Some(matched) = matches.get(*k).or(matches.last()).copied() else {
+            continue;
+        };
+        *k += 1;
+        call.scope = rows(matched);
+        let spec_pick = matched
+            .children
+            .iter()
+            .rev()
+            .find(|c| c.program == NtpProgram::Pick);
+        let spec_place = matched
+            .children
+            .iter()
+            .find(|c| c.program == NtpProgram::Place);
+        for child in &mut call.children {
+            let counterpart = match NtpProgram::from_index(child.program) {
+                Some(NtpProgram::Pick) => spec_pick,
+                Some(NtpProgram::Place) => spec_place,
+                _ => None,
+            };
+            child.scope = counterpart.and_then(rows);
+        }
+    }
+    root
+}
+
+/// Metrics of one NTP epoch, as logged to `metrics.jsonl`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NtpEpochMetrics {
+    /// Epoch index (from 0).
+    pub epoch: usize,
+    /// Mean of the summed losses.
+    pub loss: f32,
+    /// End-of-program decisions right.
+    pub eop_accuracy: f32,
+    /// Sub-program calls right.
+    pub program_accuracy: f32,
+    /// `move` arguments right.
+    pub argument_accuracy: f32,
+    /// Scope row labels right.
+    pub scope_accuracy: f32,
+    /// Wall-clock seconds of the epoch.
+    pub seconds: f32,
+}
+
+impl NtpEpochMetrics {
+    /// One human-readable log line.
+    pub fn log_line(&self) -> String {
+        format!(
+            "epoch {:>3}: loss {:.3} | eop {:.3} | program {:.3} | argument {:.3} | scope {:.3} | {:.1}s",
+            self.epoch,
+            self.loss,
+            self.eop_accuracy,
+            self.program_accuracy,
+            self.argument_accuracy,
+            self.scope_accuracy,
+            self.seconds
+        )
+    }
+}
+
+/// Cube renaming for NTP's training (not in the paper; NTG's recommended
+/// recipe has it, so the baseline gets it too): each example's two demos
+/// get one random renaming of the cubes, in their observation columns and
+/// in `move`'s arguments.
+pub struct NtpRenaming<'a> {
+    /// Where each cube's columns are (no action families: NTP's arguments
+    /// are renamed directly).
+    pub symmetry: ObjectSymmetry,
+    /// Renamings a task may not be trained under (e.g. into a held-out
+    /// task); drawn again.
+    pub accept: Option<RenamingFilter<'a>>,
+}
+
+/// NTP's [`TrainStep`]: each episode of the batch is imitated conditioned
+/// on another demo of its task, drawn from the epoch's generator.
+pub struct NtpStep<'a> {
+    dataset: &'a NtpDataset,
+    kind: NtpKind,
+    renaming: Option<NtpRenaming<'a>>,
+    device: Device,
+}
+
+impl<'a> NtpStep<'a> {
+    /// The step of `kind` on `dataset`, with cubes renamed when `renaming`
+    /// is given.
+    pub fn new(
+        dataset: &'a NtpDataset,
+        kind: NtpKind,
+        renaming: Option<NtpRenaming<'a>>,
+        device: &Device,
+    ) -> anyhow::Result<Self> {
+        if let Some((task, _)) = dataset.by_task.iter().find(|(_, v)| v.len() < 2) {
+            bail!(
+                "task {task} has a single demonstration; NTP pairs a demo with another of its task"
+            );
+        }
+        Ok(NtpStep {
+            dataset,
+            kind,
+            renaming,
+            device: device.clone(),
+        })
+    }
+}
+
+/// `call` with every argument (a cube) renamed by `perm`.
+fn renamed_call(call: &mut ProgramCall, perm: &[usize]) {
+    if let Some(a) = call.argument.as_mut()
+        && let Some(&to) = perm.get(*a)
+    {
+        *a = to;
+    }
+    for c in &mut call.children {
+        renamed_call(c, perm);
+    }
+}
+
+impl TrainStep<NtpNet> for NtpStep<'_> {
+    type Metrics = NtpEpochMetrics;
+
+    fn num_examples(&self) -> usize {
+        self.dataset.episodes.len()
+    }
+
+    fn step(
+        &self,
+        net: &NtpNet,
+        chunk: &[usize],
+        ctx: StepContext<'_>,
+    ) -> anyhow::Result<StepReport> {
+        let episodes = &self.dataset.episodes;
+        // Per example: the spec's rows, the episode's rows, the trace.
+        type Owned = (Vec<Vec<f32>>, Vec<Vec<f32>>, ProgramCall);
+        let mut owned: Vec<Owned> = Vec::new();
+        for &i in chunk {
+            let e = &episodes[i];
+            let others: Vec<usize> = self.dataset.by_task[&e.task]
+                .iter()
+                .copied()
+                .filter(|&j| j != i)
+                .collect();
+            let spec = &episodes[*others.choose(ctx.rng).unwrap_or(&i)];
+            let mut trace = training_trace(&e.trace, &spec.trace, self.kind);
+            let (mut spec_rows, mut rows) = (spec.rows.clone(), e.rows.clone());
+            if let Some(r) = &self.renaming {
+                let relabeling = r.symmetry.random_accepted(0, ctx.rng, |perm| {
+                    r.accept.is_none_or(|accept| accept(e.task, perm))
+                })?;
+                for row in spec_rows.iter_mut().chain(rows.iter_mut()) {
+                    *row = r.symmetry.apply_to_row(&relabeling, row);
+                }
+                renamed_call(&mut trace, relabeling.perm());
+            }
+            owned.push((spec_rows, rows, trace));
+        }
+        let examples: Vec<NtpExample<'_, Vec<f32>>> = owned
+            .iter()
+            .map(|(spec, rows, trace)| (&spec[..], &rows[..], trace))
+            .collect();
+        let batch = NtpBatch::new(
+            &examples,
+            net.obs_dim(),
+            net.num_programs(),
+            net.num_arguments(),
+            &self.device,
+        )?;
+        let out = net.loss(&batch)?;
+        Ok(StepReport {
+            values: vec![
+                scalar(out.loss.clone())?,
+                out.eop_accuracy,
+                out.program_accuracy,
+                out.argument_accuracy,
+                out.scope_accuracy,
+            ],
+            loss: out.loss,
+            edges: EdgeCounts::default(),
+        })
+    }
+
+    fn epoch_metrics(
+        &self,
+        epoch: usize,
+        means: &[f32],
+        _: &EdgeCounts,
+        seconds: f32,
+    ) -> NtpEpochMetrics {
+        NtpEpochMetrics {
+            epoch,
+            loss: means[0],
+            eop_accuracy: means[1],
+            program_accuracy: means[2],
+            argument_accuracy: means[3],
+            scope_accuracy: means[4],
+            seconds,
+        }
+    }
+}
+
+impl TrainedModel for NtpNet {
+    fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
+        Ok(self.save(dir)?)
+    }
+    fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
+        Ok(NtpNet::load(dir, device)?)
+    }
+}
+
+/// NTP in the method registry.
+pub struct Ntp;
+
+/// NTP Flat in the method registry.
+pub struct NtpFlat;
+
+impl crate::method::Method for Ntp {
+    fn name(&self) -> &'static str {
+        "ntp"
+    }
+    fn legend(&self) -> &'static str {
+        "NTP"
+    }
+    fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
+        Ok(Box::new(NtpNet::load_from(dir, device)?))
+    }
+}
+
+impl crate::method::Method for NtpFlat {
+    fn name(&self) -> &'static str {
+        "ntp-flat"
+    }
+    fn legend(&self) -> &'static str {
+        "NTP Flat"
+    }
+    fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
+        Ok(Box::new(NtpNet::load_from(dir, device)?))
+    }
+}
+
+impl TrainedPolicy for NtpNet {
+    fn for_inference(&self) -> Model {
+        Box::new(self.valid())
+    }
+    fn condition(
+        &self,
+        demo: &[Vec<f32>],
+        vocabulary: &Vocabulary,
+    ) -> anyhow::Result<Box<dyn Agent>> {
+        let actions = (0..self.num_programs())
+            .map(|p| {
+                (0..self.num_arguments())
+                    .map(|a| {
+                        let program = NtpProgram::from_index(p)?;
+                        let action = program.action(Some(argument_target(a)))?;
+                        vocabulary.id(&env_blocks::action_name(action))
+                    })
+                    .collect()
+            })
+            .collect();
+        let primitives = (0..self.num_programs())
+            .map(|p| NtpProgram::from_index(p).is_some_and(NtpProgram::is_primitive))
+            .collect();
+        Ok(Box::new(NtpAgent {
+            stack: std::cell::RefCell::new(ProgramStack::new(
+                NtpProgram::Root.index(),
+                demo.len(),
+                primitives,
+                MAX_DEPTH,
+            )),
+            core: NtpNet::condition(self, demo)?,
+            actions,
+        }))
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
+/// NTP conditioned on a demo, with its program stack.
+struct NtpAgent {
+    core: ConditionedNtp,
+    stack: std::cell::RefCell<ProgramStack>,
+    /// The environment action of each (program, argument); `None` where
+    /// the program is not a primitive of the vocabulary.
+    actions: Vec<Vec<Option<ActionId>>>,
+}
+
+impl Agent for NtpAgent {
+    fn act(&self, row: &[f32], _: &[ActionId]) -> anyhow::Result<ActionId> {
+        let step = self.stack.borrow_mut().step(&self.core, row)?;
+        Ok(match step {
+            StackStep::Act { program, argument } => self
+                .actions
+                .get(program)
+                .and_then(|a| a.get(argument).copied().flatten())
+                .with_context(|| format!("NTP called program {program} with argument {argument}, not an action of the environment"))?,
+            // A stalled stack gives up: the episode ends unfinished.
+            StackStep::Done | StackStep::Stalled => Vocabulary::END,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tasks(n: usize) -> Vec<StackTask> {
+        env_blocks::standard_split()
+            .unwrap()
+            .train(n)
+            .unwrap()
+            .to_vec()
+    }
+
+    fn demo(task: &StackTask, seed: u64, config: EnvConfig) -> env_blocks::NtpDemo {
+        env_blocks::record_ntp_demo(&BlocksTask::Stack(task.clone()), config, seed).unwrap()
+    }
+
+    #[test]
+    fn scopes_point_at_the_spec_call_that_moves_the_same_cube() {
+        let task = &tasks(3)[2];
+        let config = EnvConfig::state_only().without_failures();
+        let episode = demo(task, 1, config);
+        let spec = demo(task, 2, config);
+        let trace = training_trace(&episode.root, &spec.root, NtpKind::Hierarchical);
+        assert_eq!(trace.scope, None);
+        let mut scoped = 0;
+        for (pp, call) in episode.root.children.iter().zip(&trace.children) {
+            let Some((s, e)) = call.scope else { continue };
+            scoped += 1;
+            let spec_pp = spec
+                .root
+                .children
+                .iter()
+                .find(|c| (c.start, c.end) == (s, e))
+                .expect("a scope is a spec pick_place's rows");
+            assert_eq!(pick_place_key(spec_pp), pick_place_key(pp));
+            // Its pick and place read slices of that scope.
+            for child in &call.children {
+                let (cs, ce) = child.scope.expect("pick and place have scopes");
+                assert!(s <= cs && ce <= e && cs < ce);
+            }
+        }
+        // Without failures, every goal's pick_place has a counterpart.
+        assert!(scoped >= task.goals.len(), "{scoped} scoped calls");
+        // NTP Flat: primitives under the root, no scopes.
+        let flat = training_trace(&episode.root, &spec.root, NtpKind::Flat);
+        assert_eq!(flat.children.len(), episode.actions.len());
+        assert!(
+            flat.children
+                .iter()
+                .all(|c| c.scope.is_none() && c.children.is_empty())
+        );
+    }
+
+    /// Replays a recorded call tree's decisions in the order the stack asks
+    /// for them: the oracle NTP.
+    struct Oracle {
+        decisions: std::cell::RefCell<std::collections::VecDeque<ntg_model::NtpDecision>>,
+    }
+
+    fn oracle_decisions(call: &ProgramCall, out: &mut Vec<ntg_model::NtpDecision>) {
+        if call.children.is_empty() {
+            return;
+        }
+        for c in &call.children {
+            out.push(ntg_model::NtpDecision {
+                end_of_program: false,
+                program: c.program,
+                argument: c.argument.unwrap_or(0),
+                scope: c.scope.unwrap_or((0, 0)),
+            });
+            oracle_decisions(c, out);
+        }
+        out.push(ntg_model::NtpDecision {
+            end_of_program: true,
+            program: 0,
+            argument: 0,
+            scope: (0, 0),
+        });
+    }
+
+    impl ntg_model::NtpCore for Oracle {
+        fn decide(
+            &self,
+            _: &[f32],
+            _: &ntg_model::StackFrame,
+        ) -> ntg_model::Result<ntg_model::NtpDecision> {
+            self.decisions
+                .borrow_mut()
+                .pop_front()
+                .ok_or_else(|| ntg_model::ModelError::Input("the oracle's trace ran out".into()))
+        }
+    }
+
+    /// The program stack, driven by the expert's own call tree, completes
+    /// every task in the environment (failures on: the same seed gives the
+    /// same slips and misses, which the tree already retries).
+    #[test]
+    fn the_program_stack_driven_by_the_oracle_trace_completes_every_task() {
+        let config = EnvConfig::state_only();
+        let primitive_env = EnvConfig {
+            level: env_blocks::ActionLevel::Primitive,
+            ..config
+        };
+        for (i, task) in tasks(20).iter().enumerate() {
+            let seed = 500 + i as u64;
+            let recorded = demo(task, seed, config);
+            let trace = unscoped(&recorded.root);
+            let mut decisions = Vec::new();
+            oracle_decisions(&trace, &mut decisions);
+            let oracle = Oracle {
+                decisions: std::cell::RefCell::new(decisions.into()),
+            };
+            let mut env = env_blocks::BlocksEnv::stacking(task.clone(), primitive_env).unwrap();
+            use ctg_graph::Environment;
+            env.reset(seed).unwrap();
+            let primitives = NtpProgram::ALL.iter().map(|p| p.is_primitive()).collect();
+            let mut stack =
+                ProgramStack::new(0, recorded.observations.len(), primitives, MAX_DEPTH);
+            let mut steps = 0;
+            loop {
+                match stack.step(&oracle, &[]).unwrap() {
+                    StackStep::Act { program, argument } => {
+                        let action = NtpProgram::from_index(program)
+                            .unwrap()
+                            .action(Some(argument_target(argument)))
+                            .unwrap();
+                        env.step(env.encode(action).unwrap()).unwrap();
+                        steps += 1;
+                    }
+                    StackStep::Done => break,
+                    StackStep::Stalled => panic!("the oracle stalled"),
+                }
+            }
+            assert_eq!(steps, recorded.actions.len());
+            assert!(env.is_success(), "task {} seed {seed}", task.id);
+        }
+    }
+}
