@@ -127,7 +127,9 @@ impl NtpConfig {
             programs: init.matrix(self.num_programs, h, 1.0),
             query: init.linear(h, h, false),
             key: init.linear(e, h, false),
-            core_in: init.linear(e + h + e, h, true),
+            // With object arguments the core also reads which object the
+            // demo's scope handles and which the observation has at hand.
+            core_in: init.linear(e + h + e + 2 * self.object_arguments.unwrap_or(0), h, true),
             core_hidden: init.linear(h, h, true),
             program_out: init.linear(h, self.num_programs, true),
             eop_out: init.linear(h, 1, true),
@@ -468,6 +470,19 @@ impl NtpNet {
         self.programs.val().device()
     }
 
+    /// With object arguments, each row's score of each object `[N, K]`
+    /// for rows `[N, D]` (from the object's three position values alone).
+    fn object_scores(&self, rows: Tensor<2>) -> Option<Tensor<2>> {
+        let ((first, second), k) = (self.object_scorer.as_ref()?, self.config.object_arguments?);
+        let n = rows.dims()[0];
+        let positions: Tensor<3> = rows.narrow(1, 0, 3 * k).reshape([n, k, 3]);
+        Some(
+            second
+                .forward(relu(first.forward(positions)))
+                .reshape([n, k]),
+        )
+    }
+
     /// Encodes specification demos `[B, R, D]` with `mask` `[B, R]`.
     pub fn encode_spec(&self, spec: Tensor<3>, mask: Tensor<2>) -> Result<EncodedSpec> {
         let [b, r, _] = spec.dims();
@@ -495,16 +510,12 @@ impl NtpNet {
             .scope_demo
             .forward(Tensor::cat(vec![prev, rows.clone(), next], 2));
         let keys = self.key.forward(rows.clone());
-        let objects = match (&self.object_scorer, self.config.object_arguments) {
-            (Some((first, second)), Some(k)) => {
-                let positions: Tensor<4> = spec.narrow(2, 0, 3 * k).reshape([b, r, k, 3]);
-                let scores: Tensor<3> = second
-                    .forward(relu(first.forward(positions)))
-                    .reshape([b, r, k]);
-                Some(scores)
-            }
-            _ => None,
-        };
+        let objects = self
+            .object_scores(spec.reshape([b * r, self.obs_dim()]))
+            .map(|scores| {
+                let k = scores.dims()[1];
+                scores.reshape([b, r, k])
+            });
         Ok(EncodedSpec {
             rows,
             keys,
@@ -534,6 +545,7 @@ impl NtpNet {
             ));
         }
         let h = self.config.hidden;
+        let observations_for_objects = observations.clone();
         let obs = self.encoder.forward(observations)?;
         let prog = self.programs.val().select(0, programs);
         let q = self.query.forward(prog.clone()).unsqueeze_dim::<3>(1); // [S, 1, H]
@@ -548,11 +560,17 @@ impl NtpNet {
             alpha.clone().matmul(objects).reshape([s, k])
         });
         let context: Tensor<2> = alpha.matmul(rows).reshape([s as i32, -1]);
+        let mut core_input = vec![obs, prog, context];
+        if let (Some(pooled), Some(current)) = (
+            &pooled_objects,
+            self.object_scores(observations_for_objects),
+        ) {
+            core_input.push(softmax(pooled.clone(), 1));
+            core_input.push(softmax(current, 1));
+        }
         let core = relu(
-            self.core_hidden.forward(relu(
-                self.core_in
-                    .forward(Tensor::cat(vec![obs, prog, context], 1)),
-            )),
+            self.core_hidden
+                .forward(relu(self.core_in.forward(Tensor::cat(core_input, 1)))),
         );
         Ok(NtpOutput {
             program_logits: self.program_out.forward(core.clone()),
@@ -1155,6 +1173,29 @@ mod tests {
             }
         }
         assert_eq!(acted, vec![(A, 1), (B, 0), (A, 0), (B, 0), (99, 0)]);
+    }
+
+    #[test]
+    fn object_arguments_must_name_every_argument_and_fit_in_a_row() {
+        let config = |k: usize, args: usize, dim: usize| {
+            NtpConfig::new(4, args, EncoderConfig::state(dim)).with_object_arguments(Some(k))
+        };
+        assert!(config(2, 2, 7).validate().is_ok());
+        assert!(config(2, 3, 7).validate().is_err());
+        assert!(config(3, 3, 7).validate().is_err());
+        // The objects' scores reach the argument logits and the core.
+        let net = config(2, 2, 7).with_hidden(16).init(&cpu_device()).unwrap();
+        let spec: Vec<Vec<f32>> = (0..3).map(|i| vec![i as f32; 7]).collect();
+        let frame = StackFrame {
+            program: ROOT,
+            scope: (0, 2),
+        };
+        let d = net
+            .condition(&spec)
+            .unwrap()
+            .decide(&[0.1; 7], &frame)
+            .unwrap();
+        assert!(d.argument < 2);
     }
 
     #[test]
