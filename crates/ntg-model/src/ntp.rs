@@ -16,6 +16,11 @@
 //!                     over {outside, start, inside, end}
 //! ```
 //!
+//! With [`NtpConfig::scope_match`] the scope head also compares each demo
+//! row with the core state, `+ (G d_r) ⊙ (M h)` inside the `relu`: which
+//! segment of the demo comes next is the one whose rows look like the
+//! present, and a sum alone cannot compare a row with the present.
+//!
 //! The scope head is a temporal convolution of kernel 3 over the demo's
 //! encoded rows, conditioned on the core state; a callee attends only to
 //! its scope of the demo. Programs, arguments and the demo are plain
@@ -88,6 +93,10 @@ pub struct NtpConfig {
     /// with the program's attention over its scope, are added to the
     /// argument logits. `None`: the argument is read from the core alone.
     pub object_arguments: Option<usize>,
+    /// Scope head with a row-by-core comparison term `(G d_r) ⊙ (M h)`
+    /// (see the module docs); `None` or `false`: the kernel-3 convolution
+    /// plus the core's term only.
+    pub scope_match: Option<bool>,
     /// Seed of the initial weights.
     #[config(default = 0)]
     pub seed: u64,
@@ -140,6 +149,10 @@ impl NtpConfig {
             object_scorer: self
                 .object_arguments
                 .map(|_| (init.linear(3, 32, true), init.linear(32, 1, true))),
+            scope_match: self
+                .scope_match
+                .unwrap_or(false)
+                .then(|| (init.linear(e, h, false), init.linear(h, h, false))),
             encoder,
             config: self.clone(),
         })
@@ -175,6 +188,9 @@ pub struct NtpNet {
     pub scope_out: Linear,
     /// With object arguments: the per-object scorer's two layers.
     pub object_scorer: Option<(Linear, Linear)>,
+    /// With [`NtpConfig::scope_match`]: `G` (demo row) and `M` (core state)
+    /// of the scope head's comparison term.
+    pub scope_match: Option<(Linear, Linear)>,
     /// The configuration the network was built from.
     #[module(skip)]
     pub config: NtpConfig,
@@ -189,6 +205,8 @@ pub struct EncodedSpec {
     taps: Tensor<3>,
     /// With object arguments: each row's score of each object `[B, R, K]`.
     objects: Option<Tensor<3>>,
+    /// With the scope comparison: `G d_r` `[B, R, H]`.
+    matched: Option<Tensor<3>>,
 }
 
 /// A training batch of NTP decisions (see [`NtpBatch::new`]).
@@ -510,6 +528,10 @@ impl NtpNet {
             .scope_demo
             .forward(Tensor::cat(vec![prev, rows.clone(), next], 2));
         let keys = self.key.forward(rows.clone());
+        let matched = self
+            .scope_match
+            .as_ref()
+            .map(|(g, _)| g.forward(rows.clone()));
         let objects = self
             .object_scores(spec.reshape([b * r, self.obs_dim()]))
             .map(|scores| {
@@ -521,6 +543,7 @@ impl NtpNet {
             keys,
             taps,
             objects,
+            matched,
         })
     }
 
@@ -591,9 +614,16 @@ impl NtpNet {
         demo_index: Tensor<1, Int>,
         core: Tensor<2>,
     ) -> Tensor<3> {
-        let taps = spec.taps.clone().select(0, demo_index);
-        let u = self.scope_core.forward(core).unsqueeze_dim::<3>(1);
-        self.scope_out.forward(relu(taps + u))
+        let taps = spec.taps.clone().select(0, demo_index.clone());
+        let u = self.scope_core.forward(core.clone()).unsqueeze_dim::<3>(1);
+        let hidden = match (&self.scope_match, &spec.matched) {
+            (Some((_, m)), Some(matched)) => {
+                let rows = matched.clone().select(0, demo_index);
+                taps + u + rows * m.forward(core).unsqueeze_dim::<3>(1)
+            }
+            _ => taps + u,
+        };
+        self.scope_out.forward(relu(hidden))
     }
 
     /// The four losses on `batch` (end-of-program: binary cross-entropy;
@@ -1122,6 +1152,7 @@ mod tests {
     fn tiny_net(seed: u64) -> NtpNet {
         NtpConfig::new(4, 2, EncoderConfig::state(2))
             .with_hidden(32)
+            .with_scope_match(Some(true))
             .with_seed(seed)
             .init(&cpu_device())
             .unwrap()
@@ -1129,6 +1160,12 @@ mod tests {
 
     #[test]
     fn the_network_learns_a_trace_and_replays_it_through_the_stack() {
+        for scope_match in [false, true] {
+            learn_a_trace_and_replay_it(scope_match);
+        }
+    }
+
+    fn learn_a_trace_and_replay_it(scope_match: bool) {
         use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
         let device = cpu_device().autodiff();
         let spec: Vec<Vec<f32>> = (0..5).map(|i| vec![i as f32 / 4.0, 0.0]).collect();
@@ -1136,6 +1173,7 @@ mod tests {
         let t = trace();
         let mut net = NtpConfig::new(4, 2, EncoderConfig::state(2))
             .with_hidden(32)
+            .with_scope_match(Some(scope_match))
             .with_seed(3)
             .init(&device)
             .unwrap();
@@ -1149,7 +1187,10 @@ mod tests {
         }
         let out = net.loss(&batch).unwrap();
         let last = scalar(out.loss.clone()).unwrap();
-        assert!(last < 0.1 * first, "loss {first} → {last}");
+        assert!(
+            last < 0.1 * first,
+            "scope_match {scope_match}: loss {first} → {last}"
+        );
         assert_eq!(out.program_accuracy, 1.0);
         assert_eq!(out.eop_accuracy, 1.0);
         assert_eq!(out.argument_accuracy, 1.0);

@@ -12,11 +12,14 @@ use rand_chacha::ChaCha8Rng;
 use crate::nn::{to_vec, to_vec_int};
 use crate::*;
 
-/// The CPU device under test: burn-ndarray when that feature is on (so CI
-/// runs these tests on both CPU backends), flex otherwise.
+/// The CPU device under test: burn-ndarray when `NTG_TEST_BACKEND=ndarray`
+/// or the `ndarray` feature is on (so CI runs these tests on both CPU
+/// backends without building burn twice: tests always link burn-ndarray,
+/// see the dev-dependencies), flex otherwise.
 pub(crate) fn device() -> Device {
-    if cfg!(feature = "ndarray") {
-        BackendKind::NdArray.device().unwrap()
+    if cfg!(feature = "ndarray") || std::env::var("NTG_TEST_BACKEND").as_deref() == Ok("ndarray") {
+        #[allow(deprecated)] // burn-ndarray is deprecated upstream, still supported here
+        Device::ndarray()
     } else {
         BackendKind::Flex.device().unwrap()
     }
@@ -913,12 +916,12 @@ fn config_validation_catches_inconsistency() {
     assert!(BackendKind::available().contains(&BackendKind::Flex));
 }
 
-/// With both CPU backends compiled in, they agree on the same weights.
-#[cfg(feature = "ndarray")]
+/// The two CPU backends (tests always link both) agree on the same weights.
 #[test]
 fn flex_and_ndarray_agree() {
     let flex = BackendKind::Flex.device().unwrap();
-    let nd = BackendKind::NdArray.device().unwrap();
+    #[allow(deprecated)] // burn-ndarray is deprecated upstream, still supported here
+    let nd = Device::ndarray();
     let mut rng = ChaCha8Rng::seed_from_u64(13);
     let demo = random_rows(&mut rng, 5, D);
     let path = ids(&[2, 3, 2, 4]);

@@ -1,7 +1,9 @@
 //! Learning tests: each network learns something real from small synthetic
 //! data with a fixed seed, and is scored on held-out data it never saw.
 //!
-//! Run on `flex` by default and on burn-ndarray with `--features ndarray`.
+//! Run on `flex` by default, and on burn-ndarray with `--features ndarray`
+//! or `NTG_TEST_BACKEND=ndarray` (tests always link it: see the
+//! dev-dependencies).
 
 use std::collections::HashSet;
 
@@ -15,8 +17,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 fn device() -> Device {
-    if cfg!(feature = "ndarray") {
-        BackendKind::NdArray.device().unwrap()
+    if cfg!(feature = "ndarray") || std::env::var("NTG_TEST_BACKEND").as_deref() == Ok("ndarray") {
+        #[allow(deprecated)] // burn-ndarray is deprecated upstream, still supported here
+        Device::ndarray()
     } else {
         BackendKind::Flex.device().unwrap()
     }

@@ -26,11 +26,11 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor};
 use ntg_model::{EdgeCounts, FlatPolicy, NtgModel, load_optimizer, save_optimizer};
-use rand::SeedableRng;
 use rand::seq::SliceRandom;
+use rand::{RngCore, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -70,6 +70,20 @@ pub struct OptimConfig {
     /// a tenth of it over the run (per step); off = constant.
     #[serde(default)]
     pub cosine_decay: bool,
+    /// Data-parallel training: each batch is split into this many shards
+    /// of (nearly) equal size whose losses and gradients are computed on
+    /// their own threads, on their own copy of the model, and summed
+    /// (weighted by shard size) before one optimiser step. 0 and 1: the
+    /// whole batch on the calling thread. The result is the same for the
+    /// same seed and shard count, but differs between shard counts: a
+    /// shard's per-step draws come from its own generator, seeded from the
+    /// epoch's, and losses averaged over masked items average per shard.
+    #[serde(default, skip_serializing_if = "is_one_shard")]
+    pub shards: usize,
+}
+
+fn is_one_shard(shards: &usize) -> bool {
+    *shards <= 1
 }
 
 impl OptimConfig {
@@ -244,8 +258,8 @@ pub fn fit<M, S>(
     mut on_epoch: impl FnMut(&S::Metrics),
 ) -> anyhow::Result<M>
 where
-    M: TrainedModel,
-    S: TrainStep<M>,
+    M: TrainedModel + Send,
+    S: TrainStep<M> + Sync,
 {
     let num_examples = step.num_examples();
     if num_examples == 0 {
@@ -287,23 +301,9 @@ where
         let mut edges = EdgeCounts::default();
         let bar = crate::dataset::progress_bar(steps_per_epoch as u64, &format!("epoch {epoch}"));
         for (k, batch) in order.chunks(optim.batch_size).enumerate() {
-            let ctx = StepContext {
-                epoch,
-                step: k,
-                seed: optim.seed,
-                rng: &mut rng,
-            };
-            let report = step.step(&model, batch, ctx)?;
-            if sums.is_empty() {
-                sums = vec![0.0; report.values.len()];
-            }
-            for (s, v) in sums.iter_mut().zip(&report.values) {
-                *s += v;
-            }
-            edges.true_positives += report.edges.true_positives;
-            edges.false_positives += report.edges.false_positives;
-            edges.false_negatives += report.edges.false_negatives;
-            let grads = GradientsParams::from_grads(report.loss.backward(), &model);
+            let (grads, values, step_edges) =
+                sharded_step(&model, step, batch, epoch, k, optim, &mut rng)?;
+            add_weighted(&mut sums, &mut edges, &values, &step_edges, 1.0);
             let rate = optim.learning_rate_at(epoch * steps_per_epoch + k, total_steps);
             model = optimizer.step(rate, model, grads);
             bar.inc(1);
@@ -364,6 +364,110 @@ where
     Ok(model)
 }
 
+/// One step's gradients, values and edge counts on `batch`: on the calling
+/// thread with the epoch's generator, or split into
+/// [`OptimConfig::shards`] shards on their own threads (see there).
+fn sharded_step<M, S>(
+    model: &M,
+    step: &S,
+    batch: &[usize],
+    epoch: usize,
+    index: usize,
+    optim: &OptimConfig,
+    rng: &mut ChaCha8Rng,
+) -> anyhow::Result<(GradientsParams, Vec<f32>, EdgeCounts)>
+where
+    M: Module + Send,
+    S: TrainStep<M> + Sync,
+{
+    let shards = optim.shards.clamp(1, batch.len().max(1));
+    if shards == 1 {
+        let ctx = StepContext {
+            epoch,
+            step: index,
+            seed: optim.seed,
+            rng,
+        };
+        let report = step.step(model, batch, ctx)?;
+        let grads = GradientsParams::from_grads(report.loss.backward(), model);
+        return Ok((grads, report.values, report.edges));
+    }
+    let seeds: Vec<u64> = (0..shards).map(|_| rng.next_u64()).collect();
+    let (base, extra) = (batch.len() / shards, batch.len() % shards);
+    let mut parts = Vec::with_capacity(shards);
+    let mut from = 0;
+    for i in 0..shards {
+        let len = base + usize::from(i < extra);
+        parts.push(&batch[from..from + len]);
+        from += len;
+    }
+    let total = batch.len() as f32;
+    type ShardResult = anyhow::Result<(GradientsParams, Vec<f32>, EdgeCounts, f32)>;
+    let results: Vec<ShardResult> = std::thread::scope(|scope| {
+        let handles: Vec<_> = parts
+            .iter()
+            .zip(&seeds)
+            .map(|(part, &seed)| {
+                // A replica with fresh autodiff leaves (same parameter
+                // ids): each thread records and walks its own graph.
+                let replica = model.valid().train();
+                scope.spawn(move || {
+                    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+                    let ctx = StepContext {
+                        epoch,
+                        step: index,
+                        seed: optim.seed,
+                        rng: &mut rng,
+                    };
+                    let report = step.step(&replica, part, ctx)?;
+                    let weight = part.len() as f32 / total;
+                    let grads = GradientsParams::from_grads(
+                        report.loss.mul_scalar(weight).backward(),
+                        &replica,
+                    );
+                    Ok((grads, report.values, report.edges, weight))
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a training shard panicked")))
+            })
+            .collect()
+    });
+    let mut accumulator = GradientsAccumulator::<M>::new();
+    let mut values: Vec<f32> = Vec::new();
+    let mut edges = EdgeCounts::default();
+    for result in results {
+        let (grads, shard_values, shard_edges, weight) = result?;
+        accumulator.accumulate(model, grads);
+        add_weighted(&mut values, &mut edges, &shard_values, &shard_edges, weight);
+    }
+    Ok((accumulator.grads(), values, edges))
+}
+
+/// Adds `weight` × `values` to `sums` (sized on first use) and `more` to
+/// `edges`.
+fn add_weighted(
+    sums: &mut Vec<f32>,
+    edges: &mut EdgeCounts,
+    values: &[f32],
+    more: &EdgeCounts,
+    weight: f32,
+) {
+    if sums.is_empty() {
+        sums.resize(values.len(), 0.0);
+    }
+    for (s, v) in sums.iter_mut().zip(values) {
+        *s += weight * v;
+    }
+    edges.true_positives += more.true_positives;
+    edges.false_positives += more.false_positives;
+    edges.false_negatives += more.false_negatives;
+}
+
 /// The first value of a one-element tensor (NaN if empty).
 pub fn scalar(t: Tensor<1>) -> anyhow::Result<f32> {
     Ok(ntg_model::nn::to_vec(t)?
@@ -375,6 +479,90 @@ pub fn scalar(t: Tensor<1>) -> anyhow::Result<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use burn::nn::LinearConfig;
+    use burn::tensor::TensorData;
+
+    /// Least squares on 5 fixed examples: the loss of a batch is the mean
+    /// of its examples' squared errors.
+    struct LeastSquares {
+        device: Device,
+    }
+
+    impl LeastSquares {
+        fn example(i: usize) -> ([f32; 3], f32) {
+            let x = [i as f32 * 0.3, 1.0 - i as f32 * 0.2, (i % 2) as f32];
+            (x, 0.5 * x[0] - x[1] + 2.0 * x[2])
+        }
+    }
+
+    impl TrainStep<burn::nn::Linear> for LeastSquares {
+        type Metrics = ();
+        fn num_examples(&self) -> usize {
+            5
+        }
+        fn step(
+            &self,
+            model: &burn::nn::Linear,
+            batch: &[usize],
+            _: StepContext<'_>,
+        ) -> anyhow::Result<StepReport> {
+            let n = batch.len();
+            let (xs, ys): (Vec<[f32; 3]>, Vec<f32>) =
+                batch.iter().map(|&i| Self::example(i)).unzip();
+            let x = Tensor::<2>::from_data(TensorData::new(xs.concat(), [n, 3]), &self.device);
+            let y = Tensor::<2>::from_data(TensorData::new(ys, [n, 1]), &self.device);
+            let loss = (model.forward(x) - y).powi_scalar(2).mean();
+            let value = scalar(loss.clone())?;
+            Ok(StepReport {
+                loss,
+                values: vec![value],
+                edges: EdgeCounts::default(),
+            })
+        }
+        fn epoch_metrics(&self, _: usize, _: &[f32], _: &EdgeCounts, _: f32) {}
+    }
+
+    #[test]
+    fn shards_sum_to_the_whole_batch_gradient_and_repeat_exactly() {
+        let device = ntg_model::cpu_device().autodiff();
+        let model = LinearConfig::new(3, 1).init(&device);
+        let step = LeastSquares {
+            device: device.clone(),
+        };
+        let batch = [4, 0, 2, 1, 3];
+        let run = |shards: usize| {
+            let optim = OptimConfig {
+                epochs: 1,
+                batch_size: 5,
+                learning_rate: 1e-2,
+                seed: 0,
+                token_dropout: 0.0,
+                cosine_decay: false,
+                gcn_from_other_demo: false,
+                shards,
+            };
+            let mut rng = epoch_rng(0, 0);
+            let (grads, values, _) =
+                sharded_step(&model, &step, &batch, 0, 0, &optim, &mut rng).unwrap();
+            let weight = grads.get::<2>(model.weight.id).unwrap();
+            (weight.into_data().try_to_vec::<f32>().unwrap(), values[0])
+        };
+        let (whole, whole_loss) = run(1);
+        for shards in [2, 3, 5, 9] {
+            // Shards of 3 and 2 (or 2, 2, 1, ...) weighted by their sizes:
+            // the same mean loss and gradient up to rounding.
+            let (sharded, loss) = run(shards);
+            assert!(
+                (loss - whole_loss).abs() < 1e-5,
+                "{shards} shards: loss {loss} vs {whole_loss}"
+            );
+            for (a, b) in sharded.iter().zip(&whole) {
+                assert!((a - b).abs() < 1e-5, "{shards} shards: gradient {a} vs {b}");
+            }
+            // The same shard count gives the same bits.
+            assert_eq!(run(shards).0, sharded);
+        }
+    }
 
     #[test]
     fn cosine_decay_runs_from_the_rate_to_a_tenth() {
@@ -386,6 +574,7 @@ mod tests {
             token_dropout: 0.0,
             cosine_decay: true,
             gcn_from_other_demo: false,
+            shards: 1,
         };
         assert!((optim.learning_rate_at(0, 101) - 1e-2).abs() < 1e-12);
         assert!((optim.learning_rate_at(50, 101) - 5.5e-3).abs() < 1e-9);

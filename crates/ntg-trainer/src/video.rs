@@ -147,6 +147,7 @@ impl EncoderStage {
             token_dropout: 0.0,
             gcn_from_other_demo: false,
             cosine_decay: true,
+            shards: 1,
         }
     }
 

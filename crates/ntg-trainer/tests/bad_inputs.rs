@@ -141,6 +141,7 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         (train(&["--epochs", "0"]), "--epochs".into()),
         (train(&["--device", "tpu"]), "--device".into()),
         (train(&["--batch-size", "0"]), "--batch-size".into()),
+        (train(&["--shards", "0"]), "--shards".into()),
         (train(&["--train-tasks", "0"]), "--train-tasks".into()),
         (
             train(&["--demos-per-task", "many"]),

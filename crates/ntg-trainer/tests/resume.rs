@@ -36,6 +36,7 @@ fn config() -> BlocksRunConfig {
             token_dropout: 0.3,
             cosine_decay: true,
             gcn_from_other_demo: true,
+            shards: 2,
         },
     }
 }

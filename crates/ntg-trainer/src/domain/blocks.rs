@@ -285,6 +285,7 @@ impl Recipe {
                 seed,
                 token_dropout: 0.0,
                 cosine_decay: recommended,
+                shards: 1,
                 gcn_from_other_demo: recommended,
             },
         }
@@ -1151,6 +1152,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
             token_dropout: own.token_dropout,
             cosine_decay: base.optim.cosine_decay || flags.cosine_decay,
             gcn_from_other_demo: base.optim.gcn_from_other_demo || own.gcn_from_other_demo,
+            shards: flags.shards,
             ..base.optim
         },
         ..base

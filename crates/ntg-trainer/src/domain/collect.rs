@@ -271,6 +271,7 @@ impl CollectRunConfig {
                 seed,
                 token_dropout: 0.0,
                 cosine_decay: false,
+                shards: 1,
                 gcn_from_other_demo: false,
             },
             video: (obs == ObsKind::Vid).then(CollectVideo::default),
@@ -495,7 +496,7 @@ where
         + EmbeddingReader
         + TrainedPolicy
         + 'static,
-    S: TrainStep<M>,
+    S: TrainStep<M> + Sync,
     OnFrames<M>: TrainedPolicy,
 {
     Ok(match frames {
@@ -776,6 +777,7 @@ impl DomainRuns for Collect {
         config.optim.batch_size = flags.batch_size;
         config.optim.learning_rate = flags.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE);
         config.optim.cosine_decay = flags.cosine_decay;
+        config.optim.shards = flags.shards;
         flags.check_encoder_flags()?;
         if let Some(video) = config.video.as_mut() {
             flags.apply_encoder_flags(&mut video.encoder);
@@ -871,6 +873,7 @@ mod tests {
                 // A per-step decay depends on the total epochs, which the
                 // resume test changes between the two calls.
                 cosine_decay: false,
+                shards: 1,
                 gcn_from_other_demo: false,
             },
             video: None,

@@ -150,6 +150,13 @@ pub struct TrainFlags {
     /// Decay the learning rate along a half cosine to a tenth of --lr.
     #[arg(long)]
     pub cosine_decay: bool,
+    /// Data-parallel training: split each batch into this many shards
+    /// trained on their own threads, gradients summed (stage A of --obs
+    /// vid trains on one). A run's results depend on its shard count (saved
+    /// in its config.json), not on the machine; 1 reproduces runs made
+    /// before this flag existed.
+    #[arg(long, value_parser = crate::spec::parse::positive, default_value_t = 2)]
+    pub shards: usize,
     /// Run folder to create (or, with --resume, to continue).
     #[arg(long)]
     pub out: PathBuf,

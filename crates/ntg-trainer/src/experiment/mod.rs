@@ -151,6 +151,7 @@ mod tests {
             token_dropout: 0.0,
             gcn_from_other_demo: false,
             cosine_decay: false,
+            shards: 1,
         }
     }
 

@@ -433,6 +433,7 @@ mod tests {
                     seed: 0,
                     token_dropout: 0.0,
                     cosine_decay: ntg,
+                    shards: 0, // unset in the file: one thread, as measured
                     gcn_from_other_demo: false,
                 },
                 video: None,

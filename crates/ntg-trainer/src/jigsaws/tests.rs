@@ -164,6 +164,7 @@ fn no_graph_model_learns_the_next_gesture() {
         seed: 0,
         token_dropout: 0.0,
         cosine_decay: false,
+        shards: 1,
         gcn_from_other_demo: false,
     };
     let train = || {
@@ -520,6 +521,7 @@ fn the_built_in_file_gives_the_configurations_the_figure_was_measured_with() {
                 seed: 0,
                 token_dropout: 0.0,
                 cosine_decay: false,
+                shards: 0, // unset in the file: one thread, as measured
                 gcn_from_other_demo: true,
             },
             smoothing: DEFAULT_SMOOTHING,
