@@ -164,9 +164,9 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
     std::fs::create_dir_all(work).with_context(|| format!("creating {}", work.display()))?;
     let straight = work.join("straight");
     let soaked = work.join("soaked");
-    // An epoch takes about 0.15 s (dev build, 2 cores): 4 per kill keeps
-    // the run training until the last kill lands.
-    let epochs = (4 * soak.kills).max(20);
+    // An epoch takes well under 0.15 s (2 shards, 2 cores): 8 per kill
+    // keeps the run training until the last kill lands.
+    let epochs = (8 * soak.kills).max(20);
 
     let started = Instant::now();
     let status = Command::new(&ntg)
