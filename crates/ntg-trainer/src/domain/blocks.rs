@@ -1030,6 +1030,23 @@ pub fn evaluate_ntp_tasks(
     evaluate_on(&domain, model, "full", tasks, seeds)
 }
 
+/// Evaluates an NTP baseline on the first `test_tasks` test tasks (the
+/// tasks and seeds NTG is evaluated on).
+pub fn evaluate_ntp(
+    model: &ntg_model::NtpNet,
+    obs: ObsKind,
+    failures: bool,
+    test_tasks: usize,
+) -> anyhow::Result<EvalResult> {
+    evaluate_ntp_tasks(
+        model,
+        obs,
+        failures,
+        test_tasks_of(test_tasks)?,
+        Seeds::TEST,
+    )
+}
+
 /// One episode per task (conditioning demo and rollout seeded from
 /// `seeds`), evaluated in `domain`.
 fn evaluate_on(

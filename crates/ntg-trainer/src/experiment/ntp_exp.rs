@@ -1,7 +1,10 @@
 //! Fig. "ntp_exp": block stacking, success on unseen tasks against the
-//! number of seen training tasks, (a) state and (b) video input, for NTG.
-//! The runs are listed in `experiments/ntp_exp.toml`. Baselines (NTP, NTP
-//! Flat, NTP Detector) are legend entries waiting for their issue.
+//! number of seen training tasks, (a) state and (b) video input, for NTG
+//! and the NTP baselines a panel lists (`methods`; NTP and NTP Flat on
+//! state input so far). The runs are listed in `experiments/ntp_exp.toml`.
+//! Every method of a point trains on the same tasks, demos and seeds, with
+//! the same epochs (so the same optimisation steps over the same episodes)
+//! and the same validation schedule, and is scored on the same test tasks.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -22,7 +25,7 @@ use crate::stats::SuccessRate;
 pub struct NtpExpExperiment {
     /// Always block stacking.
     pub domain: DomainId,
-    /// Always NTG (the baselines are not built yet).
+    /// The method of panels that list no `methods` (NTG).
     pub method: MethodId,
     /// The training recipe every run starts from.
     pub recipe: Recipe,
@@ -74,6 +77,10 @@ pub struct PanelScale {
     /// profile's), e.g. the video panel's `video.encoder`.
     #[serde(default)]
     pub overrides: toml::Table,
+    /// The methods trained at every point (default: the experiment's
+    /// `method`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub methods: Option<Vec<MethodId>>,
 }
 
 impl PanelScale {
@@ -93,31 +100,46 @@ impl NtpExpExperiment {
         Ok(experiment)
     }
 
+    /// The methods of `panel`, in order.
+    pub fn methods_of(&self, panel: &PanelScale) -> Vec<MethodId> {
+        panel.methods.clone().unwrap_or_else(|| vec![self.method])
+    }
+
     /// Every run configuration of the figure at `profile`, checked.
     pub fn run_configs(&self, profile: Profile) -> anyhow::Result<Vec<BlocksRunConfig>> {
         let mut configs = Vec::new();
         for panel in &self.profiles.get(profile).panels {
-            for &n in &panel.train_tasks {
-                configs.push(self.run_config(profile, panel, n)?);
+            for method in self.methods_of(panel) {
+                for &n in &panel.train_tasks {
+                    configs.push(self.run_config(profile, panel, method, n)?);
+                }
             }
         }
         Ok(configs)
     }
 
-    /// The run configuration of the point with `train_tasks` tasks of
-    /// `panel` at `profile`: the recipe's, with the experiment's and the
-    /// profile's overrides, at least `panel.min_steps` steps, and
+    /// The run configuration of `method` at the point with `train_tasks`
+    /// tasks of `panel` at `profile`: the recipe's, with the experiment's
+    /// and the profile's overrides, at least `panel.min_steps` steps, and
     /// validated `validations_per_run` times.
     pub fn run_config(
         &self,
         profile: Profile,
         panel: &PanelScale,
+        method: MethodId,
         train_tasks: usize,
     ) -> anyhow::Result<BlocksRunConfig> {
         anyhow::ensure!(
-            self.domain == DomainId::Blocks && self.method == MethodId::Ntg,
-            "{}: ntp_exp trains NTG on block stacking (domain = \"blocks\", method = \"ntg\")",
+            self.domain == DomainId::Blocks,
+            "{}: ntp_exp is a block-stacking figure (domain = \"blocks\")",
             self.origin
+        );
+        anyhow::ensure!(
+            method.is_ntg() || (method.is_ntp() && panel.obs == ObsKind::State),
+            "{}: ntp_exp trains NTG, and NTP or NTP Flat on state input (the {:?} panel lists {})",
+            self.origin,
+            panel.obs,
+            method.name()
         );
         let base = self
             .recipe
@@ -130,6 +152,7 @@ impl NtpExpExperiment {
             what,
         )?;
         let mut config = crate::experiment::with_overrides(&config, &panel.overrides, what)?;
+        config.method = method;
         let epochs = panel.epochs_for(train_tasks, config.optim.batch_size);
         config.optim.epochs = epochs;
         config.validate_every = epochs.div_ceil(self.validations_per_run.max(1));
@@ -140,6 +163,10 @@ impl NtpExpExperiment {
 /// One measured point.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NtpExpPoint {
+    /// The method trained (results written before baselines existed are
+    /// NTG's).
+    #[serde(default, skip_serializing_if = "MethodId::is_ntg")]
+    pub method: MethodId,
     /// Observation kind of the panel.
     pub obs: ObsKind,
     /// Training tasks.
@@ -176,56 +203,97 @@ pub fn run(
 ) -> anyhow::Result<Vec<NtpExpPoint>> {
     let mut points = Vec::new();
     for scale in &experiment.profiles.get(profile).panels {
-        for &n in &scale.train_tasks {
-            let config = experiment.run_config(profile, scale, n)?;
-            let obs = scale.obs;
-            let epochs = config.optim.epochs;
-            let dir = runs.join(format!("ntp_exp-{}-{n}", obs.name()));
-            let run = RunDir::open_or_create(&dir, &config)?;
-            eprintln!(
-                "ntp_exp ({obs:?}, {n} tasks x {} demos, {epochs} epochs): training -> {}",
-                scale.demos_per_task,
-                dir.display()
-            );
-            let device = crate::spec::device().autodiff();
-            let model = blocks::train_run(&run, &config, &device, |m| {
-                eprintln!(
-                    "  epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
-                    m.epoch, m.loss, m.token_accuracy, m.step_accuracy
-                )
-            })?;
-            let train_seconds = run.epoch_seconds()?;
-            let result = run.cached_eval(&format!("full-{}.json", scale.test_tasks), || {
-                model.evaluate(config.failures, scale.test_tasks, Variant::Full)
-            })?;
-            eprintln!(
-                "  success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}",
-                scale.test_tasks,
-                result.success.rate,
-                result.success.ci_low,
-                result.success.ci_high,
-                result.mean_goal_fraction
-            );
-            points.push(NtpExpPoint {
-                obs,
-                train_tasks: n,
-                demos_per_task: scale.demos_per_task,
-                epochs,
-                selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
-                permute_objects: config.permute_objects,
-                success: result.success,
-                goal_fraction: result.mean_goal_fraction,
-                train_seconds,
-                run: dir,
-            });
+        for method in experiment.methods_of(scale) {
+            for &n in &scale.train_tasks {
+                points.push(run_point(experiment, profile, scale, method, n, runs)?);
+            }
         }
     }
     Ok(points)
 }
 
+/// Trains (or reuses, or resumes) and evaluates one point of one method.
+fn run_point(
+    experiment: &NtpExpExperiment,
+    profile: Profile,
+    scale: &PanelScale,
+    method: MethodId,
+    n: usize,
+    runs: &Path,
+) -> anyhow::Result<NtpExpPoint> {
+    let config = experiment.run_config(profile, scale, method, n)?;
+    let obs = scale.obs;
+    let epochs = config.optim.epochs;
+    // NTG's folders keep the names they had before the baselines.
+    let name = if method.is_ntg() {
+        format!("ntp_exp-{}-{n}", obs.name())
+    } else {
+        format!("ntp_exp-{}-{}-{n}", obs.name(), method.name())
+    };
+    let dir = runs.join(name);
+    let run = RunDir::open_or_create(&dir, &config)?;
+    eprintln!(
+        "ntp_exp ({}, {obs:?}, {n} tasks x {} demos, {epochs} epochs): training -> {}",
+        method.legend(),
+        scale.demos_per_task,
+        dir.display()
+    );
+    let device = crate::spec::device().autodiff();
+    let result = if method.is_ntg() {
+        let model = blocks::train_run(&run, &config, &device, |m| {
+            eprintln!(
+                "  epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
+                m.epoch, m.loss, m.token_accuracy, m.step_accuracy
+            )
+        })?;
+        run.cached_eval(&format!("full-{}.json", scale.test_tasks), || {
+            model.evaluate(config.failures, scale.test_tasks, Variant::Full)
+        })?
+    } else {
+        let model = blocks::train_ntp_run(&run, &config, &device, |m| {
+            eprintln!(
+                "  epoch {:>3}: loss {:.3}, programs {:.3}, arguments {:.3}",
+                m.epoch, m.loss, m.program_accuracy, m.argument_accuracy
+            )
+        })?;
+        run.cached_eval(
+            &format!("{}-{}.json", method.name(), scale.test_tasks),
+            || blocks::evaluate_ntp(&model, obs, config.failures, scale.test_tasks),
+        )?
+    };
+    let train_seconds = run.epoch_seconds()?;
+    eprintln!(
+        "  success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}",
+        scale.test_tasks,
+        result.success.rate,
+        result.success.ci_low,
+        result.success.ci_high,
+        result.mean_goal_fraction
+    );
+    Ok(NtpExpPoint {
+        method,
+        obs,
+        train_tasks: n,
+        demos_per_task: scale.demos_per_task,
+        epochs,
+        selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
+        permute_objects: config.permute_objects,
+        success: result.success,
+        goal_fraction: result.mean_goal_fraction,
+        train_seconds,
+        run: dir,
+    })
+}
+
 /// Writes the figure (two panels: success and goals met against training
 /// tasks) as `stem.svg` and `stem.png`.
 pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
+    let mut methods: Vec<MethodId> = Vec::new();
+    for p in points {
+        if !methods.contains(&p.method) {
+            methods.push(p.method);
+        }
+    }
     let panel = |obs: ObsKind, title: &str| Panel {
         title: title.into(),
         x_label: "seen training tasks".into(),
@@ -233,26 +301,38 @@ pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
         x_log: true,
         x_ticks_at_points: false,
         y_range: (0.0, 1.0),
-        series: vec![
-            Series {
-                name: "NTG (ours): success".into(),
-                points: points
-                    .iter()
-                    .filter(|p| p.obs == obs)
-                    .map(|p| Point::success(p.train_tasks as f64, &p.success))
-                    .collect(),
-            },
-            // Partial progress, so that reduced profiles, where whole tasks
-            // rarely succeed, still show what the model learned.
-            Series {
-                name: "NTG (ours): goals met".into(),
-                points: points
-                    .iter()
-                    .filter(|p| p.obs == obs)
-                    .map(|p| Point::exact(p.train_tasks as f64, p.goal_fraction))
-                    .collect(),
-            },
-        ],
+        series: methods
+            .iter()
+            .flat_map(|&method| {
+                let of = |p: &&NtpExpPoint| p.obs == obs && p.method == method;
+                let name = if method.is_ntg() {
+                    "NTG (ours)".to_owned()
+                } else {
+                    method.legend().to_owned()
+                };
+                [
+                    Series {
+                        name: format!("{name}: success"),
+                        points: points
+                            .iter()
+                            .filter(of)
+                            .map(|p| Point::success(p.train_tasks as f64, &p.success))
+                            .collect(),
+                    },
+                    // Partial progress, so that reduced profiles, where whole
+                    // tasks rarely succeed, still show what a model learned.
+                    Series {
+                        name: format!("{name}: goals met"),
+                        points: points
+                            .iter()
+                            .filter(of)
+                            .map(|p| Point::exact(p.train_tasks as f64, p.goal_fraction))
+                            .collect(),
+                    },
+                ]
+            })
+            .filter(|series| !series.points.is_empty())
+            .collect(),
     };
     crate::figure::write_figure(
         &[
@@ -272,18 +352,23 @@ pub fn report_section(points: &[NtpExpPoint]) -> String {
     );
     let _ = writeln!(
         s,
-        "| input | training tasks | demos/task | epochs (selected) | cube renaming | training time | test tasks | NTG success (95% CI) | goals met | paper (known in text) |"
+        "| method | input | training tasks | demos/task | epochs (selected) | cube renaming | training time | test tasks | success (95% CI) | goals met | paper (known in text) |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
     for p in points {
-        let paper = match (p.obs, p.train_tasks) {
-            (ObsKind::State, 50) | (ObsKind::Vid, 50) => "≈ 0.1 (NTG, 50 tasks)",
-            (_, 1000) => "≈ 0.9 (NTG, 1000 tasks, 100 demos/task)",
-            _ => "rising with tasks",
+        let paper = match (p.method, p.obs, p.train_tasks) {
+            (MethodId::Ntg, _, 50) => "≈ 0.1 (NTG, 50 tasks)",
+            (MethodId::Ntg, _, 1000) => "≈ 0.9 (NTG, 1000 tasks, 100 demos/task)",
+            (MethodId::Ntg, _, _) => "rising with tasks",
+            (MethodId::Ntp, ObsKind::State, 50) => "above NTG (50 tasks)",
+            (MethodId::Ntp, ObsKind::State, 1000) => "≈ NTG (Vid) (1000 tasks)",
+            (_, _, n) if n >= 100 => "below NTG",
+            _ => "not stated",
         };
         let _ = writeln!(
             s,
-            "| {:?} | {} | {} | {} ({}) | {} | {:.0} s | {} | {:.3} ({:.3}–{:.3}) | {:.3} | {paper} |",
+            "| {} | {:?} | {} | {} | {} ({}) | {} | {:.0} s | {} | {:.3} ({:.3}–{:.3}) | {:.3} | {paper} |",
+            p.method.legend(),
             p.obs,
             p.train_tasks,
             p.demos_per_task,
@@ -320,6 +405,7 @@ mod tests {
             min_steps: 1000,
             test_tasks: 10,
             overrides: toml::Table::new(),
+            methods: None,
         };
         // 500 demos = 16 steps per epoch -> 63 epochs to reach 1000 steps.
         assert_eq!(scale.epochs_for(50, 32), 63);
@@ -330,6 +416,45 @@ mod tests {
             ..scale
         };
         assert_eq!(exact.epochs_for(50, 32), 6);
+    }
+
+    #[test]
+    fn a_baseline_point_trains_and_scores_in_its_own_run_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        // The smoke profile lists the baselines; keep one tiny point of NTP.
+        let smoke = &mut experiment.profiles.smoke;
+        smoke.panels.truncate(1);
+        let panel = &mut smoke.panels[0];
+        assert_eq!(
+            panel.methods.clone().unwrap_or_default(),
+            vec![MethodId::Ntg, MethodId::Ntp, MethodId::NtpFlat]
+        );
+        panel.methods = Some(vec![MethodId::Ntp]);
+        panel.train_tasks = vec![2];
+        panel.epochs = 1;
+        panel.test_tasks = 2;
+        let runs = dir.path().join("runs");
+        let points = run(&experiment, Profile::Smoke, &runs).unwrap();
+        assert_eq!(points.len(), 1);
+        let p = &points[0];
+        assert_eq!(
+            (p.method, p.obs, p.train_tasks),
+            (MethodId::Ntp, ObsKind::State, 2)
+        );
+        assert_eq!(p.success.trials, 2);
+        assert!(p.run.ends_with("ntp_exp-state-ntp-2"));
+        let config: BlocksRunConfig = RunDir::read_json(&p.run.join("config.json")).unwrap();
+        assert_eq!(config.method, MethodId::Ntp);
+        // A second pass reuses the run and its evaluation.
+        assert_eq!(run(&experiment, Profile::Smoke, &runs).unwrap(), points);
+        // Baselines on frames are refused before anything runs.
+        let mut vid = experiment.profiles.smoke.panels[0].clone();
+        vid.obs = ObsKind::Vid;
+        let err = experiment
+            .run_config(Profile::Smoke, &vid, MethodId::Ntp, 2)
+            .unwrap_err();
+        assert!(format!("{err:#}").contains("state input"), "{err:#}");
     }
 
     #[test]
@@ -368,18 +493,26 @@ mod tests {
             },
         };
         assert_eq!(
-            experiment.run_config(Profile::Quick, state, 50).unwrap(),
+            experiment
+                .run_config(Profile::Quick, state, MethodId::Ntg, 50)
+                .unwrap(),
             expected(50, 44, 50, false)
         );
         assert_eq!(
-            experiment.run_config(Profile::Quick, state, 1000).unwrap(),
+            experiment
+                .run_config(Profile::Quick, state, MethodId::Ntg, 1000)
+                .unwrap(),
             expected(1000, 6, 50, false)
         );
         let paper = &experiment.profiles.get(Profile::Paper).panels[0];
-        let c = experiment.run_config(Profile::Paper, paper, 50).unwrap();
+        let c = experiment
+            .run_config(Profile::Paper, paper, MethodId::Ntg, 50)
+            .unwrap();
         assert_eq!((c.validation_tasks, c.optim.cosine_decay), (100, true));
         let smoke = &experiment.profiles.get(Profile::Smoke).panels[1];
-        let c = experiment.run_config(Profile::Smoke, smoke, 5).unwrap();
+        let c = experiment
+            .run_config(Profile::Smoke, smoke, MethodId::Ntg, 5)
+            .unwrap();
         assert_eq!(
             (c.obs, c.validation_tasks, c.optim.epochs),
             (ObsKind::Vid, 0, 1)
@@ -389,7 +522,7 @@ mod tests {
         assert_eq!((encoder.demos, encoder.epochs), (10, 1));
         let quick_vid = &quick.panels[1];
         let c = experiment
-            .run_config(Profile::Quick, quick_vid, 50)
+            .run_config(Profile::Quick, quick_vid, MethodId::Ntg, 50)
             .unwrap();
         assert_eq!(c.video.as_ref().unwrap().encoder.demos, 100);
     }
