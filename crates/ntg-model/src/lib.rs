@@ -20,6 +20,8 @@
 //!   an MLP to the next action;
 //! - [`NtpNet`]: the Neural Task Programming baseline (Xu et al. 2018), a
 //!   program interpreter conditioned on the demo, run by a [`ProgramStack`];
+//! - [`Detector`]: the NTP (Detector) baseline's frame → object-positions
+//!   regressor, whose estimated state rows feed an NTP trained on states;
 //! - [`NtgModel`] (the four together, with [`NtgConfig`], ablation switches
 //!   and checkpoints) and [`NtgPolicy`], which turns one demonstration into
 //!   `ctg_graph`'s [`NodeScorer`](ctg_graph::NodeScorer) and
@@ -39,6 +41,7 @@
 mod backend;
 mod batch;
 mod checkpoint;
+mod detector;
 mod edge;
 mod encoder;
 mod error;
@@ -54,6 +57,7 @@ mod policy;
 
 pub use backend::{BackendKind, cpu_device};
 pub use batch::{DemoBatch, adjacency_tensor, ids_tensor, rows_tensor, successor_mask};
+pub use detector::{Detector, DetectorConfig, DetectorLoss};
 pub use edge::{EdgeClassifier, EdgeClassifierConfig, pending_nodes};
 pub use encoder::{
     Encoder, EncoderConfig, FrameEncoder, FrameEncoderConfig, KinematicsEncoder,

@@ -82,7 +82,8 @@ pub struct OptimConfig {
     pub shards: usize,
 }
 
-fn is_one_shard(shards: &usize) -> bool {
+/// Whether `shards` means one shard (serde: such a count is not written).
+pub(crate) fn is_one_shard(shards: &usize) -> bool {
     *shards <= 1
 }
 

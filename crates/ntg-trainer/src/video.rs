@@ -94,6 +94,11 @@ pub struct EncoderStage {
     /// saved before it: false).
     #[serde(default)]
     pub coord_channels: bool,
+    /// Data-parallel shards of each stage-A step (see
+    /// [`OptimConfig::shards`]; absent in runs saved before it, and 0 or
+    /// 1: one thread).
+    #[serde(default, skip_serializing_if = "crate::fit::is_one_shard")]
+    pub shards: usize,
 }
 
 fn one() -> f64 {
@@ -114,6 +119,7 @@ impl Default for EncoderStage {
             centre_input: false,
             reconstruction: 0.0,
             coord_channels: false,
+            shards: 0,
         }
     }
 }
@@ -147,7 +153,7 @@ impl EncoderStage {
             token_dropout: 0.0,
             gcn_from_other_demo: false,
             cosine_decay: true,
-            shards: 1,
+            shards: self.shards,
         }
     }
 

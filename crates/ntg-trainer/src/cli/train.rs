@@ -153,6 +153,15 @@ mod tests {
     }
 
     #[test]
+    fn shards_default_to_two_and_reach_both_video_stages() {
+        assert_eq!(config_of(&[]).optim.shards, 2);
+        let c = config_of(&["--obs", "vid", "--shards", "3"]);
+        assert_eq!(c.optim.shards, 3);
+        assert_eq!(c.video.as_ref().unwrap().encoder.shards, 3);
+        assert_eq!(c.video.unwrap().encoder.optim(0).shards, 3);
+    }
+
+    #[test]
     fn collect_location_step_prior_defaults_per_method_and_interpreter() {
         let prior = |args: &[&str]| {
             let argv = ["ntg", "train", "--domain", "collect", "--out", "run"]

@@ -151,8 +151,8 @@ pub struct TrainFlags {
     #[arg(long)]
     pub cosine_decay: bool,
     /// Data-parallel training: split each batch into this many shards
-    /// trained on their own threads, gradients summed (stage A of --obs
-    /// vid trains on one). A run's results depend on its shard count (saved
+    /// trained on their own threads, gradients summed (--obs vid: both
+    /// stages). A run's results depend on its shard count (saved
     /// in its config.json), not on the machine; 1 reproduces runs made
     /// before this flag existed.
     #[arg(long, value_parser = crate::spec::parse::positive, default_value_t = 2)]
@@ -213,6 +213,7 @@ impl TrainFlags {
         stage.hidden = self.encoder_hidden.unwrap_or(stage.hidden);
         stage.learning_rate = self.encoder_lr.unwrap_or(stage.learning_rate);
         stage.reconstruction = self.encoder_reconstruction.unwrap_or(stage.reconstruction);
+        stage.shards = self.shards;
     }
 }
 
