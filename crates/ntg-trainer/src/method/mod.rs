@@ -22,6 +22,7 @@ use clap::ValueEnum;
 use ctg_graph::{ActionId, Vocabulary};
 use serde::{Deserialize, Serialize};
 
+pub mod detector;
 pub mod flat;
 pub mod ntg;
 pub mod ntp;
