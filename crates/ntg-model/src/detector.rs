@@ -8,8 +8,13 @@
 //! h      = relu(W_1 f + b_1)
 //! [p; g] = W_2 h + b_2                             p: K objects × (x, y, z)
 //!                                                  g: gripper logits (open, closed)
-//! loss   = mean_k,d (p_kd − p*_kd)² + CE(g, g*)
+//! loss   = mean_k,d ((p_kd − p*_kd) / s)² + CE(g, g*)
 //! ```
+//!
+//! `s` ([`DetectorConfig::position_scale`]) puts the positions on a unit
+//! scale for the loss and the head: the head predicts `p / s`. Without it,
+//! positions whose spread is a fraction of a unit give the squared error
+//! gradients too small beside the gripper's cross-entropy.
 //!
 //! The output row has the layout of a state row: `3K` position values,
 //! then the gripper as a one-hot `[open, closed]` (the predicted state row
@@ -39,6 +44,9 @@ pub struct DetectorConfig {
     /// Width of the head's hidden layer.
     #[config(default = 256)]
     pub hidden: usize,
+    /// The positions' scale `s` (e.g. their standard deviation in the
+    /// training frames); `None`: 1.
+    pub position_scale: Option<f32>,
     /// Seed of the initial weights.
     #[config(default = 0)]
     pub seed: u64,
@@ -53,6 +61,13 @@ impl DetectorConfig {
     /// Checks the sizes.
     pub fn validate(&self) -> Result<()> {
         self.encoder.validate()?;
+        if let Some(s) = self.position_scale
+            && !(s.is_finite() && s > 0.0)
+        {
+            return Err(ModelError::Config(format!(
+                "detector: the position scale must be finite and positive, got {s}"
+            )));
+        }
         if self.num_objects == 0 || self.hidden == 0 {
             return Err(ModelError::Config(format!(
                 "detector: needs at least one object and a positive width (got {}, {})",
@@ -107,10 +122,15 @@ impl Detector {
         self.hidden.weight.val().device()
     }
 
-    /// Position values and gripper logits `[N, 3K + 2]` of frames `[N, D]`.
+    /// Scaled positions `p / s` and gripper logits `[N, 3K + 2]` of
+    /// frames `[N, D]`.
     pub fn forward(&self, frames: Tensor<2>) -> Result<Tensor<2>> {
         let features = self.encoder.forward(frames)?;
         Ok(self.out.forward(relu(self.hidden.forward(features))))
+    }
+
+    fn scale(&self) -> f32 {
+        self.config.position_scale.unwrap_or(1.0)
     }
 
     /// The loss against true state rows `[N, 3K + 2]` (positions, then the
@@ -128,11 +148,13 @@ impl Detector {
         let out = self.forward(frames)?;
         let positions = out.clone().narrow(1, 0, 3 * k);
         let logits = out.narrow(1, 3 * k, 2);
-        let target_positions = rows.clone().narrow(1, 0, 3 * k);
+        let scale = self.scale();
+        let target_positions = rows.clone().narrow(1, 0, 3 * k).div_scalar(scale);
         let diff = positions - target_positions;
         let position_loss = diff.clone().powi_scalar(2).mean();
         let distances = diff
             .detach()
+            .mul_scalar(scale)
             .reshape([n, k, 3])
             .powi_scalar(2)
             .sum_dim(2)
@@ -166,7 +188,7 @@ impl Detector {
         Ok(out
             .chunks(width)
             .map(|row| {
-                let mut state = row[..3 * k].to_vec();
+                let mut state: Vec<f32> = row[..3 * k].iter().map(|p| p * self.scale()).collect();
                 let closed = row[3 * k + 1] > row[3 * k];
                 state.extend([f32::from(u8::from(!closed)), f32::from(u8::from(closed))]);
                 state

@@ -7,8 +7,11 @@
 //!
 //! ```text
 //! cargo run --release -p ntg-trainer --example detector_heldout -- \
-//!     OUT TASKS DEMOS EPOCHS [lr=LR] [batch=B] [hidden=H] [coords] [shards=S] [validation=V]
+//!     OUT TASKS DEMOS EPOCHS [lr=LR] [batch=B] [hidden=H] [coords] [shards=S] [validation=V] [noscale]
 //! ```
+//!
+//! The detector predicts positions divided by their standard deviation in
+//! the training frames (`noscale`: raw positions).
 //!
 //! Trains on `DEMOS` primitive-level episodes of each of the first `TASKS`
 //! training tasks (seeds as `ntg train`'s demos), `EPOCHS` passes, into
@@ -26,7 +29,7 @@ use ntg_trainer::method::detector::{DetectorDataset, DetectorEpochMetrics, Detec
 use ntg_trainer::run_dir::RunDir;
 use ntg_trainer::spec::ObsKind;
 
-const USAGE: &str = "usage: detector_heldout OUT TASKS DEMOS EPOCHS [lr=LR] [batch=B] [hidden=H] [coords] [shards=S] [validation=V]";
+const USAGE: &str = "usage: detector_heldout OUT TASKS DEMOS EPOCHS [lr=LR] [batch=B] [hidden=H] [coords] [shards=S] [validation=V] [noscale]";
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -42,6 +45,7 @@ fn main() -> anyhow::Result<()> {
     let (tasks, demos, epochs) = (count(1, "TASKS")?, count(2, "DEMOS")?, count(3, "EPOCHS")?);
     let (mut lr, mut batch, mut hidden, mut coords, mut shards, mut validation) =
         (1e-3f64, 32usize, 256usize, false, 2usize, 50usize);
+    let mut scaled = true;
     for option in &args[4..] {
         match option.split_once('=') {
             Some(("lr", v)) => lr = v.parse().context("lr=")?,
@@ -50,6 +54,7 @@ fn main() -> anyhow::Result<()> {
             Some(("shards", v)) => shards = v.parse().context("shards=")?,
             Some(("validation", v)) => validation = v.parse().context("validation=")?,
             None if option == "coords" => coords = true,
+            None if option == "noscale" => scaled = false,
             _ => bail!("unknown option {option:?}; {USAGE}"),
         }
     }
@@ -78,7 +83,9 @@ fn main() -> anyhow::Result<()> {
                 .with_coord_channels(coords.then_some(true)),
         ),
     )
-    .with_hidden(hidden);
+    .with_hidden(hidden)
+    .with_position_scale(scaled.then(|| train.position_std()));
+    eprintln!("position scale: {:?}", config.position_scale);
     let run = RunDir::create(&out)?;
     let step = DetectorStep {
         dataset: &train,

@@ -104,6 +104,24 @@ impl DetectorDataset {
         )
     }
 
+    /// Standard deviation of the position values of the rows (every cube
+    /// and coordinate pooled): the detector's position scale.
+    pub fn position_std(&self) -> f32 {
+        let objects = self
+            .rows
+            .first()
+            .map_or(0, |r| r.len().saturating_sub(2) / 3);
+        let values: Vec<f64> = self
+            .rows
+            .iter()
+            .flat_map(|r| r[..3 * objects].iter().map(|&v| f64::from(v)))
+            .collect();
+        let n = values.len().max(1) as f64;
+        let mean = values.iter().sum::<f64>() / n;
+        let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+        var.sqrt() as f32
+    }
+
     /// Mean position error over this set's frames of always answering
     /// `train`'s mean state (what a detector must beat).
     pub fn mean_state_error(&self, train: &DetectorDataset) -> f64 {
@@ -300,6 +318,8 @@ mod tests {
         assert!(score.position_error.is_finite() && score.position_error > 0.0);
         let mean = held_out.mean_state_error(&train);
         assert!(mean.is_finite() && mean > 0.0, "{mean}");
+        let std = train.position_std();
+        assert!(std.is_finite() && std > 0.0, "{std}");
         // Saved by fit, it loads.
         assert!(Detector::load(run.checkpoint_dir(), &ntg_model::cpu_device()).is_ok());
     }
