@@ -149,6 +149,20 @@ pub struct StepReport {
     pub edges: EdgeCounts,
 }
 
+impl StepReport {
+    /// The report of a model without a GCN: the loss, its value first,
+    /// then `metrics`.
+    pub fn scored(loss: Tensor<1>, metrics: &[f32]) -> anyhow::Result<Self> {
+        let mut values = vec![scalar(loss.clone())?];
+        values.extend_from_slice(metrics);
+        Ok(StepReport {
+            loss,
+            values,
+            edges: EdgeCounts::default(),
+        })
+    }
+}
+
 /// One method's training step: the loss on a batch of examples (indices
 /// into the method's dataset), and the metrics line of an epoch.
 pub trait TrainStep<M> {

@@ -19,7 +19,7 @@ use ntg_model::{Detector, EdgeCounts};
 use serde::{Deserialize, Serialize};
 
 use crate::evaluate::in_parallel;
-use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel, scalar};
+use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel};
 
 impl TrainedModel for Detector {
     fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
@@ -229,15 +229,7 @@ impl TrainStep<Detector> for DetectorStep<'_> {
     ) -> anyhow::Result<StepReport> {
         let (frames, rows) = self.dataset.tensors(batch, &self.device);
         let out = model.loss(frames, rows)?;
-        Ok(StepReport {
-            values: vec![
-                scalar(out.loss.clone())?,
-                out.position_error,
-                out.gripper_accuracy,
-            ],
-            loss: out.loss,
-            edges: EdgeCounts::default(),
-        })
+        StepReport::scored(out.loss, &[out.position_error, out.gripper_accuracy])
     }
 
     fn epoch_metrics(

@@ -16,7 +16,7 @@ use rand::seq::IndexedRandom;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::DemoDataset;
-use crate::fit::{StepContext, StepReport, TrainStep, scalar};
+use crate::fit::{StepContext, StepReport, TrainStep};
 use crate::method::{Agent, Model, TrainedPolicy};
 
 /// Metrics of one Flat Policy epoch, as logged to `metrics.jsonl`.
@@ -146,11 +146,7 @@ impl TrainStep<FlatPolicy> for FlatStep<'_> {
             batch = batch.with_memory(&memories, n)?;
         }
         let out = policy.loss(&batch)?;
-        Ok(StepReport {
-            values: vec![scalar(out.loss.clone())?, out.accuracy],
-            loss: out.loss,
-            edges: EdgeCounts::default(),
-        })
+        StepReport::scored(out.loss, &[out.accuracy])
     }
 
     fn epoch_metrics(

@@ -40,7 +40,7 @@ use rand::seq::IndexedRandom;
 use serde::{Deserialize, Serialize};
 
 use crate::evaluate::in_parallel;
-use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel, scalar};
+use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel};
 use crate::method::{Agent, Model, TrainedPolicy};
 use crate::symmetry::{ObjectSymmetry, RenamingFilter};
 
@@ -382,17 +382,15 @@ impl TrainStep<NtpNet> for NtpStep<'_> {
             &self.device,
         )?;
         let out = net.loss(&batch)?;
-        Ok(StepReport {
-            values: vec![
-                scalar(out.loss.clone())?,
+        StepReport::scored(
+            out.loss,
+            &[
                 out.eop_accuracy,
                 out.program_accuracy,
                 out.argument_accuracy,
                 out.scope_accuracy,
             ],
-            loss: out.loss,
-            edges: EdgeCounts::default(),
-        })
+        )
     }
 
     fn epoch_metrics(
