@@ -88,6 +88,29 @@ pub(crate) fn is_one_shard(shards: &usize) -> bool {
 }
 
 impl OptimConfig {
+    /// A training stage's settings (a frame encoder, a detector): `epochs`
+    /// over batches of `batch_size` at `learning_rate` decaying along a
+    /// cosine, shuffled from `seed`, on `shards` threads; none of NTG's
+    /// options.
+    pub fn stage(
+        epochs: usize,
+        batch_size: usize,
+        learning_rate: f64,
+        seed: u64,
+        shards: usize,
+    ) -> Self {
+        OptimConfig {
+            epochs,
+            batch_size,
+            learning_rate,
+            seed,
+            token_dropout: 0.0,
+            gcn_from_other_demo: false,
+            cosine_decay: true,
+            shards,
+        }
+    }
+
     /// The learning rate at `step` of `total_steps`.
     pub fn learning_rate_at(&self, step: usize, total_steps: usize) -> f64 {
         if !self.cosine_decay || total_steps <= 1 {

@@ -65,8 +65,9 @@ pub fn reproduce(
         thor_all,
         not_yet: vec![
             (
-                "ntp_exp baselines (NTP, NTP Flat, NTP Detector)".into(),
-                "the baselines issue is not built".into(),
+                "ntp_exp: NTP and NTP Flat on video".into(),
+                "not built yet (NTP and NTP Flat on states, and NTP (Detector) on video, are)"
+                    .into(),
             ),
             (
                 "ablation".into(),

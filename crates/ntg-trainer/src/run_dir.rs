@@ -12,6 +12,10 @@
 //!                    and `selection.json` saying which epoch that was
 //!   eval/            evaluation results
 //!   train.lock       while a process trains the run: its process id
+//!   stage_a/, detector_stage/
+//!                    a stage trained before the run's model (a video
+//!                    run's frame encoder, NTP (Detector)'s detector): a
+//!                    run folder of its own
 //! ```
 //!
 //! Nothing the user wrote is overwritten: creating a run in a non-empty
@@ -26,6 +30,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
+
+/// Name of a run's per-epoch metrics file.
+const METRICS_FILE: &str = "metrics.jsonl";
 
 /// The writer lock's file name in a run folder.
 pub const LOCK_FILE: &str = "train.lock";
@@ -188,14 +195,29 @@ impl RunDir {
     }
 
     /// Seconds spent in training epochs: the sum of the `seconds` of every
-    /// line of `metrics.jsonl` (so a reused run reports its original cost).
+    /// line of `metrics.jsonl`, the run's own and its stages' (each
+    /// subfolder that has one: a video run's frame encoder, NTP
+    /// (Detector)'s detector), so a reused run reports its original cost.
     pub fn epoch_seconds(&self) -> anyhow::Result<f64> {
         #[derive(serde::Deserialize)]
         struct Seconds {
             seconds: f64,
         }
-        let lines: Vec<Seconds> = read_jsonl(&self.metrics_path())?;
-        Ok(lines.iter().map(|l| l.seconds).sum())
+        let mut files = vec![self.metrics_path()];
+        let entries = std::fs::read_dir(&self.root)
+            .with_context(|| format!("reading {}", self.root.display()))?;
+        for entry in entries {
+            let stage = entry?.path().join(METRICS_FILE);
+            if stage.is_file() {
+                files.push(stage);
+            }
+        }
+        let mut total = 0.0;
+        for file in files {
+            let lines: Vec<Seconds> = read_jsonl(&file)?;
+            total += lines.iter().map(|l| l.seconds).sum::<f64>();
+        }
+        Ok(total)
     }
 
     /// Takes the run's writer lock (`train.lock`, holding this process's
@@ -273,7 +295,7 @@ impl RunDir {
 
     /// `metrics.jsonl`.
     pub fn metrics_path(&self) -> PathBuf {
-        self.root.join("metrics.jsonl")
+        self.root.join(METRICS_FILE)
     }
 
     /// Writes `value` as pretty JSON to `path` atomically (temp file + rename).

@@ -8,6 +8,11 @@
 //! in-process), `demo.txt`, and one PNG per observation under `frames/`
 //! plus `contact-sheet.png`.
 //!
+//! The NTP baselines have no graph: their trace ([`trace_baseline`]) shows,
+//! per primitive, the programs running when it was chosen (NTP's call
+//! stack and each program's scope of the demo), with the same files but
+//! the graph's.
+//!
 //! The rollout is the one `ntg eval` scores for the same task: same
 //! conditioning-demo seed, same rollout seed, greedy action choice. Frames
 //! are rendered even for state-input runs; rendering draws no random
@@ -222,6 +227,168 @@ pub fn trace_task(
     Ok(trace)
 }
 
+/// One primitive of a baseline's trace.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BaselineStep {
+    /// Step index (0-based); frame `frames/step_NNN.png` is the observation
+    /// the step was decided on.
+    pub step: usize,
+    /// What the policy was running when it chose (NTP: its call stack with
+    /// each program's scope of the demo's rows).
+    pub programs: Option<String>,
+    /// The chosen action.
+    pub chosen: String,
+    /// What went wrong in the environment, if anything.
+    pub failure: Option<String>,
+    /// Whether every goal held after the step.
+    pub success_after: bool,
+}
+
+/// A baseline's whole trace (`trace.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BaselineTrace {
+    /// The method's name.
+    pub method: String,
+    /// Index in the standard test set.
+    pub index: usize,
+    /// Task id.
+    pub task: String,
+    /// The expert's actions in the conditioning demo (one demo row before
+    /// each).
+    pub demo_actions: Vec<String>,
+    /// Steps in order.
+    pub steps: Vec<BaselineStep>,
+    /// Whether the task was completed.
+    pub success: bool,
+    /// Whether the step limit cut the episode.
+    pub truncated: bool,
+}
+
+/// Runs test task `index` with an NTP baseline `model` of `method` (state
+/// or frames as `obs` says) exactly as `ntg eval` does, and writes its
+/// trace into `out` (created; it must not exist or be empty).
+pub fn trace_baseline(
+    model: &dyn crate::method::TrainedPolicy,
+    method: crate::method::MethodId,
+    obs: ObsKind,
+    failures: bool,
+    index: usize,
+    out: &Path,
+) -> anyhow::Result<BaselineTrace> {
+    prepare_out(out)?;
+    let split = env_blocks::standard_split()?;
+    let task = split
+        .test
+        .get(index)
+        .with_context(|| format!("test task index {index} is out of range"))?;
+    let domain = crate::blocks::BlocksDomain::new(obs, failures)
+        .at_primitive_level()
+        .rendering();
+    let seeds = crate::blocks::Seeds::TEST;
+    let episode = crate::domain::Episode {
+        group: 0,
+        index,
+        task: task.clone(),
+        demo_seed: seeds.demo + index as u64,
+        rollout_seed: seeds.rollout + index as u64,
+    };
+    let frames_dir = out.join("frames");
+    std::fs::create_dir_all(&frames_dir)
+        .with_context(|| format!("creating {}", frames_dir.display()))?;
+    let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Primitive);
+    let (mut frames, mut steps, mut truncated) = (Vec::new(), Vec::new(), false);
+    let model = model.for_inference();
+    let record = crate::domain::run_episode_observed(&domain, model.as_ref(), &episode, |d| {
+        let mut shown = vec![d.observation];
+        if d.step.is_done() {
+            shown.push(&d.step.observation);
+            truncated = d.step.truncated;
+        }
+        for o in shown {
+            let frame = o
+                .frame()
+                .context("the environment returned no frame with rendering on")?;
+            save_png(
+                frame,
+                &frames_dir.join(format!("step_{:03}.png", frames.len())),
+            )?;
+            frames.push(frame.clone());
+        }
+        steps.push(BaselineStep {
+            step: steps.len(),
+            programs: d.explanation,
+            chosen: vocab.name(d.action).unwrap_or("?").to_owned(),
+            failure: d.step.info.failure.as_ref().map(|f| format!("{f:?}")),
+            success_after: d.step.info.success,
+        });
+        Ok(())
+    })?;
+    let refs: Vec<&image::RgbImage> = frames.iter().collect();
+    save_png(
+        &env_blocks::sheet::contact_sheet(&refs, 8, 2, 4),
+        &out.join("contact-sheet.png"),
+    )?;
+    let trace = BaselineTrace {
+        method: method.name().to_owned(),
+        index,
+        task: task.id.clone(),
+        demo_actions: record.demo_actions,
+        steps,
+        success: record.success,
+        truncated,
+    };
+    write(
+        &out.join("demo.txt"),
+        &format!("demo (expert): {}\n", trace.demo_actions.join(" ")),
+    )?;
+    write(&out.join("trace.txt"), &baseline_table(&trace))?;
+    crate::run_dir::RunDir::write_json(&out.join("trace.json"), &trace)?;
+    Ok(trace)
+}
+
+/// A baseline's trace as a plain-text table (`trace.txt`).
+pub fn baseline_table(trace: &BaselineTrace) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "task {} (test index {}), {}: {}",
+        trace.task,
+        trace.index,
+        trace.method,
+        outcome(trace.success, trace.truncated)
+    );
+    let _ = writeln!(
+        s,
+        "{:>4}  {:<12} {:<56} environment",
+        "step", "primitive", "running programs (scopes: demo rows)"
+    );
+    for st in &trace.steps {
+        let _ = writeln!(
+            s,
+            "{:>4}  {:<12} {:<56} {}",
+            st.step,
+            st.chosen,
+            st.programs.as_deref().unwrap_or(""),
+            environment_note(st.failure.as_deref(), st.success_after)
+        );
+    }
+    s
+}
+
+fn outcome(success: bool, truncated: bool) -> &'static str {
+    if success {
+        "success"
+    } else if truncated {
+        "failed (step limit)"
+    } else {
+        "failed"
+    }
+}
+
+fn environment_note(failure: Option<&str>, success_after: bool) -> &str {
+    failure.unwrap_or(if success_after { "goal reached" } else { "" })
+}
+
 /// The trace as a plain-text table (`trace.txt`).
 pub fn trace_table(trace: &Trace) -> String {
     let mut s = String::new();
@@ -230,13 +397,7 @@ pub fn trace_table(trace: &Trace) -> String {
         "task {} (test index {}): {}",
         trace.task,
         trace.index,
-        if trace.success {
-            "success"
-        } else if trace.truncated {
-            "failed (step limit)"
-        } else {
-            "failed"
-        }
+        outcome(trace.success, trace.truncated)
     );
     let _ = writeln!(
         s,
@@ -263,9 +424,7 @@ pub fn trace_table(trace: &Trace) -> String {
             node,
             format!("{} ({:.2})", st.chosen.name, st.chosen.p),
             others.join(", "),
-            st.failure
-                .as_deref()
-                .unwrap_or(if st.success_after { "goal reached" } else { "" })
+            environment_note(st.failure.as_deref(), st.success_after)
         );
     }
     s

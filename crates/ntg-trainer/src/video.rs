@@ -145,16 +145,13 @@ impl EncoderStage {
     /// Stage A's optimiser settings, shuffling seeded by `seed`: the
     /// stage's epochs, batch size and rate, decaying along a half cosine.
     pub fn optim(&self, seed: u64) -> OptimConfig {
-        OptimConfig {
-            epochs: self.epochs,
-            batch_size: self.batch_size,
-            learning_rate: self.learning_rate,
+        OptimConfig::stage(
+            self.epochs,
+            self.batch_size,
+            self.learning_rate,
             seed,
-            token_dropout: 0.0,
-            gcn_from_other_demo: false,
-            cosine_decay: true,
-            shards: self.shards,
-        }
+            self.shards,
+        )
     }
 
     /// Size of the embeddings stage B trains on.

@@ -185,6 +185,22 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             "--method ntp-flat".into(),
         ),
         (train(&["--method", "flat"]), "--method flat".into()),
+        (train(&["--method", "ntp-detector"]), "--obs vid".into()),
+        (
+            train(&["--detector-epochs", "2"]),
+            "--method ntp-detector".into(),
+        ),
+        (
+            train(&[
+                "--method",
+                "ntp-detector",
+                "--obs",
+                "vid",
+                "--detector-episodes",
+                "0",
+            ]),
+            "--detector-episodes".into(),
+        ),
         (
             train(&["--encoder-hidden", "64"]),
             "--encoder-hidden".into(),

@@ -28,6 +28,7 @@ fn config() -> BlocksRunConfig {
         soft_edges: true,
         video: None,
         method: ntg_trainer::method::MethodId::Ntg,
+        detector: None,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,

@@ -39,6 +39,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         soft_edges: false,
         video: None,
         method: ntg_trainer::method::MethodId::Ntg,
+        detector: None,
         optim: OptimConfig {
             epochs: 25,
             batch_size: 32,

@@ -31,7 +31,7 @@ pub enum Command {
     /// sequences and print it.
     Graph(graph::GraphArgs),
     /// Train NTG on seen tasks into a run folder.
-    Train(train::TrainArgs),
+    Train(Box<train::TrainArgs>),
     /// Evaluate a trained run on unseen tasks.
     Eval(train::EvalArgs),
     /// Execute one unseen test task with a trained run and write the trace:

@@ -32,6 +32,28 @@ pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
     let run = RunDir::open(&args.run)?;
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     let device = crate::spec::device();
+    if config.method.is_ntp() {
+        if args.edge_threshold.is_some() {
+            anyhow::bail!(
+                "--edge-threshold chooses NTG's edges; {} is a {} run",
+                run.root().display(),
+                config.method.legend()
+            );
+        }
+        let model = crate::blocks::load_baseline(&run, &config, &device)?;
+        let index = crate::trace::resolve_test_task(&args.task)?;
+        let trace = crate::trace::trace_baseline(
+            model.as_ref(),
+            config.method,
+            config.obs,
+            config.failures,
+            index,
+            &args.out,
+        )?;
+        print!("{}", crate::trace::baseline_table(&trace));
+        println!("trace written to {}", args.out.display());
+        return Ok(());
+    }
     let crate::blocks::TrainedBlocks::State(model) =
         crate::blocks::load_trained(&run, args.edge_threshold, &device)?
     else {

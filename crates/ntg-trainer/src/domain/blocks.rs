@@ -21,11 +21,12 @@ use crate::domain::{
     self, Domain, DomainFlags, DomainRuns, Episode, EpisodeRecord, EvalFlags, TrainFlags,
 };
 use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore, fit};
-use crate::method::MethodId;
+use crate::method::detector::DetectorSettings;
 pub use crate::method::ntg::Variant;
 use crate::method::ntg::{EpochMetrics, GcnSource, NtgStep, NtgTraining, TrainExtras, train_with};
 use crate::method::ntp::{NtpDataset, NtpEpochMetrics, NtpKind, NtpRenaming, NtpStep, ntp_config};
 use crate::method::on_frames::{NtgBased, OnFramesStep, VideoNtgModel};
+use crate::method::{MethodId, Model};
 use crate::run_dir::RunDir;
 pub use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
@@ -175,6 +176,10 @@ pub struct BlocksRunConfig {
     /// before it: NTG.
     #[serde(default, skip_serializing_if = "MethodId::is_ntg")]
     pub method: MethodId,
+    /// NTP (Detector) runs: how its detector is trained (before NTP, in the
+    /// run's `detector_stage/` folder). `None` for every other method.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector: Option<DetectorSettings>,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -274,6 +279,7 @@ impl Recipe {
             soft_edges: recommended,
             video: (obs == ObsKind::Vid).then(|| BlocksVideo::new(recommended)),
             method: MethodId::Ntg,
+            detector: None,
             optim: OptimConfig {
                 epochs,
                 batch_size: 32,
@@ -640,36 +646,50 @@ fn train_state_run(
     )
 }
 
-/// Trains (or resumes) an NTP baseline's block-stacking run (state
-/// observations): the expert's primitive-level episodes of the training
-/// tasks (the same tasks and seeds as NTG's demos), NTP's encoder as the
-/// recipe's state encoder, cube renaming as the recipe's, validation on the
-/// same tasks as NTG.
+/// Trains (or resumes) an NTP baseline's block-stacking run: the expert's
+/// primitive-level episodes of the training tasks (the same tasks and seeds
+/// as NTG's demos), NTP's encoder as the recipe's state encoder, cube
+/// renaming as the recipe's, validation on the same tasks as NTG. NTP and
+/// NTP Flat read states; NTP (Detector) first trains its detector on
+/// rendered frames ([`train_ntp_detector`]), then NTP on true states,
+/// validated through the detector on frames.
 pub fn train_ntp_run(
     run: &RunDir,
     config: &BlocksRunConfig,
     device: &Device,
     mut on_epoch: impl FnMut(&NtpEpochMetrics),
-) -> anyhow::Result<ntg_model::NtpNet> {
+) -> anyhow::Result<Model> {
     let kind = match config.method {
-        MethodId::Ntp => NtpKind::Hierarchical,
+        MethodId::Ntp | MethodId::NtpDetector => NtpKind::Hierarchical,
         MethodId::NtpFlat => NtpKind::Flat,
         other => bail!("{} is not an NTP baseline", other.name()),
     };
-    if config.obs != ObsKind::State {
+    let wanted = if config.method == MethodId::NtpDetector {
+        ObsKind::Vid
+    } else {
+        ObsKind::State
+    };
+    if config.obs != wanted {
         bail!(
-            "{} on demo videos is not built yet: train it with --obs state",
-            config.method.name()
+            "{} reads {} observations (--obs {}); on demo videos NTP and NTP Flat are not built yet",
+            config.method.name(),
+            wanted.name(),
+            wanted.name()
         );
     }
     let split = env_blocks::standard_split()?;
     let tasks = split.train(config.train_tasks)?;
-    let env = env_config(config.obs, config.failures);
+    // Trained first, so a bad setting fails before NTP's demos are recorded.
+    let detector = match config.method {
+        MethodId::NtpDetector => Some(train_ntp_detector(run, config, tasks, device)?),
+        _ => None,
+    };
+    let env = env_config(ObsKind::State, config.failures);
     let dataset = NtpDataset::record(tasks, config.demos_per_task, TRAIN_SEED_BASE, env, |o| {
-        featurize(o, config.obs)
+        featurize(o, ObsKind::State)
     })?;
-    let encoder = encoder(config.obs, config.state_hidden_layers, config.pairwise);
-    let net = ntp_config(encoder, config.obs == ObsKind::State, config.model_seed).init(device)?;
+    let encoder = encoder(ObsKind::State, config.state_hidden_layers, config.pairwise);
+    let net = ntp_config(encoder, true, config.model_seed).init(device)?;
     let held_out = HeldOutConfigurations::for_run(config)?;
     let accept = held_out
         .as_ref()
@@ -683,32 +703,94 @@ pub fn train_ntp_run(
     });
     let step = NtpStep::new(&dataset, kind, renaming, device)?;
     let validation = env_blocks::validation_tasks(config.validation_tasks)?;
-    let mut validator = |model: &ntg_model::NtpNet| {
+    Ok(match detector {
+        None => Box::new(fit_validated(
+            net,
+            &step,
+            config,
+            &validation,
+            run,
+            device,
+            &mut on_epoch,
+        )?),
+        Some(detector) => Box::new(fit_validated(
+            crate::method::ntp_detector::NtpOnDetector::new(detector, net)?,
+            &OnFramesStep(step),
+            config,
+            &validation,
+            run,
+            device,
+            &mut on_epoch,
+        )?),
+    })
+}
+
+/// [`fit`] with the epoch selected on `validation` (an NTP baseline's
+/// rollouts at the primitive level on `config.obs`), unless it is empty.
+fn fit_validated<M, S>(
+    model: M,
+    step: &S,
+    config: &BlocksRunConfig,
+    validation: &[StackTask],
+    run: &RunDir,
+    device: &Device,
+    on_epoch: impl FnMut(&S::Metrics),
+) -> anyhow::Result<M>
+where
+    M: crate::fit::TrainedModel + crate::method::TrainedPolicy + Send,
+    S: crate::fit::TrainStep<M> + Sync,
+{
+    let mut validator = |model: &M| {
         let result = evaluate_ntp_tasks(
             model,
             config.obs,
             config.failures,
-            &validation,
+            validation,
             Seeds::VALIDATION,
         )?;
         Ok(validation_result(&result))
     };
-    let selection = if validation.is_empty() {
-        None
-    } else {
-        Some(crate::fit::Selection {
-            validator: &mut validator as &mut dyn crate::fit::Validator<ntg_model::NtpNet>,
-            every: config.validate_every,
-        })
+    let selection = (!validation.is_empty()).then_some(crate::fit::Selection {
+        validator: &mut validator as &mut dyn crate::fit::Validator<M>,
+        every: config.validate_every,
+    });
+    fit(model, step, &config.optim, run, device, selection, on_epoch)
+}
+
+/// The detector stage of an NTP (Detector) run: frames of
+/// `config.detector.episodes` primitive-level expert episodes of the
+/// training tasks (their first demos are NTP's own training episodes),
+/// the epoch selected on one episode of each of the first validation
+/// tasks, scored on one of each of the next.
+pub fn train_ntp_detector(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    tasks: &[StackTask],
+    device: &Device,
+) -> anyhow::Result<ntg_model::Detector> {
+    use crate::method::detector::{DetectorDataset, DetectorFrames, train_detector};
+    let settings = config
+        .detector
+        .clone()
+        .context("an NTP (Detector) run's configuration needs its `detector` settings")?;
+    settings.validate()?;
+    let env = env_config(ObsKind::Vid, config.failures);
+    let validation = env_blocks::validation_tasks(2 * settings.validation_tasks)?;
+    let (select, report) = validation.split_at(settings.validation_tasks);
+    let frames = DetectorFrames {
+        train: DetectorDataset::record_spread(tasks, settings.episodes, TRAIN_SEED_BASE, env)?,
+        select: DetectorDataset::record(select, 1, VALIDATION_DEMO_SEED_BASE, env)?,
+        report: DetectorDataset::record(report, 1, VALIDATION_DEMO_SEED_BASE + 1, env)?,
     };
-    fit(
-        net,
-        &step,
-        &config.optim,
+    train_detector(
         run,
+        &frames,
+        &settings,
+        config.train_tasks,
+        config.failures,
+        config.model_seed,
+        config.optim.shards,
         device,
-        selection,
-        &mut on_epoch,
     )
 }
 
@@ -892,6 +974,14 @@ impl BlocksDomain {
         self.vocabulary = env_blocks::vocabulary(false, env_blocks::ActionLevel::Primitive);
         self
     }
+
+    /// The same domain with frames rendered whatever the observation kind
+    /// (for traces; rendering draws no random numbers, so episodes are
+    /// unchanged).
+    pub fn rendering(mut self) -> Self {
+        self.env_config.render = true;
+        self
+    }
 }
 
 impl Domain for BlocksDomain {
@@ -934,7 +1024,10 @@ impl Domain for BlocksDomain {
         task: &StackTask,
         seed: u64,
     ) -> anyhow::Result<(Vec<Vec<f32>>, Vec<ActionId>)> {
-        if self.obs == ObsKind::State {
+        // NTP reads its demo one row per primitive, on frames too (see
+        // `crate::method::ntp_detector`).
+        if self.obs == ObsKind::State || self.env_config.level == env_blocks::ActionLevel::Primitive
+        {
             return domain::record_keyframes(self, env, seed);
         }
         let video = env_blocks::record_video_demo(
@@ -1020,7 +1113,7 @@ pub fn evaluate_tasks<M: NtgBased>(
 /// Evaluates an NTP baseline on `tasks` with the given seeds, acting at the
 /// primitive level (see [`BlocksDomain::at_primitive_level`]).
 pub fn evaluate_ntp_tasks(
-    model: &ntg_model::NtpNet,
+    model: &dyn crate::method::TrainedPolicy,
     obs: ObsKind,
     failures: bool,
     tasks: &[StackTask],
@@ -1033,7 +1126,7 @@ pub fn evaluate_ntp_tasks(
 /// Evaluates an NTP baseline on the first `test_tasks` test tasks (the
 /// tasks and seeds NTG is evaluated on).
 pub fn evaluate_ntp(
-    model: &ntg_model::NtpNet,
+    model: &dyn crate::method::TrainedPolicy,
     obs: ObsKind,
     failures: bool,
     test_tasks: usize,
@@ -1132,6 +1225,14 @@ pub struct BlocksFlags {
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
+    /// --method ntp-detector: primitive-level expert episodes of the
+    /// training tasks whose rendered frames train the detector [default:
+    /// 2000].
+    #[arg(long, value_parser = crate::spec::parse::positive)]
+    pub detector_episodes: Option<usize>,
+    /// --method ntp-detector: the detector's training epochs [default: 6].
+    #[arg(long, value_parser = crate::spec::parse::positive)]
+    pub detector_epochs: Option<usize>,
 }
 
 /// The run configuration `ntg train --domain blocks` asks for: the recipe,
@@ -1148,8 +1249,19 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         flags.apply_encoder_flags(&mut v.encoder);
         v
     });
+    let ntp_detector = flags.method == MethodId::NtpDetector;
     BlocksRunConfig {
-        video,
+        // NTP (Detector) reads one frame per primitive, not the demo video.
+        video: video.filter(|_| !ntp_detector),
+        detector: ntp_detector.then(|| DetectorSettings {
+            episodes: own
+                .detector_episodes
+                .unwrap_or(DetectorSettings::default().episodes),
+            epochs: own
+                .detector_epochs
+                .unwrap_or(DetectorSettings::default().epochs),
+            ..DetectorSettings::default()
+        }),
         method: flags.method,
         failures: !own.no_failures,
         state_hidden_layers: own.state_hidden_layers.unwrap_or(base.state_hidden_layers),
@@ -1196,6 +1308,13 @@ impl DomainRuns for Blocks {
             );
         }
         flags.check_encoder_flags()?;
+        if config.method != MethodId::NtpDetector
+            && (own.detector_episodes.is_some() || own.detector_epochs.is_some())
+        {
+            bail!(
+                "--detector-episodes and --detector-epochs train NTP (Detector)'s detector: they need --method ntp-detector"
+            );
+        }
         match config.method {
             MethodId::Ntg => {}
             MethodId::Ntp | MethodId::NtpFlat if config.obs == ObsKind::State => {}
@@ -1203,8 +1322,12 @@ impl DomainRuns for Blocks {
                 "--method {} reads states for now (--obs state); on demo videos it is not built yet",
                 config.method.name()
             ),
+            MethodId::NtpDetector if config.obs == ObsKind::Vid => {}
+            MethodId::NtpDetector => bail!(
+                "--method ntp-detector is the video baseline: it needs --obs vid (NTP on true states is --method ntp)"
+            ),
             other => bail!(
-                "--method {}: block stacking trains ntg, ntp or ntp-flat",
+                "--method {}: block stacking trains ntg, ntp, ntp-flat or ntp-detector",
                 other.name()
             ),
         }
@@ -1314,12 +1437,7 @@ fn evaluate_ntp_run(
             config.method.legend()
         );
     }
-    let dir = match crate::fit::selected_epoch(run)? {
-        Some(_) => run.best_dir(),
-        None => run.checkpoint_dir(),
-    };
-    let model = <ntg_model::NtpNet as crate::fit::TrainedModel>::load_from(&dir, device)
-        .with_context(|| format!("loading the trained model of {}", run.root().display()))?;
+    let model = load_baseline(run, config, device)?;
     let (mut name, tasks, seeds) = match flags.split {
         crate::domain::EvalSplit::Test => (
             String::new(),
@@ -1333,8 +1451,26 @@ fn evaluate_ntp_run(
         ),
     };
     name.push_str(&format!("{}-{}", config.method.name(), flags.test_tasks));
-    let result = evaluate_ntp_tasks(&model, config.obs, config.failures, &tasks, seeds)?;
+    let result = evaluate_ntp_tasks(model.as_ref(), config.obs, config.failures, &tasks, seeds)?;
     write_eval(run, &name, &result)
+}
+
+/// Loads the trained model of an NTP baseline's `run` (configuration
+/// `config`): the epoch selected on validation tasks if there is one, else
+/// the last checkpoint.
+pub fn load_baseline(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    device: &Device,
+) -> anyhow::Result<Model> {
+    let dir = match crate::fit::selected_epoch(run)? {
+        Some(_) => run.best_dir(),
+        None => run.checkpoint_dir(),
+    };
+    config
+        .method
+        .load(&dir, device)
+        .with_context(|| format!("loading the trained model of {}", run.root().display()))
 }
 
 /// Loads the trained model of `run` (the epoch selected on validation

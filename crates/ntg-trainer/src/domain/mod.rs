@@ -121,7 +121,7 @@ pub struct TrainFlags {
     #[arg(long, value_enum, default_value_t = crate::spec::DeviceKind::Cpu)]
     pub device: crate::spec::DeviceKind,
     /// Which model to train: ntg, or a baseline (block stacking: ntp,
-    /// ntp-flat; object collection: flat).
+    /// ntp-flat, ntp-detector with --obs vid; object collection: flat).
     #[arg(long, value_enum, default_value_t = crate::method::MethodId::Ntg)]
     pub method: crate::method::MethodId,
     /// Observation kind.
@@ -419,6 +419,30 @@ fn run_episode<D: Domain>(
     model: &dyn TrainedPolicy,
     episode: &Episode<D::Task>,
 ) -> anyhow::Result<EpisodeRecord> {
+    run_episode_observed(domain, model, episode, |_| Ok(()))
+}
+
+/// One decision of an episode, as [`run_episode_observed`] shows it.
+pub struct Decision<'a, E: Environment> {
+    /// The observation the agent acted on.
+    pub observation: &'a E::Observation,
+    /// The action it chose.
+    pub action: ctg_graph::ActionId,
+    /// What the agent says it was doing (see [`crate::method::Agent::explain`]).
+    pub explanation: Option<String>,
+    /// What the environment returned.
+    pub step: &'a ctg_graph::Step<E::Observation, E::Info>,
+}
+
+/// One evaluation episode exactly as [`evaluate`] runs it (`model` must
+/// already be the inference model), calling `observe` after every
+/// decision: for traces.
+pub fn run_episode_observed<D: Domain>(
+    domain: &D,
+    model: &dyn TrainedPolicy,
+    episode: &Episode<D::Task>,
+    mut observe: impl FnMut(Decision<'_, D::Env>) -> anyhow::Result<()>,
+) -> anyhow::Result<EpisodeRecord> {
     let name = domain.task_name(&episode.task);
     let mut env = domain.env(&episode.task)?;
     let (rows, demo_actions) = domain
@@ -433,6 +457,12 @@ fn run_episode<D: Domain>(
             .with_context(|| format!("rollout of task {name}"))?;
         trace.push(action);
         let step = env.step(action)?;
+        observe(Decision {
+            observation: &observation,
+            action,
+            explanation: agent.explain(),
+            step: &step,
+        })?;
         let done = step.is_done();
         observation = step.observation;
         if done {

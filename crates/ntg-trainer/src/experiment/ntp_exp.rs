@@ -15,6 +15,7 @@ use crate::blocks::{self, BlocksRunConfig, Recipe, Variant};
 use crate::domain::DomainId;
 use crate::figure::{Panel, Point, Series};
 use crate::method::MethodId;
+use crate::method::detector::DetectorSettings;
 use crate::run_dir::RunDir;
 use crate::spec::{ObsKind, Profile};
 use crate::stats::SuccessRate;
@@ -81,6 +82,10 @@ pub struct PanelScale {
     /// `method`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub methods: Option<Vec<MethodId>>,
+    /// The detector's settings of the panel's NTP (Detector) runs, over
+    /// [`DetectorSettings::default`].
+    #[serde(default)]
+    pub detector: toml::Table,
 }
 
 impl PanelScale {
@@ -134,9 +139,15 @@ impl NtpExpExperiment {
             "{}: ntp_exp is a block-stacking figure (domain = \"blocks\")",
             self.origin
         );
+        let reads = |obs: ObsKind| panel.obs == obs;
         anyhow::ensure!(
-            method.is_ntg() || (method.is_ntp() && panel.obs == ObsKind::State),
-            "{}: ntp_exp trains NTG, and NTP or NTP Flat on state input (the {:?} panel lists {})",
+            match method {
+                MethodId::Ntg => true,
+                MethodId::Ntp | MethodId::NtpFlat => reads(ObsKind::State),
+                MethodId::NtpDetector => reads(ObsKind::Vid),
+                MethodId::Flat => false,
+            },
+            "{}: ntp_exp trains NTG, NTP and NTP Flat on state input and NTP (Detector) on video (the {:?} panel lists {})",
             self.origin,
             panel.obs,
             method.name()
@@ -153,6 +164,15 @@ impl NtpExpExperiment {
         )?;
         let mut config = crate::experiment::with_overrides(&config, &panel.overrides, what)?;
         config.method = method;
+        if method == MethodId::NtpDetector {
+            config.detector = Some(crate::experiment::with_overrides(
+                &DetectorSettings::default(),
+                &panel.detector,
+                &format!("{what} (detector)"),
+            )?);
+            // NTP reads one frame per primitive, not the demo video.
+            config.video = None;
+        }
         let epochs = panel.epochs_for(train_tasks, config.optim.batch_size);
         config.optim.epochs = epochs;
         config.validate_every = epochs.div_ceil(self.validations_per_run.max(1));
@@ -258,7 +278,7 @@ fn run_point(
         })?;
         run.cached_eval(
             &format!("{}-{}.json", method.name(), scale.test_tasks),
-            || blocks::evaluate_ntp(&model, obs, config.failures, scale.test_tasks),
+            || blocks::evaluate_ntp(model.as_ref(), obs, config.failures, scale.test_tasks),
         )?
     };
     let train_seconds = run.epoch_seconds()?;
@@ -406,6 +426,7 @@ mod tests {
             test_tasks: 10,
             overrides: toml::Table::new(),
             methods: None,
+            detector: toml::Table::new(),
         };
         // 500 demos = 16 steps per epoch -> 63 epochs to reach 1000 steps.
         assert_eq!(scale.epochs_for(50, 32), 63);
@@ -448,13 +469,66 @@ mod tests {
         assert_eq!(config.method, MethodId::Ntp);
         // A second pass reuses the run and its evaluation.
         assert_eq!(run(&experiment, Profile::Smoke, &runs).unwrap(), points);
-        // Baselines on frames are refused before anything runs.
+        // NTP and NTP Flat on frames are refused before anything runs.
         let mut vid = experiment.profiles.smoke.panels[0].clone();
         vid.obs = ObsKind::Vid;
         let err = experiment
             .run_config(Profile::Smoke, &vid, MethodId::Ntp, 2)
             .unwrap_err();
         assert!(format!("{err:#}").contains("state input"), "{err:#}");
+    }
+
+    /// NTP (Detector) trains its detector, then NTP on states, in one run
+    /// folder, and is scored on frames.
+    #[test]
+    fn an_ntp_detector_point_trains_its_detector_then_ntp_and_acts_on_frames() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let smoke = &mut experiment.profiles.smoke;
+        smoke.panels.remove(0);
+        let panel = &mut smoke.panels[0];
+        assert_eq!(panel.obs, ObsKind::Vid);
+        assert!(
+            panel
+                .methods
+                .clone()
+                .unwrap_or_default()
+                .contains(&MethodId::NtpDetector)
+        );
+        panel.methods = Some(vec![MethodId::NtpDetector]);
+        panel.train_tasks = vec![2];
+        panel.test_tasks = 2;
+        let runs = dir.path().join("runs");
+        let points = run(&experiment, Profile::Smoke, &runs).unwrap();
+        let p = &points[0];
+        assert_eq!(
+            (p.method, p.obs, p.train_tasks, p.success.trials),
+            (MethodId::NtpDetector, ObsKind::Vid, 2, 2)
+        );
+        assert!(p.run.ends_with("ntp_exp-vid-ntp-detector-2"));
+        let config: BlocksRunConfig = RunDir::read_json(&p.run.join("config.json")).unwrap();
+        assert_eq!(config.video, None);
+        let detector = config.detector.expect("detector settings");
+        assert_eq!((detector.episodes, detector.epochs), (10, 1));
+        // The detector's stage: its own metrics and held-out score; its
+        // seconds count in the point's compute.
+        let stage = p.run.join(crate::method::detector::DETECTOR_STAGE_DIR);
+        let held_out: crate::method::detector::DetectorHeldOut =
+            RunDir::read_json(&stage.join("held_out.json")).unwrap();
+        assert!(held_out.detector.frames > 0 && held_out.detector.position_error.is_finite());
+        let stage_seconds = RunDir::open(&stage).unwrap().epoch_seconds().unwrap();
+        assert!(stage_seconds > 0.0 && p.train_seconds > stage_seconds);
+        // The saved model is NTP with its detector; it loads by method.
+        let model = MethodId::NtpDetector
+            .load(&p.run.join("checkpoint"), &crate::spec::device())
+            .unwrap();
+        assert!(
+            model
+                .as_any()
+                .downcast_ref::<crate::method::ntp_detector::NtpOnDetector>()
+                .is_some()
+        );
+        assert_eq!(run(&experiment, Profile::Smoke, &runs).unwrap(), points);
     }
 
     #[test]
@@ -481,6 +555,7 @@ mod tests {
             soft_edges: false,
             video: None,
             method: crate::method::MethodId::Ntg,
+            detector: None,
             optim: crate::fit::OptimConfig {
                 epochs,
                 batch_size: 32,

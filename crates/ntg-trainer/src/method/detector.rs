@@ -4,22 +4,231 @@
 //! simulator's state row (each cube relative to the gripper, the gripper's
 //! state): the one method of the figure that gets position labels.
 //!
-//! Not a registered method yet: the NTP (Detector) policy (an NTP trained
-//! on states, fed the detector's rows of the demo video and of each
-//! observation frame) is the next step of issue 16. What is here is the
-//! detector's data, its [`TrainStep`] for [`crate::fit::fit`], and its
+//! The NTP (Detector) method itself is [`crate::method::ntp_detector`];
+//! what is here is the detector's data, its [`TrainStep`] for
+//! [`crate::fit::fit`], its training stage ([`train_detector`]) and its
 //! position error on held-out frames.
 
 use std::path::Path;
 
 use anyhow::Context;
+use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
 use env_blocks::{BlocksTask, EnvConfig, StackTask};
-use ntg_model::{Detector, EdgeCounts};
+use ntg_model::{Detector, DetectorConfig, EdgeCounts, EncoderConfig, FrameEncoderConfig};
 use serde::{Deserialize, Serialize};
 
 use crate::evaluate::in_parallel;
-use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel};
+use crate::fit::{
+    OptimConfig, Selection, StepContext, StepReport, TrainStep, TrainedModel, ValidationScore, fit,
+};
+use crate::run_dir::RunDir;
+
+/// Folder of the detector's training stage inside a run folder.
+pub const DETECTOR_STAGE_DIR: &str = "detector_stage";
+
+/// How the NTP (Detector) baseline's detector is trained (a run
+/// configuration's `detector`). The defaults were chosen on validation
+/// frames (`examples/detector_heldout.rs`, `docs/results/ntp-2026-11-25.md`):
+/// positions scaled by their training spread, a 256-wide head, 6 epochs at
+/// 1e-3 along a cosine; more frames kept lowering the held-out error (0.121
+/// at 20k frames, 0.090 at 40k), hence about 2000 episodes (40k frames).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DetectorSettings {
+    /// Primitive-level expert episodes rendered for the detector's frames,
+    /// spread over the training tasks (see
+    /// [`DetectorDataset::record_spread`]: a task's `j`-th is its `j`-th
+    /// training demo).
+    pub episodes: usize,
+    /// Passes over the frames.
+    pub epochs: usize,
+    /// Frames per optimiser step.
+    pub batch_size: usize,
+    /// Adam's learning rate, decayed along a cosine to a tenth.
+    pub learning_rate: f64,
+    /// Width of the head's hidden layer.
+    pub hidden: usize,
+    /// Validation tasks: one episode of each of the first this many selects
+    /// the epoch; one of each of the next as many scores the selected
+    /// detector (`held_out.json` in the stage's folder). 0: keep the last
+    /// epoch, score nothing.
+    pub validation_tasks: usize,
+}
+
+impl Default for DetectorSettings {
+    fn default() -> Self {
+        DetectorSettings {
+            episodes: 2000,
+            epochs: 6,
+            batch_size: 32,
+            learning_rate: 1e-3,
+            hidden: 256,
+            validation_tasks: 50,
+        }
+    }
+}
+
+impl DetectorSettings {
+    /// Checks the counts and the learning rate.
+    pub fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(
+            self.episodes > 0 && self.epochs > 0 && self.batch_size > 0 && self.hidden > 0,
+            "detector: episodes, epochs, batch_size and hidden must be positive ({self:?})"
+        );
+        anyhow::ensure!(
+            self.learning_rate.is_finite() && self.learning_rate > 0.0,
+            "detector: the learning rate must be finite and positive, got {}",
+            self.learning_rate
+        );
+        Ok(())
+    }
+
+    /// The detector these settings train, its positions scaled by `scale`
+    /// (the training positions' spread), weights from `seed`.
+    pub fn net_config(&self, scale: f32, seed: u64) -> DetectorConfig {
+        DetectorConfig::new(
+            env_blocks::world::NUM_OBJECTS,
+            EncoderConfig::Frame(
+                FrameEncoderConfig::new()
+                    .with_he_init(Some(true))
+                    .with_centre_input(Some(true)),
+            ),
+        )
+        .with_hidden(self.hidden)
+        .with_position_scale(Some(scale))
+        .with_seed(seed)
+    }
+
+    /// The optimiser settings of the stage.
+    pub fn optim(&self, seed: u64, shards: usize) -> OptimConfig {
+        OptimConfig::stage(
+            self.epochs,
+            self.batch_size,
+            self.learning_rate,
+            seed,
+            shards,
+        )
+    }
+}
+
+/// What the detector's stage folder's `config.json` holds: a folder
+/// trained with other settings is refused, never overwritten.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct DetectorStageConfig {
+    settings: DetectorSettings,
+    train_tasks: usize,
+    failures: bool,
+    seed: u64,
+    shards: usize,
+}
+
+/// Frames a detector stage reads: training frames, validation frames that
+/// select the epoch, other validation frames that score it.
+pub struct DetectorFrames {
+    /// Training frames.
+    pub train: DetectorDataset,
+    /// Frames that select the epoch (may be empty).
+    pub select: DetectorDataset,
+    /// Frames that score the selected detector (may be empty).
+    pub report: DetectorDataset,
+}
+
+/// The selected detector's score on frames never used to train or select
+/// it (`held_out.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DetectorHeldOut {
+    /// The detector's score.
+    pub detector: DetectorScore,
+    /// Position error of always answering the training frames' mean state.
+    pub mean_state_position_error: f64,
+}
+
+/// Trains (or resumes, or reloads) the detector stage of the run `run`
+/// (folder [`DETECTOR_STAGE_DIR`]) on `frames`: the epoch whose position
+/// error on `frames.select` is lowest is kept, then scored on
+/// `frames.report` into `held_out.json`. `train_tasks` and `failures` are
+/// recorded in the stage's configuration.
+#[allow(clippy::too_many_arguments)]
+pub fn train_detector(
+    run: &RunDir,
+    frames: &DetectorFrames,
+    settings: &DetectorSettings,
+    train_tasks: usize,
+    failures: bool,
+    seed: u64,
+    shards: usize,
+    device: &Device,
+) -> anyhow::Result<Detector> {
+    settings.validate()?;
+    let stage = DetectorStageConfig {
+        settings: settings.clone(),
+        train_tasks,
+        failures,
+        seed,
+        shards,
+    };
+    let dir = RunDir::open_or_create(&run.root().join(DETECTOR_STAGE_DIR), &stage)?;
+    let plain = device.clone().inner();
+    let net = settings
+        .net_config(frames.train.position_std(), seed)
+        .init(device)?;
+    let step = DetectorStep {
+        dataset: &frames.train,
+        device: device.clone(),
+    };
+    eprintln!(
+        "detector: {} frames of {} training tasks, {} epochs",
+        frames.train.len(),
+        train_tasks,
+        settings.epochs
+    );
+    let mut validator = |net: &Detector| -> anyhow::Result<ValidationScore> {
+        let score = frames.select.score(&net.valid(), &plain)?;
+        eprintln!(
+            "  detector held out ({} frames): position error {:.4} | gripper {:.3}",
+            score.frames, score.position_error, score.gripper_accuracy
+        );
+        // Selection keeps the highest score: the negated error, then the
+        // gripper's accuracy.
+        Ok(ValidationScore {
+            success: -score.position_error,
+            goal_fraction: score.gripper_accuracy,
+        })
+    };
+    let selection = (!frames.select.is_empty()).then_some(Selection {
+        validator: &mut validator as &mut dyn crate::fit::Validator<Detector>,
+        every: 1,
+    });
+    let net = fit(
+        net,
+        &step,
+        &settings.optim(seed, shards),
+        &dir,
+        device,
+        selection,
+        |m: &DetectorEpochMetrics| {
+            eprintln!(
+                "  detector epoch {}: loss {:.4} | position error {:.4} | gripper {:.3} | {:.1}s",
+                m.epoch, m.loss, m.position_error, m.gripper_accuracy, m.seconds
+            )
+        },
+    )?;
+    if !frames.report.is_empty() {
+        let held_out = DetectorHeldOut {
+            detector: frames.report.score(&net.valid(), &plain)?,
+            mean_state_position_error: frames.report.mean_state_error(&frames.train),
+        };
+        eprintln!(
+            "detector on {} other held-out frames: position error {:.4} (the training frames' mean state: {:.4}), gripper {:.3}",
+            held_out.detector.frames,
+            held_out.detector.position_error,
+            held_out.mean_state_position_error,
+            held_out.detector.gripper_accuracy
+        );
+        RunDir::write_json(&dir.root().join("held_out.json"), &held_out)?;
+    }
+    Ok(net)
+}
 
 impl TrainedModel for Detector {
     fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
@@ -53,7 +262,32 @@ impl DetectorDataset {
                 (0..demos_per_task).map(move |j| (t, seed_base + 1000 * t as u64 + j as u64))
             })
             .collect();
-        let episodes = in_parallel(&pairs, "detector frames", |_, &(t, seed)| {
+        Self::record_pairs(tasks, &pairs, env)
+    }
+
+    /// `episodes` episodes spread over `tasks`: episode `i` is the
+    /// `(i div N)`-th of task `i mod N` (seeded as in [`Self::record`]), so
+    /// the first `N` are each task's first demo.
+    pub fn record_spread(
+        tasks: &[StackTask],
+        episodes: usize,
+        seed_base: u64,
+        env: EnvConfig,
+    ) -> anyhow::Result<Self> {
+        let n = tasks.len().max(1);
+        let pairs: Vec<(usize, u64)> = (0..episodes)
+            .map(|i| (i % n, seed_base + 1000 * (i % n) as u64 + (i / n) as u64))
+            .collect();
+        Self::record_pairs(tasks, &pairs, env)
+    }
+
+    /// The episodes `(task index, seed)`, in parallel.
+    fn record_pairs(
+        tasks: &[StackTask],
+        pairs: &[(usize, u64)],
+        env: EnvConfig,
+    ) -> anyhow::Result<Self> {
+        let episodes = in_parallel(pairs, "detector frames", |_, &(t, seed)| {
             let task = BlocksTask::Stack(tasks[t].clone());
             let demo = env_blocks::record_ntp_demo(&task, env, seed)
                 .with_context(|| format!("demo of task {} (seed {seed})", tasks[t].id))?;

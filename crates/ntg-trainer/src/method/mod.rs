@@ -1,6 +1,6 @@
 //! Training methods, one file each, registered in one list ([`MethodId`]):
-//! NTG ([`ntg`]), the Flat Policy baseline ([`flat`]), and NTP and NTP
-//! Flat ([`ntp`]).
+//! NTG ([`ntg`]), the Flat Policy baseline ([`flat`]), NTP and NTP Flat
+//! ([`ntp`]), and NTP (Detector) ([`ntp_detector`]).
 //!
 //! A method is a model type that [`crate::fit::fit`] can train (a
 //! [`crate::fit::TrainedModel`] with a [`crate::fit::TrainStep`]), and that,
@@ -26,6 +26,7 @@ pub mod detector;
 pub mod flat;
 pub mod ntg;
 pub mod ntp;
+pub mod ntp_detector;
 pub mod on_frames;
 
 /// A registered method: its names and how to load a trained model of it.
@@ -68,6 +69,12 @@ pub trait Agent {
     fn transcription(&self) -> &[ActionId] {
         &[]
     }
+    /// What the agent was doing when it chose its last action, in words,
+    /// for traces (NTP: its running programs and their scopes of the demo),
+    /// if it says.
+    fn explain(&self) -> Option<String> {
+        None
+    }
 }
 
 /// The registry: one line per method, `Identifier => value implementing
@@ -104,6 +111,9 @@ methods! {
     Ntp => ntp::Ntp,
     /// NTP trained on the lowest level only, block stacking.
     NtpFlat => ntp::NtpFlat,
+    /// NTP on the states a frame detector estimates (video input), block
+    /// stacking.
+    NtpDetector => ntp_detector::NtpDetector,
 }
 
 impl Default for MethodId {
@@ -121,7 +131,10 @@ impl MethodId {
 
     /// Whether it is one of the NTP baselines.
     pub fn is_ntp(&self) -> bool {
-        matches!(self, MethodId::Ntp | MethodId::NtpFlat)
+        matches!(
+            self,
+            MethodId::Ntp | MethodId::NtpFlat | MethodId::NtpDetector
+        )
     }
 
     /// Name in files, run folders and on the command line.

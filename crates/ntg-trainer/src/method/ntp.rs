@@ -8,7 +8,9 @@
 //! Our choices, where the paper and NTP's authors leave them open:
 //! - **Specification demo**: each training episode is imitated conditioned
 //!   on *another* demo of its task (as for the Flat Policy and NTG's GCN),
-//!   so the network cannot find its own observations in the demo. NTP
+//!   so the network cannot find its own observations in the demo; a task
+//!   with a single demo (the quick figure's video panel) is imitated
+//!   conditioned on that demo itself, as NTG then is. NTP
 //!   reads the demo at its own action level: one row per primitive (the
 //!   observation before it) and the last observation.
 //! - **Scopes across two demos**: a `pick_place` of the imitated episode
@@ -26,7 +28,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use burn::module::Module;
 use burn::tensor::Device;
 use ctg_graph::{ActionId, Vocabulary};
@@ -116,9 +118,6 @@ impl NtpDataset {
         env: EnvConfig,
         featurize: impl Fn(&env_blocks::BlocksObservation) -> Vec<f32> + Sync + Send,
     ) -> anyhow::Result<Self> {
-        if demos_per_task < 2 {
-            bail!("NTP pairs every episode with another demo of its task: needs 2 demos per task");
-        }
         let pairs: Vec<(usize, u64)> = (0..tasks.len())
             .flat_map(|t| {
                 (0..demos_per_task).map(move |j| (t, seed_base + 1000 * t as u64 + j as u64))
@@ -289,7 +288,8 @@ pub struct NtpRenaming<'a> {
 }
 
 /// NTP's [`TrainStep`]: each episode of the batch is imitated conditioned
-/// on another demo of its task, drawn from the epoch's generator.
+/// on another demo of its task (itself if it is the only one), drawn from
+/// the epoch's generator.
 pub struct NtpStep<'a> {
     dataset: &'a NtpDataset,
     kind: NtpKind,
@@ -306,11 +306,6 @@ impl<'a> NtpStep<'a> {
         renaming: Option<NtpRenaming<'a>>,
         device: &Device,
     ) -> anyhow::Result<Self> {
-        if let Some((task, _)) = dataset.by_task.iter().find(|(_, v)| v.len() < 2) {
-            bail!(
-                "task {task} has a single demonstration; NTP pairs a demo with another of its task"
-            );
-        }
         Ok(NtpStep {
             dataset,
             kind,
@@ -512,6 +507,22 @@ impl Agent for NtpAgent {
             StackStep::Done | StackStep::Stalled => Vocabulary::END,
         })
     }
+    fn explain(&self) -> Option<String> {
+        Some(call_stack(self.stack.borrow().frames()))
+    }
+}
+
+/// The running programs, root first, each with its scope of the demo
+/// (rows, inclusive): `stack[0-12] > pick_place[3-7] > pick[3-4]`.
+pub fn call_stack(frames: &[ntg_model::StackFrame]) -> String {
+    let names: Vec<String> = frames
+        .iter()
+        .map(|f| {
+            let name = NtpProgram::from_index(f.program).map_or("?", NtpProgram::name);
+            format!("{name}[{}-{}]", f.scope.0, f.scope.1)
+        })
+        .collect();
+    names.join(" > ")
 }
 
 #[cfg(test)]

@@ -191,26 +191,38 @@ impl Agent for FramesAgent {
     }
 }
 
+/// A model whose trained part sits behind a frozen front that reads the
+/// frames (stage A's encoder, NTP (Detector)'s detector).
+pub trait FrozenFront {
+    /// The part trained behind the front.
+    type Behind;
+    /// That part.
+    fn behind(&self) -> &Self::Behind;
+}
+
+impl<M: Module + ModuleDisplay> FrozenFront for OnFrames<M> {
+    type Behind = M;
+    fn behind(&self) -> &M {
+        &self.policy
+    }
+}
+
 /// Stage B's step for any method: the method's own step on the model
-/// behind the frozen encoder (the dataset's rows are embeddings).
+/// behind the frozen front (the dataset's rows are what the front gives:
+/// embeddings, or states).
 pub struct OnFramesStep<S>(pub S);
 
-impl<M, S> TrainStep<OnFrames<M>> for OnFramesStep<S>
+impl<W, S> TrainStep<W> for OnFramesStep<S>
 where
-    M: TrainedModel + ModuleDisplay + EmbeddingReader,
-    S: TrainStep<M>,
+    W: FrozenFront,
+    S: TrainStep<W::Behind>,
 {
     type Metrics = S::Metrics;
     fn num_examples(&self) -> usize {
         self.0.num_examples()
     }
-    fn step(
-        &self,
-        model: &OnFrames<M>,
-        batch: &[usize],
-        ctx: StepContext<'_>,
-    ) -> anyhow::Result<StepReport> {
-        self.0.step(&model.policy, batch, ctx)
+    fn step(&self, model: &W, batch: &[usize], ctx: StepContext<'_>) -> anyhow::Result<StepReport> {
+        self.0.step(model.behind(), batch, ctx)
     }
     fn epoch_metrics(
         &self,

@@ -1,0 +1,129 @@
+//! NTP (Detector), the video panel's baseline that gets extra supervision
+//! (`../shared/design/BASELINES.md`): an NTP network trained on true
+//! states ([`crate::method::ntp`]) fed the states a separately trained
+//! frame → state regressor ([`ntg_model::Detector`],
+//! [`crate::method::detector`]) estimates, for the demo's frames and for
+//! every observed frame.
+//!
+//! Our choice: the demo NTP reads is the demo video's frame before each
+//! primitive and its last frame (NTP reads its specification one row per
+//! primitive; [`crate::blocks::BlocksDomain::at_primitive_level`]). So the
+//! baseline is told where the video's primitives start, which NTG (Vid),
+//! reading every frame of the video, is not: a help to the baseline, not a
+//! handicap.
+
+use std::path::Path;
+
+use anyhow::Context;
+use burn::module::Module;
+use burn::tensor::Device;
+use ctg_graph::{ActionId, Vocabulary};
+use ntg_model::{Detector, NtpNet};
+
+use crate::fit::TrainedModel;
+use crate::method::on_frames::FrozenFront;
+use crate::method::{Agent, Model, TrainedPolicy};
+
+/// Folder of the detector inside a saved [`NtpOnDetector`].
+pub const DETECTOR_DIR: &str = "detector";
+
+/// The NTP (Detector) model: the frozen detector in front of NTP.
+#[derive(Module, Debug)]
+pub struct NtpOnDetector {
+    /// Frame → estimated state row; frozen.
+    pub detector: Detector,
+    /// NTP on state rows.
+    pub ntp: NtpNet,
+}
+
+impl NtpOnDetector {
+    /// Joins a trained detector (frozen here) and NTP on the state rows it
+    /// estimates.
+    pub fn new(detector: Detector, ntp: NtpNet) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            detector.config.row_dim() == ntp.obs_dim(),
+            "the detector estimates rows of {} values, NTP reads {}",
+            detector.config.row_dim(),
+            ntp.obs_dim()
+        );
+        Ok(NtpOnDetector {
+            detector: detector.no_grad(),
+            ntp,
+        })
+    }
+}
+
+impl FrozenFront for NtpOnDetector {
+    type Behind = NtpNet;
+    fn behind(&self) -> &NtpNet {
+        &self.ntp
+    }
+}
+
+impl TrainedModel for NtpOnDetector {
+    fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
+        self.ntp.save_to(dir)?;
+        Ok(self.detector.save(dir.join(DETECTOR_DIR))?)
+    }
+    fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
+        let detector = Detector::load(dir.join(DETECTOR_DIR), device)?;
+        NtpOnDetector::new(detector, NtpNet::load_from(dir, device)?)
+    }
+}
+
+/// NTP (Detector) in the method registry.
+pub struct NtpDetector;
+
+impl crate::method::Method for NtpDetector {
+    fn name(&self) -> &'static str {
+        "ntp-detector"
+    }
+    fn legend(&self) -> &'static str {
+        "NTP (Detector)"
+    }
+    fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
+        Ok(Box::new(NtpOnDetector::load_from(dir, device)?))
+    }
+}
+
+impl TrainedPolicy for NtpOnDetector {
+    fn for_inference(&self) -> Model {
+        Box::new(self.valid())
+    }
+    fn condition(
+        &self,
+        demo: &[Vec<f32>],
+        vocabulary: &Vocabulary,
+    ) -> anyhow::Result<Box<dyn Agent>> {
+        let rows = self
+            .detector
+            .predict_rows(demo)
+            .context("the detector on the demo's frames")?;
+        Ok(Box::new(DetectorAgent {
+            detector: self.detector.clone(),
+            agent: TrainedPolicy::condition(&self.ntp, &rows, vocabulary)?,
+        }))
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
+/// NTP acting on the state the detector estimates from each frame.
+struct DetectorAgent {
+    detector: Detector,
+    agent: Box<dyn Agent>,
+}
+
+impl Agent for DetectorAgent {
+    fn act(&self, row: &[f32], executed: &[ActionId]) -> anyhow::Result<ActionId> {
+        let estimated = self
+            .detector
+            .predict_rows(&[row])
+            .context("the detector on an observed frame")?;
+        self.agent.act(&estimated[0], executed)
+    }
+    fn explain(&self) -> Option<String> {
+        self.agent.explain()
+    }
+}

@@ -1,0 +1,103 @@
+//! `ntg train --method ntp|ntp-flat|ntp-detector` → `ntg eval` → `ntg trace`
+//! end to end on tiny runs: each trains, is scored, and its trace is the
+//! rollout `ntg eval` scored, with NTP's running programs at every step.
+
+use std::path::Path;
+
+mod common;
+use common::ntg;
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// Trains `method` on `obs` with `extra` flags, evaluates 2 test tasks and
+/// traces test task 1; checks the trace against the evaluation.
+fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("run");
+    let mut args = vec![
+        "train",
+        "--method",
+        method,
+        "--obs",
+        obs,
+        "--train-tasks",
+        "2",
+        "--demos-per-task",
+        "2",
+        "--epochs",
+        "1",
+        "--validation-tasks",
+        "2",
+        "--out",
+        s(&run),
+    ];
+    args.extend_from_slice(extra);
+    let (code, _, err) = ntg(&args);
+    assert_eq!(code, 0, "{method}: {err}");
+    let (code, stdout, err) = ntg(&["eval", "--run", s(&run), "--test-tasks", "2"]);
+    assert_eq!(code, 0, "{method}: {err}");
+    assert!(stdout.contains("success"), "{stdout}");
+    let eval = json(&run.join(format!("eval/{method}-2.json")));
+
+    let out = tmp.path().join("trace");
+    let (code, stdout, err) = ntg(&["trace", "--run", s(&run), "--task", "1", "--out", s(&out)]);
+    assert_eq!(code, 0, "{method}: {err}");
+    assert!(stdout.contains("running programs"), "{stdout}");
+    for file in [
+        "trace.json",
+        "trace.txt",
+        "demo.txt",
+        "contact-sheet.png",
+        "frames/step_000.png",
+    ] {
+        assert!(out.join(file).is_file(), "{method}: missing {file}");
+    }
+    let trace = json(&out.join("trace.json"));
+    let record = &eval["tasks"][1];
+    assert_eq!(trace["task"], record["task"]);
+    assert_eq!(trace["success"], record["success"]);
+    let steps = trace["steps"].as_array().unwrap();
+    let chosen: Vec<&serde_json::Value> = steps.iter().map(|st| &st["chosen"]).collect();
+    let evaluated: Vec<&serde_json::Value> = record["trace"].as_array().unwrap().iter().collect();
+    assert_eq!(
+        chosen, evaluated,
+        "{method}: the trace is the evaluated rollout"
+    );
+    // Every step says which programs ran, root first, with their scopes.
+    for st in steps {
+        let programs = st["programs"].as_str().unwrap_or_default();
+        assert!(programs.starts_with("stack[0-"), "{method}: {programs:?}");
+    }
+    // One frame per decision plus the final observation.
+    let frames = std::fs::read_dir(out.join("frames")).unwrap().count();
+    assert_eq!(frames, steps.len() + 1);
+    // NTG's graph options are refused for a baseline.
+    let (code, _, err) = ntg(&["eval", "--run", s(&run), "--edge-threshold", "0.5"]);
+    assert_ne!(code, 0);
+    assert!(err.contains("--edge-threshold"), "{err}");
+}
+
+#[test]
+fn ntp_trains_evaluates_and_traces_from_the_command_line() {
+    train_eval_trace("ntp", "state", &[]);
+}
+
+#[test]
+fn ntp_flat_trains_evaluates_and_traces_from_the_command_line() {
+    train_eval_trace("ntp-flat", "state", &[]);
+}
+
+#[test]
+fn ntp_detector_trains_its_detector_then_ntp_on_video() {
+    train_eval_trace(
+        "ntp-detector",
+        "vid",
+        &["--detector-episodes", "4", "--detector-epochs", "1"],
+    );
+}
