@@ -40,6 +40,16 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
     args.extend_from_slice(extra);
     let (code, _, err) = ntg(&args);
     assert_eq!(code, 0, "{method}: {err}");
+    // The recommended recipe renames cubes of every method reading state
+    // rows (NTP (Detector)'s NTP too); no method but NTG reads demo videos.
+    let config = json(&run.join("config.json"));
+    assert_eq!(config["permute_objects"], true, "{method}: {config}");
+    assert!(config.get("video").is_none(), "{method}: {config}");
+    assert_eq!(
+        config.get("detector").is_some(),
+        method == "ntp-detector",
+        "{config}"
+    );
     let (code, stdout, err) = ntg(&["eval", "--run", s(&run), "--test-tasks", "2"]);
     assert_eq!(code, 0, "{method}: {err}");
     assert!(stdout.contains("success"), "{stdout}");

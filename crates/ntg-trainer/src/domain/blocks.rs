@@ -298,6 +298,27 @@ impl Recipe {
     }
 }
 
+impl Recipe {
+    /// `config` (a configuration of this recipe, made for NTG) turned into
+    /// `method`'s. NTP (Detector) reads no demo video (its demo is one frame
+    /// per primitive) and trains a detector (default settings unless
+    /// `config` has some); its NTP reads state rows, whose cubes this
+    /// recipe renames as on state input.
+    pub fn for_method(self, mut config: BlocksRunConfig, method: MethodId) -> BlocksRunConfig {
+        config.method = method;
+        if method == MethodId::NtpDetector {
+            let renames = self == Recipe::Recommended;
+            config.permute_objects |= renames;
+            config.exclude_held_out_renamings |= renames;
+            config.video = None;
+            config
+                .detector
+                .get_or_insert_with(DetectorSettings::default);
+        }
+        config
+    }
+}
+
 /// Records the training demonstrations of a run, in parallel.
 pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::Result<DemoDataset> {
     let domain = BlocksDomain::new(config.obs, config.failures);
@@ -1238,31 +1259,27 @@ pub struct BlocksFlags {
 /// The run configuration `ntg train --domain blocks` asks for: the recipe,
 /// with the boolean flags added and the numbers overridden.
 pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
-    let base = own.recipe.config(
-        flags.obs,
-        flags.train_tasks,
-        flags.demos_per_task,
-        flags.epochs,
-        flags.seed,
+    let base = own.recipe.for_method(
+        own.recipe.config(
+            flags.obs,
+            flags.train_tasks,
+            flags.demos_per_task,
+            flags.epochs,
+            flags.seed,
+        ),
+        flags.method,
     );
     let video = base.video.clone().map(|mut v| {
         flags.apply_encoder_flags(&mut v.encoder);
         v
     });
-    let ntp_detector = flags.method == MethodId::NtpDetector;
     BlocksRunConfig {
-        // NTP (Detector) reads one frame per primitive, not the demo video.
-        video: video.filter(|_| !ntp_detector),
-        detector: ntp_detector.then(|| DetectorSettings {
-            episodes: own
-                .detector_episodes
-                .unwrap_or(DetectorSettings::default().episodes),
-            epochs: own
-                .detector_epochs
-                .unwrap_or(DetectorSettings::default().epochs),
-            ..DetectorSettings::default()
+        video,
+        detector: base.detector.clone().map(|d| DetectorSettings {
+            episodes: own.detector_episodes.unwrap_or(d.episodes),
+            epochs: own.detector_epochs.unwrap_or(d.epochs),
+            ..d
         }),
-        method: flags.method,
         failures: !own.no_failures,
         state_hidden_layers: own.state_hidden_layers.unwrap_or(base.state_hidden_layers),
         pairwise: base.pairwise || own.pairwise,
@@ -1302,7 +1319,10 @@ impl DomainRuns for Blocks {
         let config = train_config(flags, own);
         // Checked before the run folder exists, so a corrected command is
         // not refused as "already exists".
-        if config.permute_objects && config.obs != ObsKind::State {
+        if config.permute_objects
+            && config.obs != ObsKind::State
+            && config.method != MethodId::NtpDetector
+        {
             bail!(
                 "--permute-objects renames cubes in state observations; it does not apply to --obs vid"
             );

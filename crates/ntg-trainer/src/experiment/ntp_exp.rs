@@ -15,7 +15,6 @@ use crate::blocks::{self, BlocksRunConfig, Recipe, Variant};
 use crate::domain::DomainId;
 use crate::figure::{Panel, Point, Series};
 use crate::method::MethodId;
-use crate::method::detector::DetectorSettings;
 use crate::run_dir::RunDir;
 use crate::spec::{ObsKind, Profile};
 use crate::stats::SuccessRate;
@@ -162,16 +161,14 @@ impl NtpExpExperiment {
             &self.profiles.get(profile).overrides,
             what,
         )?;
-        let mut config = crate::experiment::with_overrides(&config, &panel.overrides, what)?;
-        config.method = method;
-        if method == MethodId::NtpDetector {
-            config.detector = Some(crate::experiment::with_overrides(
-                &DetectorSettings::default(),
+        let config = crate::experiment::with_overrides(&config, &panel.overrides, what)?;
+        let mut config = self.recipe.for_method(config, method);
+        if let Some(detector) = config.detector.as_mut() {
+            *detector = crate::experiment::with_overrides(
+                &*detector,
                 &panel.detector,
                 &format!("{what} (detector)"),
-            )?);
-            // NTP reads one frame per primitive, not the demo video.
-            config.video = None;
+            )?;
         }
         let epochs = panel.epochs_for(train_tasks, config.optim.batch_size);
         config.optim.epochs = epochs;
