@@ -63,17 +63,10 @@ pub fn reproduce(
         ntp_exp: points,
         jigsaws,
         thor_all,
-        not_yet: vec![
-            (
-                "ntp_exp: NTP and NTP Flat on video".into(),
-                "not built yet (NTP and NTP Flat on states, and NTP (Detector) on video, are)"
-                    .into(),
-            ),
-            (
-                "ablation".into(),
-                "ablation configs not wired into reproduce yet (ntg eval --variant exists)".into(),
-            ),
-        ],
+        not_yet: vec![(
+            "ablation".into(),
+            "ablation configs not wired into reproduce yet (ntg eval --variant exists)".into(),
+        )],
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     ntp_exp::write_figure(&results.ntp_exp, &out.join("ntp_exp"))?;

@@ -180,12 +180,19 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--domain", "collect", "--method", "ntp"]),
             "--method ntp".into(),
         ),
-        (
-            train(&["--method", "ntp-flat", "--obs", "vid"]),
-            "--method ntp-flat".into(),
-        ),
         (train(&["--method", "flat"]), "--method flat".into()),
         (train(&["--method", "ntp-detector"]), "--obs vid".into()),
+        (
+            train(&[
+                "--method",
+                "ntp-detector",
+                "--obs",
+                "vid",
+                "--encoder-epochs",
+                "2",
+            ]),
+            "--encoder-".into(),
+        ),
         (
             train(&["--detector-epochs", "2"]),
             "--method ntp-detector".into(),

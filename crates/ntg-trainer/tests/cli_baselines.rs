@@ -1,5 +1,5 @@
-//! `ntg train --method ntp|ntp-flat|ntp-detector` → `ntg eval` → `ntg trace`
-//! end to end on tiny runs: each trains, is scored, and its trace is the
+//! `ntg train --method ntp|ntp-flat|ntp-detector` (states and videos) →
+//! `ntg eval` → `ntg trace` end to end on tiny runs: each trains, is scored, and its trace is the
 //! rollout `ntg eval` scored, with NTP's running programs at every step.
 
 use std::path::Path;
@@ -40,11 +40,16 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
     args.extend_from_slice(extra);
     let (code, _, err) = ntg(&args);
     assert_eq!(code, 0, "{method}: {err}");
-    // The recommended recipe renames cubes of every method reading state
-    // rows (NTP (Detector)'s NTP too); no method but NTG reads demo videos.
+    // The recommended recipe renames the cubes of state rows (NTP
+    // (Detector)'s NTP reads them too); on frames, stage A's videos.
     let config = json(&run.join("config.json"));
-    assert_eq!(config["permute_objects"], true, "{method}: {config}");
-    assert!(config.get("video").is_none(), "{method}: {config}");
+    let on_videos = obs == "vid" && method != "ntp-detector";
+    assert_eq!(config["permute_objects"], !on_videos, "{method}: {config}");
+    assert_eq!(
+        config.get("video").is_some(),
+        on_videos,
+        "{method}: {config}"
+    );
     assert_eq!(
         config.get("detector").is_some(),
         method == "ntp-detector",
@@ -101,6 +106,15 @@ fn ntp_trains_evaluates_and_traces_from_the_command_line() {
 #[test]
 fn ntp_flat_trains_evaluates_and_traces_from_the_command_line() {
     train_eval_trace("ntp-flat", "state", &[]);
+}
+
+#[test]
+fn ntp_on_demo_videos_trains_in_the_stages_of_ntg() {
+    train_eval_trace(
+        "ntp",
+        "vid",
+        &["--encoder-demos", "4", "--encoder-epochs", "1"],
+    );
 }
 
 #[test]

@@ -491,45 +491,75 @@ pub fn validation_video_pairs(tasks: usize) -> Vec<(usize, u64)> {
         .collect()
 }
 
-/// Trains (or resumes) a block-stacking video run: stage A (the shared
-/// frame encoder) then stage B (NTG on its embeddings); see
-/// [`crate::video`].
-pub fn train_video_run(
-    run: &RunDir,
+/// A block-stacking video run's training videos: demo `j` of training task
+/// `t` is recorded (seed as the state path's demos) on the task with its
+/// cubes renamed by its group's renaming (group `j / demos_per_renaming`,
+/// see [`BlocksVideo::demos_per_renaming`]), and is *virtual task*
+/// `t * groups + group` (each renamed group is its own task).
+pub struct VideoPlan {
+    tasks: Vec<StackTask>,
+    groups: usize,
+    demos_per_renaming: usize,
+    held_out: HeldOutConfigurations,
+}
+
+impl VideoPlan {
+    /// The plan of `config` (a video run).
+    pub fn new(config: &BlocksRunConfig, video: &BlocksVideo) -> anyhow::Result<Self> {
+        let split = env_blocks::standard_split()?;
+        let tasks = split.train(config.train_tasks)?.to_vec();
+        let groups = match video.demos_per_renaming {
+            0 => 1,
+            g => config.demos_per_task.div_ceil(g),
+        };
+        Ok(VideoPlan {
+            tasks,
+            groups,
+            demos_per_renaming: video.demos_per_renaming,
+            held_out: HeldOutConfigurations::new()?,
+        })
+    }
+
+    /// `(virtual task, seed)` of every training demo, demo 0 of every task
+    /// first, then demo 1, ...
+    pub fn pairs(&self, demos_per_task: usize) -> Vec<(usize, u64)> {
+        (0..demos_per_task)
+            .flat_map(|j| {
+                let group = j.checked_div(self.demos_per_renaming).unwrap_or(0);
+                (0..self.tasks.len()).map(move |t| {
+                    (
+                        t * self.groups + group,
+                        TRAIN_SEED_BASE + 1000 * t as u64 + j as u64,
+                    )
+                })
+            })
+            .collect()
+    }
+
+    /// The task (renamed) that virtual task `virtual_task` records.
+    pub fn task(&self, virtual_task: usize) -> StackTask {
+        let (t, group) = (virtual_task / self.groups, virtual_task % self.groups);
+        let perm = group_renaming(&self.tasks[t], t, group, &self.held_out);
+        renamed_task(&self.tasks[t], &perm)
+    }
+}
+
+/// Builds the demo videos of the video run `config` (training videos as
+/// [`VideoPlan`] says, one video per validation task) and stage A's
+/// settings into a [`VideoRun`], and hands it to `train`.
+fn with_video_run<R>(
     config: &BlocksRunConfig,
-    device: &Device,
-    mut on_epoch: impl FnMut(&EpochMetrics),
-) -> anyhow::Result<VideoNtgModel> {
+    train: impl FnOnce(&VideoPlan, &VideoRun<'_>, &[StackTask]) -> anyhow::Result<R>,
+) -> anyhow::Result<R> {
     let video = config
         .video
         .clone()
         .context("a video run's configuration needs its `video` settings")?;
     video.frames.validate()?;
-    let split = env_blocks::standard_split()?;
-    let tasks = split.train(config.train_tasks)?;
-    let held_out = HeldOutConfigurations::new()?;
-    let groups = match video.demos_per_renaming {
-        0 => 1,
-        g => config.demos_per_task.div_ceil(g),
-    };
-    // Demo j of task t is dataset task t * groups + j / demos_per_renaming:
-    // each renamed group is its own task.
-    let pairs: Vec<(usize, u64)> = (0..config.demos_per_task)
-        .flat_map(|j| {
-            let group = j.checked_div(video.demos_per_renaming).unwrap_or(0);
-            (0..tasks.len()).map(move |t| {
-                (
-                    t * groups + group,
-                    TRAIN_SEED_BASE + 1000 * t as u64 + j as u64,
-                )
-            })
-        })
-        .collect();
+    let plan = VideoPlan::new(config, &video)?;
     let record = |virtual_task: usize, seed: u64| {
-        let (t, group) = (virtual_task / groups, virtual_task % groups);
-        let perm = group_renaming(&tasks[t], t, group, &held_out);
         record_video(
-            renamed_task(&tasks[t], &perm),
+            plan.task(virtual_task),
             config.failures,
             &video.frames,
             seed,
@@ -542,7 +572,7 @@ pub fn train_video_run(
     let vocab = flat_vocabulary();
     let video_run = VideoRun {
         vocabulary: &vocab,
-        pairs,
+        pairs: plan.pairs(config.demos_per_task),
         record: &record,
         frame_dim: obs_dim_frames(),
         encoder: &video.encoder,
@@ -552,37 +582,52 @@ pub fn train_video_run(
             record: &record_validation,
         }),
     };
-    let frames = crate::video::train_encoder(run, &video_run, device)?;
-    let ntg = new_model(config, device)?;
-    let mut validator =
-        |model: &VideoNtgModel| validation_score(model, ObsKind::Vid, config.failures, &validation);
-    let selection = (!validation.is_empty()).then_some(crate::fit::Selection {
-        validator: &mut validator as &mut dyn crate::fit::Validator<VideoNtgModel>,
-        every: config.validate_every,
-    });
-    let training = NtgTraining {
-        gcn_source: if config.optim.gcn_from_other_demo {
-            GcnSource::OtherSeeded
-        } else {
-            GcnSource::Own
-        },
-        token_dropout: config.optim.token_dropout,
-        retry_weight: config.retry_weight,
-        detach_gcn_from_edges: config.detach_gcn_from_edges,
-        ..NtgTraining::default()
-    };
-    let embeddings = crate::video::embeddings(run, &video_run, &frames)?;
-    let model = VideoNtgModel::new(frames, ntg)?;
-    let step = OnFramesStep(NtgStep::new(&model.policy, &embeddings, training, device)?);
-    fit(
-        model,
-        &step,
-        &config.optim,
-        run,
-        device,
-        selection,
-        &mut on_epoch,
-    )
+    train(&plan, &video_run, &validation)
+}
+
+/// Trains (or resumes) a block-stacking video run: stage A (the shared
+/// frame encoder) then stage B (NTG on its embeddings); see
+/// [`crate::video`].
+pub fn train_video_run(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    device: &Device,
+    mut on_epoch: impl FnMut(&EpochMetrics),
+) -> anyhow::Result<VideoNtgModel> {
+    with_video_run(config, |_, video_run, validation| {
+        let frames = crate::video::train_encoder(run, video_run, device)?;
+        let ntg = new_model(config, device)?;
+        let mut validator = |model: &VideoNtgModel| {
+            validation_score(model, ObsKind::Vid, config.failures, validation)
+        };
+        let selection = (!validation.is_empty()).then_some(crate::fit::Selection {
+            validator: &mut validator as &mut dyn crate::fit::Validator<VideoNtgModel>,
+            every: config.validate_every,
+        });
+        let training = NtgTraining {
+            gcn_source: if config.optim.gcn_from_other_demo {
+                GcnSource::OtherSeeded
+            } else {
+                GcnSource::Own
+            },
+            token_dropout: config.optim.token_dropout,
+            retry_weight: config.retry_weight,
+            detach_gcn_from_edges: config.detach_gcn_from_edges,
+            ..NtgTraining::default()
+        };
+        let embeddings = crate::video::embeddings(run, video_run, &frames)?;
+        let model = VideoNtgModel::new(frames, ntg)?;
+        let step = OnFramesStep(NtgStep::new(&model.policy, &embeddings, training, device)?);
+        fit(
+            model,
+            &step,
+            &config.optim,
+            run,
+            device,
+            selection,
+            &mut on_epoch,
+        )
+    })
 }
 
 /// The full model's score on the validation tasks `tasks` (printed).
@@ -685,18 +730,11 @@ pub fn train_ntp_run(
         MethodId::NtpFlat => NtpKind::Flat,
         other => bail!("{} is not an NTP baseline", other.name()),
     };
-    let wanted = if config.method == MethodId::NtpDetector {
-        ObsKind::Vid
-    } else {
-        ObsKind::State
-    };
-    if config.obs != wanted {
-        bail!(
-            "{} reads {} observations (--obs {}); on demo videos NTP and NTP Flat are not built yet",
-            config.method.name(),
-            wanted.name(),
-            wanted.name()
-        );
+    if config.method == MethodId::NtpDetector && config.obs != ObsKind::Vid {
+        bail!("ntp-detector is the video baseline (--obs vid); NTP on true states is ntp");
+    }
+    if config.obs == ObsKind::Vid && config.method != MethodId::NtpDetector {
+        return train_ntp_video_run(run, config, kind, device, on_epoch);
     }
     let split = env_blocks::standard_split()?;
     let tasks = split.train(config.train_tasks)?;
@@ -744,6 +782,82 @@ pub fn train_ntp_run(
             &mut on_epoch,
         )?),
     })
+}
+
+/// NTP or NTP Flat from demo videos, in the stages NTG (Vid) trains in
+/// (see [`crate::video`]): stage A, the shared frame encoder, exactly as
+/// NTG's (the same videos, cube renaming for frames, settings and
+/// validation); then, the encoder frozen, NTP on the embeddings of its
+/// primitive-level episodes' frames (one before each primitive and the
+/// last, of the same renamed tasks and seeds as the videos;
+/// [`ntp_video_dataset`]), the same network as on states but for its
+/// encoder's input and the argument read off cube positions, which frames
+/// do not have.
+fn train_ntp_video_run(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    kind: NtpKind,
+    device: &Device,
+    mut on_epoch: impl FnMut(&NtpEpochMetrics),
+) -> anyhow::Result<Model> {
+    with_video_run(config, |plan, video_run, validation| {
+        let frames = crate::video::train_encoder(run, video_run, device)?;
+        let dataset = ntp_video_dataset(plan, config, &frames)?;
+        let encoder = encoder(ObsKind::Vid, config.state_hidden_layers, false);
+        let net = ntp_config(encoder, false, config.model_seed).init(device)?;
+        let step = NtpStep::new(&dataset, kind, None, device)?;
+        let model = crate::method::on_frames::OnFrames::new(frames, net)?;
+        Ok::<Model, _>(Box::new(fit_validated(
+            model,
+            &OnFramesStep(step),
+            config,
+            validation,
+            run,
+            device,
+            &mut on_epoch,
+        )?))
+    })
+}
+
+/// NTP's training episodes on frames: every training demo of `plan`
+/// (virtual task, seed) recorded at the primitive level, its frame before
+/// each primitive and its last frame encoded by `frames`' frozen encoder.
+/// Recorded in parallel chunks and encoded as they come, so frames are
+/// never all held at once (and not cached: a resumed run encodes again).
+pub fn ntp_video_dataset(
+    plan: &VideoPlan,
+    config: &BlocksRunConfig,
+    frames: &ntg_model::FrameStageNet,
+) -> anyhow::Result<NtpDataset> {
+    use rayon::prelude::*;
+    let net = burn::module::Module::valid(frames);
+    let env = env_config(ObsKind::Vid, config.failures);
+    let pairs = plan.pairs(config.demos_per_task);
+    let bar = crate::dataset::progress_bar(pairs.len() as u64, "NTP frames");
+    let mut episodes = Vec::with_capacity(pairs.len());
+    for chunk in pairs.chunks(256) {
+        let recorded = chunk
+            .par_iter()
+            .map(|&(t, seed)| {
+                let task = env_blocks::BlocksTask::Stack(plan.task(t));
+                let demo = env_blocks::record_ntp_demo(&task, env, seed)
+                    .with_context(|| format!("NTP demo of virtual task {t} (seed {seed})"))?;
+                let rows: Vec<Vec<f32>> = demo
+                    .observations
+                    .iter()
+                    .map(|o| featurize(o, ObsKind::Vid))
+                    .collect();
+                Ok((t, rows, demo.root))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        for (task, rows, trace) in recorded {
+            let rows = crate::method::on_frames::encode_rows(&net, &rows)?;
+            episodes.push(crate::method::ntp::NtpEpisode { task, rows, trace });
+        }
+        bar.inc(chunk.len() as u64);
+    }
+    bar.finish_and_clear();
+    Ok(NtpDataset::new(episodes))
 }
 
 /// [`fit`] with the epoch selected on `validation` (an NTP baseline's
@@ -1328,6 +1442,11 @@ impl DomainRuns for Blocks {
             );
         }
         flags.check_encoder_flags()?;
+        if config.method == MethodId::NtpDetector && flags.sets_the_frame_encoder() {
+            bail!(
+                "--encoder-* flags set the frame encoder that NTG, NTP and NTP Flat read videos through; NTP (Detector) reads frames through its detector (--detector-episodes, --detector-epochs)"
+            );
+        }
         if config.method != MethodId::NtpDetector
             && (own.detector_episodes.is_some() || own.detector_epochs.is_some())
         {
@@ -1337,11 +1456,7 @@ impl DomainRuns for Blocks {
         }
         match config.method {
             MethodId::Ntg => {}
-            MethodId::Ntp | MethodId::NtpFlat if config.obs == ObsKind::State => {}
-            MethodId::Ntp | MethodId::NtpFlat => bail!(
-                "--method {} reads states for now (--obs state); on demo videos it is not built yet",
-                config.method.name()
-            ),
+            MethodId::Ntp | MethodId::NtpFlat => {}
             MethodId::NtpDetector if config.obs == ObsKind::Vid => {}
             MethodId::NtpDetector => bail!(
                 "--method ntp-detector is the video baseline: it needs --obs vid (NTP on true states is --method ntp)"

@@ -188,16 +188,19 @@ pub struct TrainFlags {
 }
 
 impl TrainFlags {
+    /// Whether any `--encoder-*` flag (stage A's settings) is given.
+    pub fn sets_the_frame_encoder(&self) -> bool {
+        self.encoder_demos.is_some()
+            || self.encoder_epochs.is_some()
+            || self.encoder_frame_fraction.is_some()
+            || self.encoder_hidden.is_some()
+            || self.encoder_lr.is_some()
+            || self.encoder_reconstruction.is_some()
+    }
+
     /// Refuses the frame-encoder flags on a run that has no frames.
     pub fn check_encoder_flags(&self) -> anyhow::Result<()> {
-        if self.obs == ObsKind::State
-            && (self.encoder_demos.is_some()
-                || self.encoder_epochs.is_some()
-                || self.encoder_frame_fraction.is_some()
-                || self.encoder_hidden.is_some()
-                || self.encoder_lr.is_some()
-                || self.encoder_reconstruction.is_some())
-        {
+        if self.obs == ObsKind::State && self.sets_the_frame_encoder() {
             anyhow::bail!(
                 "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr and --encoder-reconstruction set the frame encoder of --obs vid runs"
             );

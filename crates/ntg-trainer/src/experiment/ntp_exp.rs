@@ -142,11 +142,11 @@ impl NtpExpExperiment {
         anyhow::ensure!(
             match method {
                 MethodId::Ntg => true,
-                MethodId::Ntp | MethodId::NtpFlat => reads(ObsKind::State),
+                MethodId::Ntp | MethodId::NtpFlat => true,
                 MethodId::NtpDetector => reads(ObsKind::Vid),
                 MethodId::Flat => false,
             },
-            "{}: ntp_exp trains NTG, NTP and NTP Flat on state input and NTP (Detector) on video (the {:?} panel lists {})",
+            "{}: ntp_exp trains NTG, NTP and NTP Flat, and NTP (Detector) on video (the {:?} panel lists {})",
             self.origin,
             panel.obs,
             method.name()
@@ -466,13 +466,15 @@ mod tests {
         assert_eq!(config.method, MethodId::Ntp);
         // A second pass reuses the run and its evaluation.
         assert_eq!(run(&experiment, Profile::Smoke, &runs).unwrap(), points);
-        // NTP and NTP Flat on frames are refused before anything runs.
-        let mut vid = experiment.profiles.smoke.panels[0].clone();
-        vid.obs = ObsKind::Vid;
-        let err = experiment
-            .run_config(Profile::Smoke, &vid, MethodId::Ntp, 2)
-            .unwrap_err();
-        assert!(format!("{err:#}").contains("state input"), "{err:#}");
+        // Methods the figure has not are refused before anything runs:
+        // the Flat Policy, NTP (Detector) on states.
+        let state = &experiment.profiles.smoke.panels[0];
+        for method in [MethodId::Flat, MethodId::NtpDetector] {
+            let err = experiment
+                .run_config(Profile::Smoke, state, method, 2)
+                .unwrap_err();
+            assert!(format!("{err:#}").contains("ntp_exp trains"), "{err:#}");
+        }
     }
 
     /// NTP (Detector) trains its detector, then NTP on states, in one run

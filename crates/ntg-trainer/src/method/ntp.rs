@@ -430,7 +430,7 @@ impl crate::method::Method for Ntp {
         "NTP"
     }
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
-        Ok(Box::new(NtpNet::load_from(dir, device)?))
+        crate::method::on_frames::load_either::<NtpNet>(dir, device)
     }
 }
 
@@ -442,7 +442,7 @@ impl crate::method::Method for NtpFlat {
         "NTP Flat"
     }
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
-        Ok(Box::new(NtpNet::load_from(dir, device)?))
+        crate::method::on_frames::load_either::<NtpNet>(dir, device)
     }
 }
 

@@ -40,6 +40,12 @@ impl EmbeddingReader for NtgModel {
     }
 }
 
+impl EmbeddingReader for ntg_model::NtpNet {
+    fn row_dim(&self) -> usize {
+        self.obs_dim()
+    }
+}
+
 impl EmbeddingReader for FlatPolicy {
     fn row_dim(&self) -> usize {
         self.obs_dim()
@@ -188,6 +194,9 @@ impl Agent for FramesAgent {
     }
     fn transcription(&self) -> &[ActionId] {
         self.agent.transcription()
+    }
+    fn explain(&self) -> Option<String> {
+        self.agent.explain()
     }
 }
 
