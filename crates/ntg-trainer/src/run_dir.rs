@@ -31,6 +31,36 @@ use anyhow::{Context, bail};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
+/// Fills the new folder `to` with the files of `from` (recursively),
+/// hard-linked where the file system allows and copied where not; built
+/// under a temporary name and renamed at the end, so a kill leaves `to`
+/// absent or whole.
+pub fn link_or_copy_tree(from: &Path, to: &Path) -> anyhow::Result<()> {
+    fn fill(from: &Path, to: &Path) -> anyhow::Result<()> {
+        fs::create_dir_all(to).with_context(|| format!("creating {}", to.display()))?;
+        for entry in fs::read_dir(from).with_context(|| format!("reading {}", from.display()))? {
+            let entry = entry?;
+            let (source, target) = (entry.path(), to.join(entry.file_name()));
+            if entry.file_type()?.is_dir() {
+                fill(&source, &target)?;
+            } else if fs::hard_link(&source, &target).is_err() {
+                fs::copy(&source, &target).with_context(|| {
+                    format!("copying {} to {}", source.display(), target.display())
+                })?;
+            }
+        }
+        Ok(())
+    }
+    let partial = to.with_extension("partial");
+    if partial.exists() {
+        fs::remove_dir_all(&partial)
+            .with_context(|| format!("removing the unfinished {}", partial.display()))?;
+    }
+    fill(from, &partial)?;
+    fs::rename(&partial, to)
+        .with_context(|| format!("renaming {} to {}", partial.display(), to.display()))
+}
+
 /// Name of a run's per-epoch metrics file.
 const METRICS_FILE: &str = "metrics.jsonl";
 

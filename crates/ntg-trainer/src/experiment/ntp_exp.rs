@@ -249,6 +249,13 @@ fn run_point(
     };
     let dir = runs.join(name);
     let run = RunDir::open_or_create(&dir, &config)?;
+    if obs == ObsKind::Vid && matches!(method, MethodId::Ntp | MethodId::NtpFlat) {
+        share_stage_a(
+            &runs.join(format!("ntp_exp-{}-{n}", obs.name())),
+            &run,
+            &config,
+        )?;
+    }
     eprintln!(
         "ntp_exp ({}, {obs:?}, {n} tasks x {} demos, {epochs} epochs): training -> {}",
         method.legend(),
@@ -300,6 +307,34 @@ fn run_point(
         train_seconds,
         run: dir,
     })
+}
+
+/// Stage A (the frame encoder) of a video point is the same for NTG, NTP
+/// and NTP Flat: their run configurations differ only in the method, and
+/// stage A reads the same videos with the same settings and seed. So a
+/// baseline's run starts from the NTG run's (`ntg_run`) finished stage A,
+/// linked into its folder, rather than training it again; its compute
+/// still counts those epochs. Nothing is linked unless the configurations
+/// match but for the method and that stage A finished.
+fn share_stage_a(ntg_run: &Path, run: &RunDir, config: &BlocksRunConfig) -> anyhow::Result<()> {
+    let target = run.root().join(crate::video::STAGE_A_DIR);
+    let source = ntg_run.join(crate::video::STAGE_A_DIR);
+    let progress = source.join("checkpoint").join("progress.json");
+    let (Some(video), false, true) = (&config.video, target.exists(), progress.is_file()) else {
+        return Ok(());
+    };
+    let ntg: BlocksRunConfig = RunDir::read_json(&ntg_run.join("config.json"))?;
+    let mut same = config.clone();
+    same.method = ntg.method;
+    let done: serde_json::Value = RunDir::read_json(&progress)?;
+    if ntg != same || done["epochs_done"].as_u64() != Some(video.encoder.epochs as u64) {
+        return Ok(());
+    }
+    eprintln!(
+        "  stage A: the frame encoder of {} (the same videos and settings)",
+        ntg_run.display()
+    );
+    crate::run_dir::link_or_copy_tree(&source, &target)
 }
 
 /// Writes the figure (two panels: success and goals met against training
@@ -475,6 +510,32 @@ mod tests {
                 .unwrap_err();
             assert!(format!("{err:#}").contains("ntp_exp trains"), "{err:#}");
         }
+    }
+
+    /// On video, NTP reuses the NTG run's stage A of the same point
+    /// (linked, not trained again) and trains over its embeddings.
+    #[test]
+    fn video_baselines_share_the_point_s_frame_encoder() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let smoke = &mut experiment.profiles.smoke;
+        smoke.panels.remove(0);
+        let panel = &mut smoke.panels[0];
+        panel.methods = Some(vec![MethodId::Ntg, MethodId::Ntp]);
+        panel.train_tasks = vec![2];
+        panel.test_tasks = 1;
+        let runs = dir.path().join("runs");
+        let points = run(&experiment, Profile::Smoke, &runs).unwrap();
+        assert_eq!(points.len(), 2);
+        let stage = |p: &NtpExpPoint| p.run.join(crate::video::STAGE_A_DIR);
+        let weights =
+            |p: &NtpExpPoint| std::fs::read(stage(p).join("checkpoint/model.bpk")).unwrap();
+        assert_eq!(weights(&points[0]), weights(&points[1]));
+        let metrics =
+            |p: &NtpExpPoint| std::fs::read_to_string(stage(p).join("metrics.jsonl")).unwrap();
+        assert_eq!(metrics(&points[0]), metrics(&points[1]), "trained once");
+        assert!(points[1].run.ends_with("ntp_exp-vid-ntp-2"));
+        assert_eq!(points[1].success.trials, 1);
     }
 
     /// NTP (Detector) trains its detector, then NTP on states, in one run
