@@ -59,6 +59,31 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
     assert_eq!(code, 0, "{method}: {err}");
     assert!(stdout.contains("success"), "{stdout}");
     let eval = json(&run.join(format!("eval/{method}-2.json")));
+    // Seen tasks, with demos and scenes it never trained on.
+    let seen = |tasks: &str| {
+        ntg(&[
+            "eval",
+            "--run",
+            s(&run),
+            "--split",
+            "seen",
+            "--test-tasks",
+            tasks,
+        ])
+    };
+    let (code, _, err) = seen("2");
+    assert_eq!(code, 0, "{method}: {err}");
+    let seen_eval = json(&run.join(format!("eval/seen-{method}-2.json")));
+    let split = env_blocks::standard_split().unwrap();
+    let first = &split.train(1).unwrap()[0];
+    assert_eq!(
+        seen_eval["tasks"][0]["task"],
+        first.id.as_str(),
+        "{seen_eval}"
+    );
+    let (code, _, err) = seen("3");
+    assert_ne!(code, 0);
+    assert!(err.contains("trained on 2 tasks"), "{err}");
 
     let out = tmp.path().join("trace");
     let (code, stdout, err) = ntg(&["trace", "--run", s(&run), "--task", "1", "--out", s(&out)]);

@@ -43,6 +43,11 @@ pub const ROLLOUT_SEED_BASE: u64 = 30_000_000;
 pub const VALIDATION_DEMO_SEED_BASE: u64 = 40_000_000;
 /// Seed base of the rollout scene of each validation task.
 pub const VALIDATION_ROLLOUT_SEED_BASE: u64 = 50_000_000;
+/// Seed base of the conditioning demonstration of each seen (training)
+/// task evaluated by `ntg eval --split seen` (never a training demo's).
+pub const SEEN_DEMO_SEED_BASE: u64 = 60_000_000;
+/// Seed base of the rollout scene of each seen task so evaluated.
+pub const SEEN_ROLLOUT_SEED_BASE: u64 = 70_000_000;
 
 /// Values per observation row of `kind`.
 pub fn obs_dim(kind: ObsKind) -> usize {
@@ -1031,6 +1036,12 @@ impl Seeds {
         demo: VALIDATION_DEMO_SEED_BASE,
         rollout: VALIDATION_ROLLOUT_SEED_BASE,
     };
+    /// The seen (training) tasks' seeds: demos and scenes the run never
+    /// trained on.
+    pub const SEEN: Seeds = Seeds {
+        demo: SEEN_DEMO_SEED_BASE,
+        rollout: SEEN_ROLLOUT_SEED_BASE,
+    };
 }
 
 /// The result of evaluating a model on test tasks.
@@ -1365,7 +1376,7 @@ pub struct BlocksFlags {
     /// 2000].
     #[arg(long, value_parser = crate::spec::parse::positive)]
     pub detector_episodes: Option<usize>,
-    /// --method ntp-detector: the detector's training epochs [default: 6].
+    /// --method ntp-detector: the detector's training epochs [default: 15].
     #[arg(long, value_parser = crate::spec::parse::positive)]
     pub detector_epochs: Option<usize>,
 }
@@ -1519,22 +1530,44 @@ impl DomainRuns for Blocks {
         if let Some(t) = flags.edge_threshold {
             name.push_str(&format!("-threshold{t}"));
         }
-        let result = match flags.split {
-            crate::domain::EvalSplit::Test => {
-                model.evaluate(config.failures, flags.test_tasks, flags.variant)?
-            }
-            crate::domain::EvalSplit::Validation => {
-                name.insert_str(0, "validation-");
-                model.evaluate_tasks(
-                    config.failures,
-                    &env_blocks::validation_tasks(flags.test_tasks)?,
-                    Seeds::VALIDATION,
-                    flags.variant,
-                )?
-            }
-        };
+        let (prefix, tasks, seeds) = eval_split(flags, &config)?;
+        name.insert_str(0, prefix);
+        let result = model.evaluate_tasks(config.failures, &tasks, seeds, flags.variant)?;
         write_eval(run, &name, &result)
     }
+}
+
+/// The tasks and seeds `ntg eval --split` asks for (the first
+/// `--test-tasks` of the split), and the prefix of the result's file name.
+fn eval_split(
+    flags: &EvalFlags,
+    config: &BlocksRunConfig,
+) -> anyhow::Result<(&'static str, Vec<StackTask>, Seeds)> {
+    Ok(match flags.split {
+        crate::domain::EvalSplit::Test => {
+            ("", test_tasks_of(flags.test_tasks)?.to_vec(), Seeds::TEST)
+        }
+        crate::domain::EvalSplit::Validation => (
+            "validation-",
+            env_blocks::validation_tasks(flags.test_tasks)?,
+            Seeds::VALIDATION,
+        ),
+        crate::domain::EvalSplit::Seen => {
+            if flags.test_tasks > config.train_tasks {
+                bail!(
+                    "--split seen --test-tasks {}: the run trained on {} tasks",
+                    flags.test_tasks,
+                    config.train_tasks
+                );
+            }
+            let split = env_blocks::standard_split()?;
+            (
+                "seen-",
+                split.train(flags.test_tasks)?.to_vec(),
+                Seeds::SEEN,
+            )
+        }
+    })
 }
 
 /// Writes `result` to the run's `eval/NAME.json` and prints its rates.
@@ -1573,19 +1606,8 @@ fn evaluate_ntp_run(
         );
     }
     let model = load_baseline(run, config, device)?;
-    let (mut name, tasks, seeds) = match flags.split {
-        crate::domain::EvalSplit::Test => (
-            String::new(),
-            test_tasks_of(flags.test_tasks)?.to_vec(),
-            Seeds::TEST,
-        ),
-        crate::domain::EvalSplit::Validation => (
-            "validation-".to_owned(),
-            env_blocks::validation_tasks(flags.test_tasks)?,
-            Seeds::VALIDATION,
-        ),
-    };
-    name.push_str(&format!("{}-{}", config.method.name(), flags.test_tasks));
+    let (prefix, tasks, seeds) = eval_split(flags, config)?;
+    let name = format!("{prefix}{}-{}", config.method.name(), flags.test_tasks);
     let result = evaluate_ntp_tasks(model.as_ref(), config.obs, config.failures, &tasks, seeds)?;
     write_eval(run, &name, &result)
 }

@@ -814,7 +814,7 @@ impl DomainRuns for Collect {
         );
         if flags.split != crate::domain::EvalSplit::Test {
             anyhow::bail!(
-                "--split validation is for block-stacking runs; object collection evaluates its test episodes"
+                "--split validation and --split seen are for block-stacking runs; object collection evaluates its test episodes"
             );
         }
         let model = load_model(run, &config)?;

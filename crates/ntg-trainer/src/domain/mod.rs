@@ -255,6 +255,10 @@ pub enum EvalSplit {
     Test,
     /// The validation tasks (`env_blocks::validation_tasks`).
     Validation,
+    /// The run's own training tasks (block stacking), with demos and
+    /// scenes it never trained on: whether a method does what it was
+    /// trained on.
+    Seen,
 }
 
 /// What the shared loops need to know of a domain.
