@@ -87,6 +87,14 @@ pub struct FrameEncoderConfig {
     /// is in the frame is an input the convolutions can read, not only a
     /// position in the feature map. `None`: off.
     pub coord_channels: Option<bool>,
+    /// Spatial-softmax keypoints (Levine et al. 2016, "deep spatial
+    /// autoencoders"): the third convolution keeps its input's resolution
+    /// (stride 1, an `S/4` map), each of its `C₃` channels becomes the
+    /// expected image coordinates `(x, y)` (from −1 to 1) under a softmax
+    /// over the map, and the linear layer (or MLP) reads those `2C₃`
+    /// coordinates instead of the flattened map. Made for reading
+    /// positions off a frame (NTP (Detector)'s detector). `None`: off.
+    pub spatial_softmax: Option<bool>,
     /// Embedding size `H`.
     #[config(default = 128)]
     pub out_dim: usize,
@@ -234,14 +242,19 @@ impl EncoderConfig {
             }),
             EncoderConfig::Frame(c) => {
                 let [c1, c2, c3] = c.conv_channels;
+                let keypoints = c.spatial_softmax == Some(true);
                 let side = c.image_size / 8;
-                let flat = c3 * side * side;
-                let mut conv = |c_in: usize, c_out: usize| {
-                    init.conv2d(c_in, c_out, c.kernel, 2, 1, c.he_init == Some(true))
+                let flat = if keypoints { 2 * c3 } else { c3 * side * side };
+                let he = c.he_init == Some(true);
+                let mut conv = |c_in: usize, c_out: usize, stride: usize| {
+                    // Stride 1 keeps the side with padding 1 at kernel 3.
+                    let kernel = if stride == 1 { 3 } else { c.kernel };
+                    init.conv2d(c_in, c_out, kernel, stride, 1, he)
                 };
                 let coords = c.coord_channels == Some(true);
                 let c0 = c.channels + if coords { 2 } else { 0 };
-                let (conv1, conv2, conv3) = (conv(c0, c1), conv(c1, c2), conv(c2, c3));
+                let (conv1, conv2) = (conv(c0, c1, 2), conv(c1, c2, 2));
+                let conv3 = conv(c2, c3, if keypoints { 1 } else { 2 });
                 let (fc, head) = if let Some(hidden) = c.hidden.filter(|&h| h > 0) {
                     let fc = init.linear(flat, hidden, true);
                     (fc, Some(init.linear(hidden, c.out_dim, true)))
@@ -262,6 +275,7 @@ impl EncoderConfig {
                     channels: c.channels,
                     image_size: c.image_size,
                     coords,
+                    keypoints,
                 })
             }
             EncoderConfig::Kinematics(c) => Encoder::Kinematics(KinematicsEncoder {
@@ -313,6 +327,8 @@ pub struct FrameEncoder {
     pub image_size: usize,
     /// With [`FrameEncoderConfig::coord_channels`].
     pub coords: bool,
+    /// With [`FrameEncoderConfig::spatial_softmax`].
+    pub keypoints: bool,
 }
 
 /// The kinematics-window encoder (see [`KinematicsEncoderConfig`]).
@@ -406,7 +422,11 @@ impl Encoder {
                 let x = relu(e.conv1.forward(x));
                 let x = relu(e.conv2.forward(x));
                 let x = relu(e.conv3.forward(x));
-                let x: Tensor<2> = x.reshape([batch as i32, -1]);
+                let x: Tensor<2> = if e.keypoints {
+                    expected_coordinates(x)
+                } else {
+                    x.reshape([batch as i32, -1])
+                };
                 match &e.head {
                     Some(head) => head.forward(relu(e.fc.forward(x))),
                     None => e.fc.forward(x),
@@ -437,6 +457,19 @@ impl Encoder {
 }
 
 /// `[batch, 2, s, s]`: x then y of each pixel, from −1 to 1.
+/// The spatial softmax of feature maps `[B, C, S, S]`: per channel, the
+/// expected `x` then `y` (from −1 to 1) under the softmax of its values
+/// over the map, `[B, 2C]` (every `x`, then every `y`).
+fn expected_coordinates(maps: Tensor<4>) -> Tensor<2> {
+    let [batch, channels, s, _] = maps.dims();
+    let device = maps.device();
+    let p: Tensor<3> = burn::tensor::activation::softmax(maps.reshape([batch, channels, s * s]), 2);
+    let grid: Tensor<3> = coordinate_channels(1, s, &device).reshape([1, 2, s * s]);
+    let x = p.clone().mul(grid.clone().narrow(1, 0, 1)).sum_dim(2);
+    let y = p.mul(grid.narrow(1, 1, 1)).sum_dim(2);
+    Tensor::cat(vec![x, y], 1).reshape([batch, 2 * channels])
+}
+
 fn coordinate_channels(batch: usize, s: usize, device: &burn::tensor::Device) -> Tensor<4> {
     let at = |i: usize| 2.0 * i as f32 / (s.max(2) - 1) as f32 - 1.0;
     let mut values = Vec::with_capacity(2 * s * s);
@@ -448,6 +481,23 @@ fn coordinate_channels(batch: usize, s: usize, device: &burn::tensor::Device) ->
 
 #[cfg(test)]
 mod tests {
+    /// A map peaked at one cell gives that cell's coordinates; a flat map
+    /// the centre.
+    #[test]
+    fn spatial_softmax_gives_the_expected_coordinates_of_each_channel() {
+        use burn::tensor::{Tensor, TensorData};
+        let device = crate::cpu_device();
+        let mut values = vec![0.0f32; 2 * 4 * 4];
+        values[4 + 3] = 50.0; // channel 0: row 1, column 3
+        let maps = Tensor::<4>::from_data(TensorData::new(values, [1, 2, 4, 4]), &device);
+        let v = crate::nn::to_vec(super::expected_coordinates(maps)).unwrap();
+        // [x₀, x₁, y₀, y₁]
+        let expected = [1.0, 0.0, -1.0 / 3.0, 0.0];
+        for (got, want) in v.iter().zip(expected) {
+            assert!((got - want).abs() < 1e-4, "{v:?}");
+        }
+    }
+
     #[test]
     fn coordinate_channels_run_from_minus_one_to_one_along_x_then_y() {
         let device = crate::cpu_device();

@@ -10,7 +10,7 @@
 //!
 //! ```text
 //! cargo run --release -p ntg-trainer --example detector_heldout -- \
-//!     OUT TASKS EPISODES EPOCHS [lr=LR] [batch=B] [hidden=H] [shards=S] [validation=V]
+//!     OUT TASKS EPISODES EPOCHS [lr=LR] [batch=B] [hidden=H] [shards=S] [validation=V] [no-keypoints]
 //! ```
 //!
 //! Trains on `EPISODES` primitive-level episodes spread over the first
@@ -27,7 +27,7 @@ use ntg_trainer::method::detector::{DetectorHeldOut, DetectorSettings};
 use ntg_trainer::run_dir::RunDir;
 use ntg_trainer::spec::ObsKind;
 
-const USAGE: &str = "usage: detector_heldout OUT TASKS EPISODES EPOCHS [lr=LR] [batch=B] [hidden=H] [shards=S] [validation=V]";
+const USAGE: &str = "usage: detector_heldout OUT TASKS EPISODES EPOCHS [lr=LR] [batch=B] [hidden=H] [shards=S] [validation=V] [no-keypoints]";
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -58,6 +58,7 @@ fn main() -> anyhow::Result<()> {
                 settings.validation_tasks = v.parse().context("validation=")?
             }
             Some(("shards", v)) => config.optim.shards = v.parse().context("shards=")?,
+            None if option == "no-keypoints" => settings.keypoints = false,
             _ => bail!("unknown option {option:?}; {USAGE}"),
         }
     }

@@ -6,7 +6,7 @@
 //! ```text
 //! cargo run --release -p ntg-trainer --example encoder_heldout -- score RUN [TASKS]
 //! cargo run --release -p ntg-trainer --example encoder_heldout -- \
-//!     train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [tasks=TASKS]
+//!     train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [keypoints] [tasks=TASKS]
 //! ```
 //!
 //! `score` scores the stage A network of a video run. `train` trains a new
@@ -29,7 +29,7 @@ use ntg_trainer::video::{
     EncoderEpochMetrics, EncoderStage, FrameStageStep, STAGE_A_DIR, frame_dataset,
 };
 
-const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [tasks=TASKS]";
+const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [keypoints] [tasks=TASKS]";
 
 fn count(args: &[String], i: usize, name: &str, default: Option<usize>) -> anyhow::Result<usize> {
     match (args.get(i), default) {
@@ -110,6 +110,7 @@ fn main() -> anyhow::Result<()> {
                     None if option == "he" => stage.he_init = true,
                     None if option == "centre" => stage.centre_input = true,
                     None if option == "coords" => stage.coord_channels = true,
+                    None if option == "keypoints" => stage.spatial_softmax = true,
                     _ => anyhow::bail!("unknown option {option:?}; {USAGE}"),
                 }
             }

@@ -94,6 +94,11 @@ pub struct EncoderStage {
     /// saved before it: false).
     #[serde(default)]
     pub coord_channels: bool,
+    /// Read the encoder's last feature map through spatial-softmax
+    /// keypoints (see `ntg_model::FrameEncoderConfig::spatial_softmax`;
+    /// absent in runs saved before it: false).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub spatial_softmax: bool,
     /// Data-parallel shards of each stage-A step (see
     /// [`OptimConfig::shards`]; absent in runs saved before it, and 0 or
     /// 1: one thread).
@@ -119,6 +124,7 @@ impl Default for EncoderStage {
             centre_input: false,
             reconstruction: 0.0,
             coord_channels: false,
+            spatial_softmax: false,
             shards: 0,
         }
     }
@@ -135,7 +141,8 @@ impl EncoderStage {
                     .with_hidden((self.hidden > 0).then_some(self.hidden))
                     .with_he_init(self.he_init.then_some(true))
                     .with_centre_input(self.centre_input.then_some(true))
-                    .with_coord_channels(self.coord_channels.then_some(true)),
+                    .with_coord_channels(self.coord_channels.then_some(true))
+                    .with_spatial_softmax(self.spatial_softmax.then_some(true)),
             ),
         )
         .with_seed(seed)

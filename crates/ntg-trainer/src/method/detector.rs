@@ -30,9 +30,11 @@ pub const DETECTOR_STAGE_DIR: &str = "detector_stage";
 /// How the NTP (Detector) baseline's detector is trained (a run
 /// configuration's `detector`). The defaults were chosen on validation
 /// frames (`examples/detector_heldout.rs`, `docs/results/ntp-2026-11-25.md`):
-/// positions scaled by their training spread, a 256-wide head, 6 epochs at
-/// 1e-3 along a cosine; more frames kept lowering the held-out error (0.121
-/// at 20k frames, 0.090 at 40k), hence about 2000 episodes (40k frames).
+/// positions scaled by their training spread, a 256-wide head, 1e-3 along a
+/// cosine; spatial-softmax keypoints (held-out error 0.060 against 0.121
+/// without, 20k frames, 6 epochs), 15 epochs (0.050 against 0.060 at 6);
+/// more frames kept lowering the held-out error (0.121 at 20k frames, 0.090
+/// at 40k, without keypoints), hence about 2000 episodes (40k frames).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DetectorSettings {
     /// Primitive-level expert episodes rendered for the detector's frames,
@@ -53,17 +55,23 @@ pub struct DetectorSettings {
     /// detector (`held_out.json` in the stage's folder). 0: keep the last
     /// epoch, score nothing.
     pub validation_tasks: usize,
+    /// The frame encoder reads positions through spatial-softmax keypoints
+    /// (see `ntg_model::FrameEncoderConfig::spatial_softmax`). Absent in
+    /// runs saved before it: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub keypoints: bool,
 }
 
 impl Default for DetectorSettings {
     fn default() -> Self {
         DetectorSettings {
             episodes: 2000,
-            epochs: 6,
+            epochs: 15,
             batch_size: 32,
             learning_rate: 1e-3,
             hidden: 256,
             validation_tasks: 50,
+            keypoints: true,
         }
     }
 }
@@ -91,7 +99,8 @@ impl DetectorSettings {
             EncoderConfig::Frame(
                 FrameEncoderConfig::new()
                     .with_he_init(Some(true))
-                    .with_centre_input(Some(true)),
+                    .with_centre_input(Some(true))
+                    .with_spatial_softmax(self.keypoints.then_some(true)),
             ),
         )
         .with_hidden(self.hidden)
