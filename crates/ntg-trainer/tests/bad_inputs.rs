@@ -198,6 +198,10 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             "--method ntp-detector".into(),
         ),
         (
+            train(&["--ntp-on-estimates"]),
+            "--method ntp-detector".into(),
+        ),
+        (
             train(&[
                 "--method",
                 "ntp-detector",

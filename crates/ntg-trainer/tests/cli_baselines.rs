@@ -55,6 +55,12 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
         method == "ntp-detector",
         "{config}"
     );
+    let on_estimates = config["detector"]["ntp_on_estimates"] == true;
+    assert_eq!(
+        on_estimates,
+        extra.contains(&"--ntp-on-estimates"),
+        "{config}"
+    );
     let (code, stdout, err) = ntg(&["eval", "--run", s(&run), "--test-tasks", "2"]);
     assert_eq!(code, 0, "{method}: {err}");
     assert!(stdout.contains("success"), "{stdout}");
@@ -148,5 +154,23 @@ fn ntp_detector_trains_its_detector_then_ntp_on_video() {
         "ntp-detector",
         "vid",
         &["--detector-episodes", "4", "--detector-epochs", "1"],
+    );
+}
+
+/// NTP (Detector) whose NTP trains on the detector's estimates of its
+/// episodes' frames: recorded in the run's configuration, and the run
+/// trains, evaluates and traces as the other.
+#[test]
+fn ntp_detector_trains_ntp_on_the_detectors_estimates() {
+    train_eval_trace(
+        "ntp-detector",
+        "vid",
+        &[
+            "--detector-episodes",
+            "4",
+            "--detector-epochs",
+            "1",
+            "--ntp-on-estimates",
+        ],
     );
 }

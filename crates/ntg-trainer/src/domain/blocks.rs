@@ -748,10 +748,26 @@ pub fn train_ntp_run(
         MethodId::NtpDetector => Some(train_ntp_detector(run, config, tasks, device)?),
         _ => None,
     };
-    let env = env_config(ObsKind::State, config.failures);
-    let dataset = NtpDataset::record(tasks, config.demos_per_task, TRAIN_SEED_BASE, env, |o| {
-        featurize(o, ObsKind::State)
-    })?;
+    let dataset = match &detector {
+        // NTP (Detector) trained on the detector's estimates of its
+        // episodes' frames, the rows it will be fed.
+        Some(detector) if config.detector.as_ref().is_some_and(|d| d.ntp_on_estimates) => {
+            let detector = burn::module::Module::valid(detector);
+            record_ntp_frames(
+                &NtpDataset::pairs(tasks.len(), config.demos_per_task, TRAIN_SEED_BASE),
+                |t| tasks[t].clone(),
+                config.failures,
+                "NTP frames through the detector",
+                |rows| Ok(detector.predict_rows(rows)?),
+            )?
+        }
+        _ => {
+            let env = env_config(ObsKind::State, config.failures);
+            NtpDataset::record(tasks, config.demos_per_task, TRAIN_SEED_BASE, env, |o| {
+                featurize(o, ObsKind::State)
+            })?
+        }
+    };
     let encoder = encoder(ObsKind::State, config.state_hidden_layers, config.pairwise);
     let net = ntp_config(encoder, true, config.model_seed).init(device)?;
     let held_out = HeldOutConfigurations::for_run(config)?;
@@ -826,27 +842,46 @@ fn train_ntp_video_run(
 
 /// NTP's training episodes on frames: every training demo of `plan`
 /// (virtual task, seed) recorded at the primitive level, its frame before
-/// each primitive and its last frame encoded by `frames`' frozen encoder.
-/// Recorded in parallel chunks and encoded as they come, so frames are
-/// never all held at once (and not cached: a resumed run encodes again).
+/// each primitive and its last frame encoded by `frames`' frozen encoder
+/// (not cached: a resumed run encodes again).
 pub fn ntp_video_dataset(
     plan: &VideoPlan,
     config: &BlocksRunConfig,
     frames: &ntg_model::FrameStageNet,
 ) -> anyhow::Result<NtpDataset> {
-    use rayon::prelude::*;
     let net = burn::module::Module::valid(frames);
-    let env = env_config(ObsKind::Vid, config.failures);
-    let pairs = plan.pairs(config.demos_per_task);
-    let bar = crate::dataset::progress_bar(pairs.len() as u64, "NTP frames");
+    record_ntp_frames(
+        &plan.pairs(config.demos_per_task),
+        |t| plan.task(t),
+        config.failures,
+        "NTP frames",
+        |rows| crate::method::on_frames::encode_rows(&net, rows),
+    )
+}
+
+/// NTP's training episodes `pairs` (task index, seed) of the tasks `task`
+/// gives, recorded at the primitive level on frames, each episode's frame
+/// rows mapped by `encode` (an encoder's embeddings, a detector's estimated
+/// states). Recorded in parallel chunks and mapped as they come, so frames
+/// are never all held at once.
+fn record_ntp_frames(
+    pairs: &[(usize, u64)],
+    task: impl Fn(usize) -> StackTask + Sync,
+    failures: bool,
+    what: &'static str,
+    encode: impl Fn(&[Vec<f32>]) -> anyhow::Result<Vec<Vec<f32>>>,
+) -> anyhow::Result<NtpDataset> {
+    use rayon::prelude::*;
+    let env = env_config(ObsKind::Vid, failures);
+    let bar = crate::dataset::progress_bar(pairs.len() as u64, what);
     let mut episodes = Vec::with_capacity(pairs.len());
     for chunk in pairs.chunks(256) {
         let recorded = chunk
             .par_iter()
             .map(|&(t, seed)| {
-                let task = env_blocks::BlocksTask::Stack(plan.task(t));
+                let task = env_blocks::BlocksTask::Stack(task(t));
                 let demo = env_blocks::record_ntp_demo(&task, env, seed)
-                    .with_context(|| format!("NTP demo of virtual task {t} (seed {seed})"))?;
+                    .with_context(|| format!("NTP demo of task {t} (seed {seed})"))?;
                 let rows: Vec<Vec<f32>> = demo
                     .observations
                     .iter()
@@ -856,7 +891,7 @@ pub fn ntp_video_dataset(
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
         for (task, rows, trace) in recorded {
-            let rows = crate::method::on_frames::encode_rows(&net, &rows)?;
+            let rows = encode(&rows)?;
             episodes.push(crate::method::ntp::NtpEpisode { task, rows, trace });
         }
         bar.inc(chunk.len() as u64);
@@ -1379,6 +1414,11 @@ pub struct BlocksFlags {
     /// --method ntp-detector: the detector's training epochs [default: 15].
     #[arg(long, value_parser = crate::spec::parse::positive)]
     pub detector_epochs: Option<usize>,
+    /// --method ntp-detector: train NTP on the detector's estimates of its
+    /// training episodes' frames (the rows it is fed when it acts) instead
+    /// of the simulator's true states.
+    #[arg(long)]
+    pub ntp_on_estimates: bool,
 }
 
 /// The run configuration `ntg train --domain blocks` asks for: the recipe,
@@ -1403,6 +1443,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         detector: base.detector.clone().map(|d| DetectorSettings {
             episodes: own.detector_episodes.unwrap_or(d.episodes),
             epochs: own.detector_epochs.unwrap_or(d.epochs),
+            ntp_on_estimates: d.ntp_on_estimates || own.ntp_on_estimates,
             ..d
         }),
         failures: !own.no_failures,
@@ -1459,10 +1500,12 @@ impl DomainRuns for Blocks {
             );
         }
         if config.method != MethodId::NtpDetector
-            && (own.detector_episodes.is_some() || own.detector_epochs.is_some())
+            && (own.detector_episodes.is_some()
+                || own.detector_epochs.is_some()
+                || own.ntp_on_estimates)
         {
             bail!(
-                "--detector-episodes and --detector-epochs train NTP (Detector)'s detector: they need --method ntp-detector"
+                "--detector-episodes, --detector-epochs and --ntp-on-estimates train NTP (Detector): they need --method ntp-detector"
             );
         }
         match config.method {

@@ -60,6 +60,12 @@ pub struct DetectorSettings {
     /// runs saved before it: false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub keypoints: bool,
+    /// NTP behind the detector trains on the detector's estimates of its
+    /// training episodes' frames (the rows it is fed when it acts) instead
+    /// of the simulator's true states. It does not change the detector's
+    /// own stage. Absent in runs saved before it: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub ntp_on_estimates: bool,
 }
 
 impl Default for DetectorSettings {
@@ -72,6 +78,7 @@ impl Default for DetectorSettings {
             hidden: 256,
             validation_tasks: 50,
             keypoints: true,
+            ntp_on_estimates: false,
         }
     }
 }
@@ -170,7 +177,12 @@ pub fn train_detector(
 ) -> anyhow::Result<Detector> {
     settings.validate()?;
     let stage = DetectorStageConfig {
-        settings: settings.clone(),
+        // What NTP trains on does not change the detector: a detector
+        // stage is the same either way.
+        settings: DetectorSettings {
+            ntp_on_estimates: false,
+            ..settings.clone()
+        },
         train_tasks,
         failures,
         seed,

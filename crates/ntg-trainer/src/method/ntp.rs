@@ -118,11 +118,7 @@ impl NtpDataset {
         env: EnvConfig,
         featurize: impl Fn(&env_blocks::BlocksObservation) -> Vec<f32> + Sync + Send,
     ) -> anyhow::Result<Self> {
-        let pairs: Vec<(usize, u64)> = (0..tasks.len())
-            .flat_map(|t| {
-                (0..demos_per_task).map(move |j| (t, seed_base + 1000 * t as u64 + j as u64))
-            })
-            .collect();
+        let pairs = Self::pairs(tasks.len(), demos_per_task, seed_base);
         let episodes = in_parallel(&pairs, "NTP demos", |_, &(t, seed)| {
             let task = BlocksTask::Stack(tasks[t].clone());
             let demo = env_blocks::record_ntp_demo(&task, env, seed)
@@ -134,6 +130,17 @@ impl NtpDataset {
             })
         })?;
         Ok(Self::new(episodes))
+    }
+
+    /// The (task index, seed) of each of `demos_per_task` episodes of
+    /// `tasks` tasks that [`Self::record`] records: episode `j` of task
+    /// `t` has seed `seed_base + 1000 t + j`.
+    pub fn pairs(tasks: usize, demos_per_task: usize, seed_base: u64) -> Vec<(usize, u64)> {
+        (0..tasks)
+            .flat_map(|t| {
+                (0..demos_per_task).map(move |j| (t, seed_base + 1000 * t as u64 + j as u64))
+            })
+            .collect()
     }
 
     /// A dataset of `episodes`.
