@@ -198,7 +198,7 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             "--method ntp-detector".into(),
         ),
         (
-            train(&["--ntp-on-estimates"]),
+            train(&["--ntp-on-true-states"]),
             "--method ntp-detector".into(),
         ),
         (

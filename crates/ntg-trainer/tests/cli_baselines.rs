@@ -58,7 +58,7 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
     let on_estimates = config["detector"]["ntp_on_estimates"] == true;
     assert_eq!(
         on_estimates,
-        extra.contains(&"--ntp-on-estimates"),
+        method == "ntp-detector" && !extra.contains(&"--ntp-on-true-states"),
         "{config}"
     );
     let (code, stdout, err) = ntg(&["eval", "--run", s(&run), "--test-tasks", "2"]);
@@ -157,11 +157,11 @@ fn ntp_detector_trains_its_detector_then_ntp_on_video() {
     );
 }
 
-/// NTP (Detector) whose NTP trains on the detector's estimates of its
-/// episodes' frames: recorded in the run's configuration, and the run
-/// trains, evaluates and traces as the other.
+/// NTP (Detector) whose NTP trains on true states (by default on the
+/// detector's estimates of its episodes' frames): recorded in the run's
+/// configuration, and the run trains, evaluates and traces as the other.
 #[test]
-fn ntp_detector_trains_ntp_on_the_detectors_estimates() {
+fn ntp_detector_trains_ntp_on_true_states_when_asked() {
     train_eval_trace(
         "ntp-detector",
         "vid",
@@ -170,7 +170,7 @@ fn ntp_detector_trains_ntp_on_the_detectors_estimates() {
             "4",
             "--detector-epochs",
             "1",
-            "--ntp-on-estimates",
+            "--ntp-on-true-states",
         ],
     );
 }

@@ -1414,11 +1414,11 @@ pub struct BlocksFlags {
     /// --method ntp-detector: the detector's training epochs [default: 15].
     #[arg(long, value_parser = crate::spec::parse::positive)]
     pub detector_epochs: Option<usize>,
-    /// --method ntp-detector: train NTP on the detector's estimates of its
-    /// training episodes' frames (the rows it is fed when it acts) instead
-    /// of the simulator's true states.
+    /// --method ntp-detector: train NTP on the simulator's true states of
+    /// its training episodes instead of the detector's estimates of their
+    /// frames (the rows it is fed when it acts; the default).
     #[arg(long)]
-    pub ntp_on_estimates: bool,
+    pub ntp_on_true_states: bool,
 }
 
 /// The run configuration `ntg train --domain blocks` asks for: the recipe,
@@ -1443,7 +1443,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         detector: base.detector.clone().map(|d| DetectorSettings {
             episodes: own.detector_episodes.unwrap_or(d.episodes),
             epochs: own.detector_epochs.unwrap_or(d.epochs),
-            ntp_on_estimates: d.ntp_on_estimates || own.ntp_on_estimates,
+            ntp_on_estimates: d.ntp_on_estimates && !own.ntp_on_true_states,
             ..d
         }),
         failures: !own.no_failures,
@@ -1502,10 +1502,10 @@ impl DomainRuns for Blocks {
         if config.method != MethodId::NtpDetector
             && (own.detector_episodes.is_some()
                 || own.detector_epochs.is_some()
-                || own.ntp_on_estimates)
+                || own.ntp_on_true_states)
         {
             bail!(
-                "--detector-episodes, --detector-epochs and --ntp-on-estimates train NTP (Detector): they need --method ntp-detector"
+                "--detector-episodes, --detector-epochs and --ntp-on-true-states train NTP (Detector): they need --method ntp-detector"
             );
         }
         match config.method {

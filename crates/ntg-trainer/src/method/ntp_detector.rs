@@ -1,9 +1,11 @@
 //! NTP (Detector), the video panel's baseline that gets extra supervision
-//! (`../shared/design/BASELINES.md`): an NTP network trained on true
-//! states ([`crate::method::ntp`]) fed the states a separately trained
-//! frame → state regressor ([`ntg_model::Detector`],
-//! [`crate::method::detector`]) estimates, for the demo's frames and for
-//! every observed frame.
+//! (`../shared/design/BASELINES.md`): an NTP network
+//! ([`crate::method::ntp`]) fed the states a separately trained frame →
+//! state regressor ([`ntg_model::Detector`], [`crate::method::detector`])
+//! estimates, for the demo's frames and for every observed frame. Our
+//! choice: NTP trains on the detector's estimates of its training episodes'
+//! frames (`DetectorSettings::ntp_on_estimates`; chosen on validation
+//! tasks over true states, `docs/results/ntp-2026-11-25.md`).
 //!
 //! Our choice: the demo NTP reads is the demo video's frame before each
 //! primitive and its last frame (NTP reads its specification one row per
