@@ -175,6 +175,10 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             "--location-step-prior".into(),
         ),
         (train(&["--encoder-demos", "10"]), "--encoder-demos".into()),
+        (
+            train(&["--encoder-keypoints"]),
+            "--encoder-keypoints".into(),
+        ),
         // Methods a domain or an input does not have.
         (
             train(&["--domain", "collect", "--method", "ntp"]),

@@ -55,6 +55,12 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
         method == "ntp-detector",
         "{config}"
     );
+    let keypoints = config["video"]["encoder"]["spatial_softmax"] == true;
+    assert_eq!(
+        keypoints,
+        extra.contains(&"--encoder-keypoints"),
+        "{config}"
+    );
     let on_estimates = config["detector"]["ntp_on_estimates"] == true;
     assert_eq!(
         on_estimates,
@@ -144,7 +150,13 @@ fn ntp_on_demo_videos_trains_in_the_stages_of_ntg() {
     train_eval_trace(
         "ntp",
         "vid",
-        &["--encoder-demos", "4", "--encoder-epochs", "1"],
+        &[
+            "--encoder-demos",
+            "4",
+            "--encoder-epochs",
+            "1",
+            "--encoder-keypoints",
+        ],
     );
 }
 

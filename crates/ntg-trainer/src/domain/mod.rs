@@ -185,6 +185,10 @@ pub struct TrainFlags {
     /// rebuilds each frame from its embedding), 0 for none [default: 0].
     #[arg(long, value_name = "W", value_parser = crate::spec::parse::non_negative)]
     pub encoder_reconstruction: Option<f32>,
+    /// --obs vid: the frame encoder reads its last feature map through
+    /// spatial-softmax keypoints (off by default).
+    #[arg(long)]
+    pub encoder_keypoints: bool,
 }
 
 impl TrainFlags {
@@ -196,13 +200,14 @@ impl TrainFlags {
             || self.encoder_hidden.is_some()
             || self.encoder_lr.is_some()
             || self.encoder_reconstruction.is_some()
+            || self.encoder_keypoints
     }
 
     /// Refuses the frame-encoder flags on a run that has no frames.
     pub fn check_encoder_flags(&self) -> anyhow::Result<()> {
         if self.obs == ObsKind::State && self.sets_the_frame_encoder() {
             anyhow::bail!(
-                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr and --encoder-reconstruction set the frame encoder of --obs vid runs"
+                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr, --encoder-reconstruction and --encoder-keypoints set the frame encoder of --obs vid runs"
             );
         }
         Ok(())
@@ -216,6 +221,7 @@ impl TrainFlags {
         stage.hidden = self.encoder_hidden.unwrap_or(stage.hidden);
         stage.learning_rate = self.encoder_lr.unwrap_or(stage.learning_rate);
         stage.reconstruction = self.encoder_reconstruction.unwrap_or(stage.reconstruction);
+        stage.spatial_softmax |= self.encoder_keypoints;
         stage.shards = self.shards;
     }
 }
