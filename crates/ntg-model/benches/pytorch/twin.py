@@ -1,0 +1,573 @@
+"""PyTorch twin of ntg-model's four NTG networks (state input), numerically
+cross-checked against the Rust model.
+
+The same networks as `ntg_model::NtgModel` with block stacking's
+recommended recipe (see `crates/ntg-model/examples/twin_export.rs`):
+
+- demo interpreter: state MLP (26 -> 128 -> 128), encoder GRU (128),
+  token embeddings (18 x 64), decoder GRU (128) started from the encoder's
+  last state, Luong "general" attention (score h_t . W_a h_s, padding frames
+  masked with -1e9), h~ = tanh(W_c [c; h]), logits W_o h~; teacher forcing,
+  masked token cross-entropy;
+- graph completion net: node embeddings N0 (18 x 64), 3 iterations of the
+  edge update C' = ((1 - C) f_set + C f_reset) * allowed and the GRU node
+  update from messages C f_f(N) + C^T f_b(N); weighted binary
+  cross-entropy (p clamped to [1e-6, 1 - 1e-6]);
+- node localizer: relational state MLP (26 + 3 * 8 * 8 pairwise
+  differences -> 3 x 128 -> 128), logits Enc(o) . NE_loc;
+- edge classifier: its own relational MLP, fusion layer
+  relu(W1 [Enc(o); NE_gcn(n)]) (256), query W2 (128), logits query . NE_loc
+  (NE_loc attached), masked to the fully connected graph, plus ln C of the
+  completed graph (detached, floored at 1e-6) (soft edges); NE_gcn
+  detached.
+
+The total loss is interpreter + localizer + GCN + edge, as the trainer's
+`NtgStep` sums it.
+
+Cross-check (the default): reads the JSON file written by the Rust example,
+copies the weights, runs the same batch, backpropagates the total loss, and
+compares every output, loss and parameter gradient by max abs error. Prints
+a table; exits 1 if an output or loss differs by more than --tol (1e-4), or
+a gradient by more than --tol times its tensor's largest magnitude.
+
+    cargo run --release -p ntg-model --example twin_export -- /tmp/ntg_twin.json
+    python3 crates/ntg-model/benches/pytorch/twin.py /tmp/ntg_twin.json
+
+Bench: times one training step (forward, backward, Adam with burn's
+defaults: betas 0.9/0.999, eps 1e-5, lr 3e-3) on a seeded synthetic batch
+of 32 demos (12 to 16 actions each, so 13 to 17 state rows; the GCN reads
+another demo's path), PyTorch's default initialisation (or the weights of
+FILE if given). Prints one JSON line with the median milliseconds.
+
+    python3 crates/ntg-model/benches/pytorch/twin.py --bench --threads 2 [--repeats 30]
+"""
+import argparse
+import json
+import statistics
+import sys
+import time
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+START, END = 0, 1  # reserved CTG nodes
+MASKED_LOGIT = -1.0e9
+GCN_EPS = 1e-6
+
+# Block stacking's recommended sizes (what twin_export.rs writes in `dims`).
+DEFAULT_DIMS = {
+    "num_nodes": 18,
+    "obs_dim": 26,
+    "interpreter": {
+        "encoder": {"input_dim": 26, "hidden": 128, "hidden_layers": 1,
+                    "pairwise_objects": 0, "out_dim": 128},
+        "hidden": 128,
+        "token_embed": 64,
+    },
+    "gcn": {"hidden": 64, "mlp_hidden": 64, "iterations": 3, "pos_weight": 1.0},
+    "localizer": {
+        "encoder": {"input_dim": 26, "hidden": 128, "hidden_layers": 3,
+                    "pairwise_objects": 8, "out_dim": 128},
+    },
+    "edges": {
+        "encoder": {"input_dim": 26, "hidden": 128, "hidden_layers": 3,
+                    "pairwise_objects": 8, "out_dim": 128},
+        "gcn_dim": 64,
+        "loc_dim": 128,
+        "fusion_hidden": 256,
+    },
+    "soft_edges": True,
+    "soft_edge_floor": 1e-6,
+    "detach_gcn_from_edges": True,
+}
+
+
+# ----------------------------------------------------------------- networks
+
+
+class StateEncoder(nn.Module):
+    """relu MLP over the state row (optionally followed by every pairwise
+    difference p_i - p_j of the first K xyz positions), then a linear layer."""
+
+    def __init__(self, d):
+        super().__init__()
+        self.k = d["pairwise_objects"]
+        d_in = d["input_dim"] + 3 * self.k * self.k
+        self.fc1 = nn.Linear(d_in, d["hidden"])
+        self.mid = nn.ModuleList(
+            nn.Linear(d["hidden"], d["hidden"]) for _ in range(d["hidden_layers"] - 1))
+        self.fc2 = nn.Linear(d["hidden"], d["out_dim"])
+
+    def forward(self, x):
+        k = self.k
+        if k > 0:
+            p = x[..., : 3 * k].reshape(*x.shape[:-1], k, 3)
+            diff = p.unsqueeze(-2) - p.unsqueeze(-3)  # [..., k, k, 3]: p_i - p_j
+            x = torch.cat([x, diff.flatten(-3)], -1)
+        h = F.relu(self.fc1(x))
+        for layer in self.mid:
+            h = F.relu(layer(h))
+        return self.fc2(h)
+
+
+class DemoInterpreter(nn.Module):
+    def __init__(self, dims):
+        super().__init__()
+        d = dims["interpreter"]
+        n, h = dims["num_nodes"], d["hidden"]
+        self.encoder = StateEncoder(d["encoder"])
+        self.enc_gru = nn.GRU(d["encoder"]["out_dim"], h, batch_first=True)
+        self.tokens = nn.Embedding(n, d["token_embed"])
+        self.dec_gru = nn.GRU(d["token_embed"], h, batch_first=True)
+        self.attn = nn.Linear(h, h, bias=False)
+        self.combine = nn.Linear(2 * h, h)
+        self.out = nn.Linear(h, n)
+
+    def forward(self, frames, frame_mask, targets):
+        """Teacher-forced pass: logits [B, L, N] and attention [B, L, T]."""
+        b = frames.shape[0]
+        states, _ = self.enc_gru(self.encoder(frames))  # [B, T, H]
+        # Padding is at the end of each demo; the Rust GRU carries the state
+        # through it, so its final state is the state after the last frame.
+        # (States at padding positions differ here, but get zero attention.)
+        last = states[torch.arange(b), frame_mask.sum(1).long() - 1]  # [B, H]
+        start = torch.full((b, 1), START, dtype=targets.dtype)
+        inputs = torch.cat([start, targets[:, :-1]], 1)
+        dec, _ = self.dec_gru(self.tokens(inputs), last.unsqueeze(0))  # [B, L, H]
+        keys = self.attn(states)
+        scores = dec @ keys.transpose(1, 2)  # [B, L, T]
+        scores = scores.masked_fill((frame_mask < 0.5).unsqueeze(1), MASKED_LOGIT)
+        alpha = torch.softmax(scores, 2)
+        context = alpha @ states
+        combined = torch.tanh(self.combine(torch.cat([context, dec], 2)))
+        return self.out(combined), alpha
+
+
+class PairMlp(nn.Module):
+    """f(N_i, N_j) = sigmoid(w_o . relu(U N_i + V N_j + b) + b_o), all pairs."""
+
+    def __init__(self, h, m):
+        super().__init__()
+        self.source = nn.Linear(h, m)
+        self.target = nn.Linear(h, m, bias=False)
+        self.out = nn.Linear(m, 1)
+
+    def forward(self, nodes):  # [B, N, H] -> [B, N, N]
+        pair = F.relu(self.source(nodes).unsqueeze(2) + self.target(nodes).unsqueeze(1))
+        return torch.sigmoid(self.out(pair).squeeze(-1))
+
+
+class GraphCompletionNet(nn.Module):
+    def __init__(self, dims):
+        super().__init__()
+        d = dims["gcn"]
+        n, h, m = dims["num_nodes"], d["hidden"], d["mlp_hidden"]
+        self.iterations = d["iterations"]
+        self.pos_weight = d["pos_weight"]
+        self.nodes = nn.Parameter(torch.empty(n, h).uniform_(-1.0, 1.0))
+        self.f_set = PairMlp(h, m)
+        self.f_reset = PairMlp(h, m)
+        self.f_forward = nn.Linear(h, h)
+        self.f_backward = nn.Linear(h, h)
+        self.rnn = nn.GRUCell(h, h)
+        allowed = torch.ones(n, n)
+        allowed[END, :] = 0.0  # nothing out of <end>
+        allowed[:, START] = 0.0  # nothing into <start>
+        self.register_buffer("allowed", allowed)
+
+    def forward(self, c):
+        """Completed adjacency [B, N, N] and node embeddings [B, N, H]."""
+        b, n, _ = c.shape
+        h = self.nodes.shape[1]
+        nodes = self.nodes.unsqueeze(0).expand(b, n, h)
+        for _ in range(self.iterations):
+            c_next = ((1.0 - c) * self.f_set(nodes) + c * self.f_reset(nodes)) * self.allowed
+            messages = c @ self.f_forward(nodes) + c.transpose(1, 2) @ self.f_backward(nodes)
+            nodes = self.rnn(messages.reshape(b * n, h), nodes.reshape(b * n, h)).reshape(b, n, h)
+            c = c_next
+        return c, nodes
+
+    def loss(self, adjacency, target):
+        p = adjacency.clamp(GCN_EPS, 1.0 - GCN_EPS)
+        pos = target * p.log() * self.pos_weight
+        neg = (1.0 - target) * (1.0 - p).log()
+        return -(pos + neg).mean()
+
+
+class NodeLocalizer(nn.Module):
+    def __init__(self, dims):
+        super().__init__()
+        d = dims["localizer"]["encoder"]
+        self.encoder = StateEncoder(d)
+        h = d["out_dim"]
+        self.nodes = nn.Parameter(torch.empty(dims["num_nodes"], h).uniform_(-h**-0.5, h**-0.5))
+
+    def forward(self, obs):
+        return self.encoder(obs) @ self.nodes.t()
+
+
+class EdgeClassifier(nn.Module):
+    def __init__(self, dims):
+        super().__init__()
+        d = dims["edges"]
+        self.encoder = StateEncoder(d["encoder"])
+        joint = d["encoder"]["out_dim"] + d["gcn_dim"]
+        if d["fusion_hidden"] > 0:
+            self.fusion = nn.Linear(joint, d["fusion_hidden"])
+            joint = d["fusion_hidden"]
+        else:
+            self.fusion = None
+        self.w = nn.Linear(joint, d["loc_dim"])
+
+    def forward(self, obs, node_gcn, ne_loc, allowed):
+        """Masked logits [R, N] for observations [R, D], the GCN embedding of
+        each row's node [R, H], NE_loc [N, H_loc], allowed [R, N] (bool)."""
+        joint = torch.cat([self.encoder(obs), node_gcn], 1)
+        if self.fusion is not None:
+            joint = F.relu(self.fusion(joint))
+        logits = self.w(joint) @ ne_loc.t()
+        return logits.masked_fill(~allowed, MASKED_LOGIT)
+
+
+def masked_cross_entropy(logits, targets, weights):
+    """-sum_m w_m log softmax(logits_m)[t_m] / max(sum_m w_m, 1)."""
+    picked = torch.log_softmax(logits, 1).gather(1, targets.unsqueeze(1)).squeeze(1)
+    return -(picked * weights).sum() / weights.sum().clamp_min(1.0)
+
+
+class NtgTwin(nn.Module):
+    def __init__(self, dims):
+        super().__init__()
+        self.dims = dims
+        self.interpreter = DemoInterpreter(dims)
+        self.gcn = GraphCompletionNet(dims)
+        self.localizer = NodeLocalizer(dims)
+        self.edges = EdgeClassifier(dims)
+
+    def forward(self, x):
+        """Every output and loss of one training step on batch `x`."""
+        out = {}
+        n = self.dims["num_nodes"]
+        logits, attention = self.interpreter(x["frames"], x["frame_mask"], x["targets"])
+        out["interpreter.logits"], out["interpreter.attention"] = logits, attention
+        out["interpreter.loss"] = masked_cross_entropy(
+            logits.reshape(-1, n), x["targets"].reshape(-1), x["target_mask"].reshape(-1))
+
+        adjacency, embeddings = self.gcn(x["gcn_input"])
+        out["gcn.adjacency"], out["gcn.embeddings"] = adjacency, embeddings
+        out["gcn.loss"] = self.gcn.loss(adjacency, x["gcn_target"])
+
+        loc_logits = self.localizer(x["obs"])
+        out["localizer.logits"] = loc_logits
+        out["localizer.loss"] = F.cross_entropy(loc_logits, x["nodes"])
+
+        ne_gcn = embeddings.detach() if self.dims["detach_gcn_from_edges"] else embeddings
+        node_gcn = ne_gcn[x["row_demo"], x["nodes"]]
+        edge_logits = self.edges(x["obs"], node_gcn, self.localizer.nodes, x["edge_mask"])
+        if self.dims["soft_edges"]:
+            c = torch.maximum(adjacency.detach(), x["gcn_input"])
+            c_rows = c[x["row_demo"], x["nodes"]]  # [R, N]
+            edge_logits = edge_logits + c_rows.clamp(self.dims["soft_edge_floor"], 1.0).log()
+        out["edges.logits"] = edge_logits
+        out["edges.loss"] = F.cross_entropy(edge_logits, x["next"])
+
+        out["total_loss"] = (out["interpreter.loss"] + out["localizer.loss"]
+                             + out["gcn.loss"] + out["edges.loss"])
+        return out
+
+
+# ------------------------------------------------------------ weight import
+
+
+def parameter_map(twin):
+    """(burn name, PyTorch parameter, to_burn) for every parameter, where
+    to_burn turns a PyTorch tensor (value or gradient) into burn's layout."""
+    same = lambda t: t  # noqa: E731
+    tr = lambda t: t.t()  # noqa: E731
+    entries = []
+
+    def linear(m, name):
+        entries.append((f"{name}.weight", m.weight, tr))
+        if m.bias is not None:
+            entries.append((f"{name}.bias", m.bias, same))
+
+    def gru(m, name, suffix=""):
+        entries.append((f"{name}.input.weight", getattr(m, f"weight_ih{suffix}"), tr))
+        entries.append((f"{name}.input.bias", getattr(m, f"bias_ih{suffix}"), same))
+        entries.append((f"{name}.hidden.weight", getattr(m, f"weight_hh{suffix}"), tr))
+        entries.append((f"{name}.hidden.bias", getattr(m, f"bias_hh{suffix}"), same))
+
+    def encoder(e, name):
+        linear(e.fc1, f"{name}.fc1")
+        for i, layer in enumerate(e.mid):
+            linear(layer, f"{name}.mid.{i}")
+        linear(e.fc2, f"{name}.fc2")
+
+    i = twin.interpreter
+    encoder(i.encoder, "interpreter.encoder")
+    gru(i.enc_gru, "interpreter.enc_gru", "_l0")
+    entries.append(("interpreter.tokens", i.tokens.weight, same))
+    gru(i.dec_gru, "interpreter.dec_gru", "_l0")
+    linear(i.attn, "interpreter.attn")
+    linear(i.combine, "interpreter.combine")
+    linear(i.out, "interpreter.out")
+    g = twin.gcn
+    entries.append(("gcn.nodes", g.nodes, same))
+    for name, pair in (("gcn.f_set", g.f_set), ("gcn.f_reset", g.f_reset)):
+        linear(pair.source, f"{name}.source")
+        linear(pair.target, f"{name}.target")
+        linear(pair.out, f"{name}.out")
+    linear(g.f_forward, "gcn.f_forward")
+    linear(g.f_backward, "gcn.f_backward")
+    gru(g.rnn, "gcn.rnn")
+    encoder(twin.localizer.encoder, "localizer.encoder")
+    entries.append(("localizer.nodes", twin.localizer.nodes, same))
+    e = twin.edges
+    encoder(e.encoder, "edges.encoder")
+    if e.fusion is not None:
+        linear(e.fusion, "edges.fusion")
+    linear(e.w, "edges.w")
+    return entries
+
+
+def load_weights(twin, params):
+    """Copies burn-layout tensors `params` into `twin`; every parameter on
+    both sides must be used exactly once, with matching shapes."""
+    entries = parameter_map(twin)
+    names = [name for name, _, _ in entries]
+    missing = sorted(set(names) - set(params))
+    extra = sorted(set(params) - set(names))
+    if missing or extra:
+        raise SystemExit(f"parameter names differ: missing {missing}, not used {extra}")
+    covered = {id(p) for _, p, _ in entries}
+    if covered != {id(p) for p in twin.parameters()} or len(covered) != len(entries):
+        raise SystemExit("the parameter map does not cover the twin exactly once")
+    with torch.no_grad():
+        for name, p, to_burn in entries:
+            src = params[name]
+            if tuple(to_burn(p).shape) != tuple(src.shape):
+                raise SystemExit(f"{name}: shape {tuple(src.shape)} in the file, "
+                                 f"{tuple(to_burn(p).shape)} in the twin (burn layout)")
+            to_burn(p).copy_(src)
+
+
+# -------------------------------------------------------------- file input
+
+
+def same_dims(a, b):
+    """Equal sizes, floats compared as float32 (the file holds f32 values)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(same_dims(a[k], b[k]) for k in a)
+    if isinstance(a, float) or isinstance(b, float):
+        return np.float32(a) == np.float32(b)
+    return a == b
+
+
+def _tensor(v, dtype):
+    return torch.from_numpy(np.asarray(v["data"], dtype=dtype).reshape(v["shape"]))
+
+
+def read_export(path):
+    with open(path) as f:
+        doc = json.load(f)
+    if doc.get("format") != "ntg-twin/1":
+        raise SystemExit(f"{path}: not an ntg-twin/1 file")
+    params = {k: _tensor(v, np.float32) for k, v in doc["params"].items()}
+    grads = {k: _tensor(v, np.float32) for k, v in doc["grads"].items()}
+    ints = {"targets", "nodes", "next", "row_demo", "edge_mask"}
+    inputs = {}
+    for k, v in doc["inputs"].items():
+        inputs[k] = _tensor(v, np.int64 if k in ints else np.float32)
+    inputs["edge_mask"] = inputs["edge_mask"] != 0
+    outputs = {k: _tensor(v, np.float32) for k, v in doc["outputs"].items()}
+    return doc["dims"], params, grads, inputs, outputs
+
+
+# --------------------------------------------------------------- check mode
+
+
+def check(path, tol):
+    dims, params, grads, inputs, expected = read_export(path)
+    if not same_dims(dims, DEFAULT_DIMS):
+        print("note: the exported model's sizes differ from DEFAULT_DIMS, which --bench "
+              f"uses without a FILE:\n  exported {dims}\n  default  {DEFAULT_DIMS}")
+    torch.manual_seed(0)
+    twin = NtgTwin(dims)
+    load_weights(twin, params)
+    out = twin(inputs)
+    out["total_loss"].backward()
+
+    # (kind, name, shape, max abs error, max |reference|, limit). Outputs
+    # and losses must agree to `tol` absolutely; a gradient to `tol` times
+    # its tensor's largest magnitude (gradients here are 1e-5 to 1e-1, so
+    # an absolute 1e-4 would let a wrong one through).
+    rows = []
+    for name, ref in expected.items():
+        scale = ref.abs().max().item()
+        if name not in out:
+            rows.append(("output", name, tuple(ref.shape), float("inf"), scale, tol))
+            continue
+        got = out[name].detach().reshape(ref.shape)
+        rows.append(("output", name, tuple(ref.shape), (got - ref).abs().max().item(), scale, tol))
+    missing_outputs = sorted(set(out) - set(expected))
+    for name, p, to_burn in parameter_map(twin):
+        ref = grads[name]
+        g = to_burn(p.grad) if p.grad is not None else torch.zeros_like(ref)
+        scale = ref.abs().max().item()
+        rows.append(("grad", name, tuple(ref.shape), (g - ref).abs().max().item(), scale,
+                     tol * scale))
+
+    width = max(len(r[1]) for r in rows)
+    print(f"{'kind':<6}  {'name':<{width}}  {'shape':<16}  {'max |ref|':>10}  "
+          f"{'max abs err':>11}  {'limit':>9}  ok")
+    for kind, name, shape, err, scale, limit in rows:
+        ok = "ok" if err <= limit else "FAIL"
+        print(f"{kind:<6}  {name:<{width}}  {str(list(shape)):<16}  {scale:>10.4g}  "
+              f"{err:>11.3e}  {limit:>9.2e}  {ok}")
+    failed = [r for r in rows if not r[3] <= r[5]]
+    worst_out = max(r[3] for r in rows if r[0] == "output")
+    worst_grad = max((r[3] / r[4] if r[4] > 0 else r[3]) for r in rows if r[0] == "grad")
+    print(f"\n{len(rows)} compared ({sum(r[0] == 'output' for r in rows)} outputs and losses, "
+          f"{sum(r[0] == 'grad' for r in rows)} gradients); worst output max abs error "
+          f"{worst_out:.3e} (limit {tol:g}); worst gradient error relative to its scale "
+          f"{worst_grad:.3e} (limit {tol:g}); torch {torch.__version__}")
+    if missing_outputs:
+        print(f"twin outputs not in the file (not compared): {missing_outputs}")
+    if failed:
+        print(f"FAILED: {len(failed)} above tolerance: {[r[1] for r in failed]}")
+        return 1
+    print("all within tolerance")
+    return 0
+
+
+# --------------------------------------------------------------- bench mode
+
+
+def synthetic_batch(dims, batch, seed):
+    """A batch shaped like block stacking's: `batch` demos of 12 to 16
+    actions (pick/place alternating, ids 2..17) with one state row per CTG
+    node, tasks of two demos each, the GCN reading the other demo's path."""
+    rng = np.random.default_rng(seed)
+    n, d = dims["num_nodes"], dims["obs_dim"]
+    actions = []
+    for _ in range(batch):
+        k = int(rng.integers(6, 9))  # moves
+        seq = []
+        for _ in range(k):
+            seq += [2 + int(rng.integers(0, 8)), 10 + int(rng.integers(0, 8))]
+        actions.append(seq)
+    t_max = max(len(a) + 1 for a in actions)
+    l_max = max(len(a) + 1 for a in actions)
+    frames = np.zeros((batch, t_max, d), np.float32)
+    frame_mask = np.zeros((batch, t_max), np.float32)
+    targets = np.full((batch, l_max), END, np.int64)
+    target_mask = np.zeros((batch, l_max), np.float32)
+
+    def path(seq):
+        a = np.zeros((n, n), np.float32)
+        nodes = [START] + seq + [END]
+        for u, v in zip(nodes, nodes[1:]):
+            a[u, v] = 1.0
+        return a
+
+    gcn_input = np.zeros((batch, n, n), np.float32)
+    gcn_target = np.zeros((batch, n, n), np.float32)
+    obs, nodes, nxt, row_demo = [], [], [], []
+    for b, seq in enumerate(actions):
+        rows = rng.uniform(-0.4, 0.4, (len(seq) + 1, d)).astype(np.float32)
+        frames[b, : len(rows)] = rows
+        frame_mask[b, : len(rows)] = 1.0
+        targets[b, : len(seq) + 1] = seq + [END]
+        target_mask[b, : len(seq) + 1] = 1.0
+        other = b ^ 1 if (b ^ 1) < batch else b
+        gcn_input[b] = path(actions[other])
+        gcn_target[b] = np.maximum(path(seq), path(actions[other]))
+        obs.append(rows)
+        nodes += [START] + seq
+        nxt += seq + [END]
+        row_demo += [b] * len(rows)
+    allowed = np.ones((n, n), bool)
+    allowed[END, :] = False
+    allowed[:, START] = False
+    nodes = np.asarray(nodes, np.int64)
+    return {
+        "frames": torch.from_numpy(frames),
+        "frame_mask": torch.from_numpy(frame_mask),
+        "targets": torch.from_numpy(targets),
+        "target_mask": torch.from_numpy(target_mask),
+        "gcn_input": torch.from_numpy(gcn_input),
+        "gcn_target": torch.from_numpy(gcn_target),
+        "obs": torch.from_numpy(np.concatenate(obs)),
+        "nodes": torch.from_numpy(nodes),
+        "next": torch.from_numpy(np.asarray(nxt, np.int64)),
+        "row_demo": torch.from_numpy(np.asarray(row_demo, np.int64)),
+        "edge_mask": torch.from_numpy(allowed[nodes]),
+    }
+
+
+def bench(path, batch, threads, repeats, warmup):
+    torch.set_num_threads(threads)
+    torch.manual_seed(0)
+    dims = DEFAULT_DIMS
+    params = None
+    if path:
+        dims, params, _, _, _ = read_export(path)
+    twin = NtgTwin(dims)
+    if params is not None:
+        load_weights(twin, params)
+    x = synthetic_batch(dims, batch, seed=1)
+    opt = torch.optim.Adam(twin.parameters(), lr=3e-3, betas=(0.9, 0.999), eps=1e-5)
+
+    def step():
+        opt.zero_grad(set_to_none=True)
+        loss = twin(x)["total_loss"]
+        loss.backward()
+        opt.step()
+        return loss
+
+    for _ in range(warmup):
+        step()
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        step()
+        times.append((time.perf_counter() - t) * 1e3)
+    print(json.dumps({
+        "bench": "ntg_twin_train_step",
+        "obs": "state",
+        "batch": batch,
+        "rows": int(x["obs"].shape[0]),
+        "frames": int(x["frames"].shape[1]),
+        "tokens": int(x["targets"].shape[1]),
+        "threads": threads,
+        "repeats": repeats,
+        "median_ms": round(statistics.median(times), 3),
+        "min_ms": round(min(times), 3),
+        "torch": torch.__version__,
+        "params": sum(p.numel() for p in twin.parameters()),
+    }))
+    return 0
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("file", nargs="?", help="JSON file written by the twin_export example")
+    ap.add_argument("--tol", type=float, default=1e-4, help="max abs error allowed (check mode)")
+    ap.add_argument("--bench", action="store_true", help="time a training step instead")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--warmup", type=int, default=3)
+    args = ap.parse_args()
+    if args.bench:
+        return bench(args.file, args.batch, args.threads, args.repeats, args.warmup)
+    if not args.file:
+        ap.error("give the exported FILE (or --bench)")
+    torch.set_num_threads(args.threads)
+    return check(args.file, args.tol)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
