@@ -160,10 +160,14 @@ impl burn::module::ModuleVisitor for NonFinite {
         &mut self,
         param: &burn::module::Param<burn::tensor::Tensor<D>>,
     ) {
-        let finite = param.val().is_finite().all().into_data();
+        // Read back as f32 (converted from whatever the backend stores):
+        // GPU backends keep booleans as integers, so reading a bool tensor
+        // with `try_to_vec::<bool>` fails there (it counted every tensor of
+        // a wgpu run as non-finite).
+        let finite = param.val().is_finite().all().float().into_data();
         if finite
-            .try_to_vec::<bool>()
-            .map_or(true, |v| v.contains(&false))
+            .try_to_vec_as::<f32>()
+            .map_or(true, |v| v.contains(&0.0))
         {
             self.tensors += 1;
         }
