@@ -8,8 +8,19 @@
 //! - `soak [--kills N]`: SIGKILLs a small training run N times, resumes it
 //!   to the end and checks it ends exactly as an uninterrupted run
 //!   (see `soak.rs`).
+//! - `bench [--threads N] [--quick] [--repeats R] [--out FILE]`: runs the
+//!   burn benchmarks and the PyTorch twin (`crates/ntg-model/benches/pytorch/twin.py`,
+//!   with `NTG_PYTHON`, default `python3`) in one go, N threads on both sides
+//!   (default 2: `RAYON_NUM_THREADS` for burn's `flex`, `torch.set_num_threads`),
+//!   and prints one table of medians and burn/PyTorch ratios: the full
+//!   model's state training step (batch 32), stage A's frame encoder step
+//!   (64 frames), the demo interpreter's and the GCN's training steps, one
+//!   policy step at rollout, and expert demos generated per second (no
+//!   PyTorch counterpart). Also written as JSON (`target/bench/bench.json`).
+//!   Without torch the PyTorch column says so and the command still
+//!   succeeds; `--quick` is a smoke check (see `bench.rs`).
 //!
-//! xtask stays light (clap + anyhow): it drives the `ntg` binary and cargo
+//! xtask stays light (clap, anyhow, serde_json): it drives the `ntg` binary and cargo
 //! as subprocesses instead of linking the networks, so it builds in seconds.
 
 use std::path::{Path, PathBuf};
@@ -18,6 +29,7 @@ use std::process::Command;
 use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 
+mod bench;
 mod soak;
 
 #[derive(Debug, Parser)]
@@ -64,6 +76,25 @@ enum Task {
         /// Working folder (replaced).
         #[arg(long, default_value = "target/soak")]
         work: PathBuf,
+    },
+    /// Time burn (flex) against the PyTorch twin, same batches and thread
+    /// count, and print one table of medians and ratios.
+    Bench {
+        /// Threads on both sides (burn: RAYON_NUM_THREADS; PyTorch:
+        /// torch.set_num_threads).
+        #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u16).range(1..))]
+        threads: u16,
+        /// A smoke check: 3 repeats per row after 1 warm-up call.
+        #[arg(long)]
+        quick: bool,
+        /// Timed repeats per training row (default 20, or 3 with --quick;
+        /// the policy step runs max(10x, 100)).
+        #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+        repeats: Option<u32>,
+        /// Where to write the table as JSON (default:
+        /// target/bench/bench.json in the workspace).
+        #[arg(long)]
+        out: Option<PathBuf>,
     },
 }
 
@@ -146,6 +177,31 @@ fn main() -> std::process::ExitCode {
             jigsaws_root,
         } => reproduce_figures(profile, jigsaws_root),
         Task::Ci => ci(),
+        Task::Bench {
+            threads,
+            quick,
+            repeats,
+            out,
+        } => {
+            let root = workspace_root();
+            let out = match out {
+                // Relative to where the user ran the command.
+                Some(p) => std::path::absolute(&p),
+                None => Ok(root.join("target/bench/bench.json")),
+            };
+            out.context("resolving --out").and_then(|out| {
+                bench::run(
+                    &root,
+                    &bench::Bench {
+                        threads: usize::from(threads),
+                        quick,
+                        repeats: repeats.map_or(if quick { 3 } else { 20 }, |r| r as usize),
+                        warmup: if quick { 1 } else { 3 },
+                        out,
+                    },
+                )
+            })
+        }
         Task::Soak {
             kills,
             seed,

@@ -34,7 +34,7 @@ pub struct Soak {
 }
 
 /// A small seeded generator (xorshift64*) for the kill delays: xtask stays
-/// free of dependencies beyond clap and anyhow.
+/// light (no `rand`).
 struct Delays(u64);
 
 impl Delays {

@@ -34,12 +34,22 @@ a gradient by more than --tol times its tensor's largest magnitude.
     python3 crates/ntg-model/benches/pytorch/twin.py /tmp/ntg_twin.json
 
 Bench: times one training step (forward, backward, Adam with burn's
-defaults: betas 0.9/0.999, eps 1e-5, lr 3e-3) on a seeded synthetic batch
-of 32 demos (12 to 16 actions each, so 13 to 17 state rows; the GCN reads
-another demo's path), PyTorch's default initialisation (or the weights of
-FILE if given). Prints one JSON line with the median milliseconds.
+defaults: betas 0.9/0.999, eps 1e-5, lr 3e-3) on a deterministic synthetic
+batch of 32 demos (12, 14 or 16 actions each, so 13 to 17 state rows; the
+GCN reads another demo's path), PyTorch's default initialisation (or the
+weights of FILE if given). Prints one JSON line with the median
+milliseconds.
 
     python3 crates/ntg-model/benches/pytorch/twin.py --bench --threads 2 [--repeats 30]
+
+`--bench ROW` (or `ROW,ROW`, or `all`) times the rows of `cargo xtask
+bench`, one JSON line each, on exactly the batches and sizes of the burn
+side (`crates/ntg-model/examples/twin_bench.rs`, whose doc gives the batch
+recipe): state_step (the above), frame_step (stage A's frame network, 64
+frames), interpreter_step and gcn_step (those networks alone on the same
+batch), policy_step (one executor decision, inference: localizer, edge
+classifier over every node with soft edges, pi = sum_n ell(n) eps(.|n);
+repeated max(10 x repeats, 100) times).
 """
 import argparse
 import json
@@ -444,20 +454,47 @@ def check(path, tol):
 
 # --------------------------------------------------------------- bench mode
 
+# The rows of `cargo xtask bench` this side times, in its order; the burn
+# side is `crates/ntg-model/examples/twin_bench.rs`, with the same names,
+# sizes and batches.
+BENCH_ROWS = ("state_step", "frame_step", "interpreter_step", "gcn_step", "policy_step")
+FRAMES = 64  # stage A batch (the trainer's default)
+FRAME_SIDE = 64
+LR = 3e-3
 
-def synthetic_batch(dims, batch, seed):
-    """A batch shaped like block stacking's: `batch` demos of 12 to 16
-    actions (pick/place alternating, ids 2..17) with one state row per CTG
-    node, tasks of two demos each, the GCN reading the other demo's path."""
-    rng = np.random.default_rng(seed)
+
+def unit(k):
+    """(k * 2654435761 mod 2^32) / 2^32 for an array of ints, in [0, 1):
+    the deterministic "random" values both sides build their batches from."""
+    k = np.asarray(k, dtype=np.uint64)
+    return ((k * np.uint64(2654435761)) & np.uint64(0xFFFFFFFF)).astype(np.float64) / 4294967296.0
+
+
+def demo_actions(b, n):
+    """Demo b: 6 + b % 3 moves, move k picks cube (b + 3k) % K and places it
+    on cube (b + 5k + 1) % K (K = (n - 2) / 2 cubes)."""
+    k_obj = (n - 2) // 2
+    seq = []
+    for k in range(6 + b % 3):
+        seq += [2 + (b + 3 * k) % k_obj, 2 + k_obj + (b + 5 * k + 1) % k_obj]
+    return seq
+
+
+def demo_rows(b, actions, d):
+    """The actions + 1 state rows of demo b: value i of row t is
+    -0.4 + 0.8 u((64 b + t) 64 + i)."""
+    t = np.arange(actions + 1)[:, None]
+    i = np.arange(d)[None, :]
+    return (-0.4 + 0.8 * unit((64 * b + t) * 64 + i)).astype(np.float32)
+
+
+def synthetic_batch(dims, batch):
+    """A batch shaped like block stacking's, identical to twin_bench.rs's:
+    `batch` demos of 12, 14 or 16 actions (pick/place alternating) with one
+    state row per CTG node, the GCN completing demo b ^ 1's path into the
+    union of both paths (see demo_actions and demo_rows)."""
     n, d = dims["num_nodes"], dims["obs_dim"]
-    actions = []
-    for _ in range(batch):
-        k = int(rng.integers(6, 9))  # moves
-        seq = []
-        for _ in range(k):
-            seq += [2 + int(rng.integers(0, 8)), 10 + int(rng.integers(0, 8))]
-        actions.append(seq)
+    actions = [demo_actions(b, n) for b in range(batch)]
     t_max = max(len(a) + 1 for a in actions)
     l_max = max(len(a) + 1 for a in actions)
     frames = np.zeros((batch, t_max, d), np.float32)
@@ -476,7 +513,7 @@ def synthetic_batch(dims, batch, seed):
     gcn_target = np.zeros((batch, n, n), np.float32)
     obs, nodes, nxt, row_demo = [], [], [], []
     for b, seq in enumerate(actions):
-        rows = rng.uniform(-0.4, 0.4, (len(seq) + 1, d)).astype(np.float32)
+        rows = demo_rows(b, len(seq), d)
         frames[b, : len(rows)] = rows
         frame_mask[b, : len(rows)] = 1.0
         targets[b, : len(seq) + 1] = seq + [END]
@@ -507,47 +544,202 @@ def synthetic_batch(dims, batch, seed):
     }
 
 
-def bench(path, batch, threads, repeats, warmup):
-    torch.set_num_threads(threads)
+def batch_shape(x):
+    return (f"batch {x['frames'].shape[0]}, rows {x['obs'].shape[0]}, "
+            f"frames {x['frames'].shape[1]}, tokens {x['targets'].shape[1]}")
+
+
+class FrameStageTwin(nn.Module):
+    """ntg_model::FrameStageNet at the trainer's default stage A settings:
+    three 3x3 convolutions of stride 2, padding 1 (3 -> 32 -> 64 -> 64
+    channels, 64x64 -> 8x8) with ReLU, a linear layer to 128 (Enc(o)),
+    NE_loc and NE [N, 128], the edge head W [Enc(o); NE(n)] (256 -> 128),
+    localizer and masked edge cross-entropies summed."""
+
+    def __init__(self, n, hidden=128):
+        super().__init__()
+        self.c1 = nn.Conv2d(3, 32, 3, 2, 1)
+        self.c2 = nn.Conv2d(32, 64, 3, 2, 1)
+        self.c3 = nn.Conv2d(64, 64, 3, 2, 1)
+        self.fc = nn.Linear(64 * 8 * 8, hidden)
+        bound = hidden**-0.5
+        self.loc_nodes = nn.Parameter(torch.empty(n, hidden).uniform_(-bound, bound))
+        self.edge_nodes = nn.Parameter(torch.empty(n, hidden).uniform_(-bound, bound))
+        self.w = nn.Linear(2 * hidden, hidden)
+
+    def loss(self, frames, labels, nxt, successors):
+        x = frames.reshape(-1, 3, FRAME_SIDE, FRAME_SIDE)
+        x = F.relu(self.c1(x))
+        x = F.relu(self.c2(x))
+        x = F.relu(self.c3(x))
+        enc = self.fc(x.flatten(1))
+        loc_logits = enc @ self.loc_nodes.t()
+        query = self.w(torch.cat([enc, self.edge_nodes[labels]], 1))
+        edge_logits = (query @ self.loc_nodes.t()).masked_fill(~successors, MASKED_LOGIT)
+        return F.cross_entropy(loc_logits, labels) + F.cross_entropy(edge_logits, nxt)
+
+
+def frame_batch(n):
+    """Stage A's 64 frames, identical to twin_bench.rs's: pixel i of frame f
+    u(1e9 + 12288 f + i), label 2 + f % 16, next 2 + (f + 1) % 16,
+    successors a where (7 f + 3 a) % 10 < 3, and the next action."""
+    dim = 3 * FRAME_SIDE * FRAME_SIDE
+    frames = unit(1_000_000_000 + np.arange(FRAMES * dim)).astype(np.float32).reshape(FRAMES, dim)
+    labels = 2 + np.arange(FRAMES) % 16
+    nxt = 2 + (np.arange(FRAMES) + 1) % 16
+    f, a = np.meshgrid(np.arange(FRAMES), np.arange(n), indexing="ij")
+    successors = ((7 * f + 3 * a) % 10 < 3) | (a == nxt[:, None])
+    return (torch.from_numpy(frames), torch.from_numpy(labels.astype(np.int64)),
+            torch.from_numpy(nxt.astype(np.int64)), torch.from_numpy(successors))
+
+
+class PolicyTwin:
+    """One executor decision of ntg_model::NtgPolicy with soft edges and the
+    marginal node selection, for the policy built from `actions` (its path
+    graph completed by the GCN once, as NtgPolicy::from_actions does):
+    ell(n|o) = softmax of the localizer's logits; eps(a|n,o) a softmax of the
+    edge logits raised by ln C over the fully connected graph's successors,
+    C the completed graph's probabilities with the demo's edges at 1,
+    floored at soft_edge_floor; pi(a|o) = sum_n ell(n|o) eps(a|n,o) over the
+    nodes with successors, normalised."""
+
+    def __init__(self, twin, actions):
+        dims = twin.dims
+        n = dims["num_nodes"]
+        self.twin = twin
+        nodes = [START] + actions + [END]
+        path = torch.zeros(n, n)
+        for u, v in zip(nodes, nodes[1:]):
+            path[u, v] = 1.0
+        with torch.no_grad():
+            adjacency, embeddings = twin.gcn(path[None])
+            allowed = twin.gcn.allowed > 0.5
+            weights = torch.maximum(adjacency[0].clamp(0.0, 1.0), path)
+            weights = weights.clamp(dims["soft_edge_floor"], 1.0)
+            self.log_weights = torch.where(allowed, weights.log(), torch.tensor(float("-inf")))
+            self.has_successor = allowed.any(1)
+            self.ne_gcn = embeddings[0]  # [N, H]
+        self.n = n
+
+    def action_distribution(self, observation):
+        """pi(.|o) for one observation row (a numpy float32 array)."""
+        t = self.twin
+        with torch.no_grad():
+            x = torch.from_numpy(observation)[None]
+            node_p = torch.softmax(t.localizer(x)[0], 0)
+            enc = t.edges.encoder(x).expand(self.n, -1)
+            joint = torch.cat([enc, self.ne_gcn], 1)
+            if t.edges.fusion is not None:
+                joint = F.relu(t.edges.fusion(joint))
+            logits = t.edges.w(joint) @ t.localizer.nodes.t()  # [N, N]
+            keep = self.has_successor
+            rows = torch.softmax(logits[keep] + self.log_weights[keep], 1)
+            p = (node_p[keep, None] * rows).sum(0)
+            return (p / p.sum()).numpy()
+
+
+def median_ms(fn, repeats, warmup):
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(max(repeats, 1)):
+        t = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t) * 1e3)
+    return statistics.median(times), min(times), len(times)
+
+
+def bench_row(row, dims, params, batch, repeats, warmup):
+    """Times `row`: (median ms, min ms, repeats, shape, extra fields)."""
     torch.manual_seed(0)
+    twin = NtgTwin(dims)
+    if params is not None:
+        load_weights(twin, params)
+    extra = {}
+    if row in ("state_step", "interpreter_step", "gcn_step"):
+        x = synthetic_batch(dims, batch)
+        n = dims["num_nodes"]
+        if row == "state_step":
+            trained = twin
+
+            def loss():
+                return twin(x)["total_loss"]
+            extra = {
+                "bench": "ntg_twin_train_step",
+                "obs": "state",
+                "batch": batch,
+                "rows": int(x["obs"].shape[0]),
+                "frames": int(x["frames"].shape[1]),
+                "tokens": int(x["targets"].shape[1]),
+                "params": sum(p.numel() for p in twin.parameters()),
+            }
+            shape = batch_shape(x)
+        elif row == "interpreter_step":
+            trained = twin.interpreter
+
+            def loss():
+                logits, _ = twin.interpreter(x["frames"], x["frame_mask"], x["targets"])
+                return masked_cross_entropy(logits.reshape(-1, n), x["targets"].reshape(-1),
+                                            x["target_mask"].reshape(-1))
+            shape = batch_shape(x)
+        else:
+            trained = twin.gcn
+
+            def loss():
+                adjacency, _ = twin.gcn(x["gcn_input"])
+                return twin.gcn.loss(adjacency, x["gcn_target"])
+            shape = f"graphs {batch}, nodes {n}"
+        # burn's Adam defaults: betas 0.9/0.999, eps 1e-5.
+        opt = torch.optim.Adam(trained.parameters(), lr=LR, betas=(0.9, 0.999), eps=1e-5)
+
+        def step():
+            opt.zero_grad(set_to_none=True)
+            loss().backward()
+            opt.step()
+        return (*median_ms(step, repeats, warmup), shape, extra)
+    if row == "frame_step":
+        net = FrameStageTwin(dims["num_nodes"])
+        frames, labels, nxt, successors = frame_batch(dims["num_nodes"])
+        opt = torch.optim.Adam(net.parameters(), lr=LR, betas=(0.9, 0.999), eps=1e-5)
+
+        def step():
+            opt.zero_grad(set_to_none=True)
+            net.loss(frames, labels, nxt, successors).backward()
+            opt.step()
+        return (*median_ms(step, repeats, warmup), f"frames {FRAMES}, 3x64x64", extra)
+    if row == "policy_step":
+        n, d = dims["num_nodes"], dims["obs_dim"]
+        actions = demo_actions(0, n)
+        rows = demo_rows(0, len(actions), d)
+        policy = PolicyTwin(twin, actions)
+        calls = [0]
+
+        def step():
+            calls[0] += 1
+            policy.action_distribution(rows[calls[0] % 2])
+        return (*median_ms(step, max(10 * repeats, 100), max(warmup, 2)),
+                f"obs 1x{d}, nodes {n}", extra)
+    raise SystemExit(f"unknown bench row {row!r} (rows: {', '.join(BENCH_ROWS)}, all)")
+
+
+def bench(path, rows, batch, threads, repeats, warmup):
+    torch.set_num_threads(threads)
     dims = DEFAULT_DIMS
     params = None
     if path:
         dims, params, _, _, _ = read_export(path)
-    twin = NtgTwin(dims)
-    if params is not None:
-        load_weights(twin, params)
-    x = synthetic_batch(dims, batch, seed=1)
-    opt = torch.optim.Adam(twin.parameters(), lr=3e-3, betas=(0.9, 0.999), eps=1e-5)
-
-    def step():
-        opt.zero_grad(set_to_none=True)
-        loss = twin(x)["total_loss"]
-        loss.backward()
-        opt.step()
-        return loss
-
-    for _ in range(warmup):
-        step()
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        step()
-        times.append((time.perf_counter() - t) * 1e3)
-    print(json.dumps({
-        "bench": "ntg_twin_train_step",
-        "obs": "state",
-        "batch": batch,
-        "rows": int(x["obs"].shape[0]),
-        "frames": int(x["frames"].shape[1]),
-        "tokens": int(x["targets"].shape[1]),
-        "threads": threads,
-        "repeats": repeats,
-        "median_ms": round(statistics.median(times), 3),
-        "min_ms": round(min(times), 3),
-        "torch": torch.__version__,
-        "params": sum(p.numel() for p in twin.parameters()),
-    }))
+    for row in rows:
+        median, low, count, shape, extra = bench_row(row, dims, params, batch, repeats, warmup)
+        print(json.dumps({
+            "row": row,
+            **extra,
+            "threads": threads,
+            "repeats": count,
+            "median_ms": round(median, 3),
+            "min_ms": round(low, 3),
+            "shape": shape,
+            "torch": torch.__version__,
+        }), flush=True)
     return 0
 
 
@@ -555,14 +747,20 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("file", nargs="?", help="JSON file written by the twin_export example")
     ap.add_argument("--tol", type=float, default=1e-4, help="max abs error allowed (check mode)")
-    ap.add_argument("--bench", action="store_true", help="time a training step instead")
+    ap.add_argument("--bench", nargs="?", const="state_step", metavar="ROW",
+                    help="time ROW instead (default state_step; 'all' or ROW,ROW: "
+                         f"{', '.join(BENCH_ROWS)})")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--batch", type=int, default=32)
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--warmup", type=int, default=3)
     args = ap.parse_args()
     if args.bench:
-        return bench(args.file, args.batch, args.threads, args.repeats, args.warmup)
+        rows = BENCH_ROWS if args.bench == "all" else args.bench.split(",")
+        for row in rows:
+            if row not in BENCH_ROWS:
+                ap.error(f"unknown bench row {row!r} (rows: {', '.join(BENCH_ROWS)}, all)")
+        return bench(args.file, rows, args.batch, args.threads, args.repeats, args.warmup)
     if not args.file:
         ap.error("give the exported FILE (or --bench)")
     torch.set_num_threads(args.threads)

@@ -1,0 +1,410 @@
+//! `cargo xtask bench`: burn (`flex`, the CPU backend) against the
+//! PyTorch twin, one table of medians and ratios.
+//!
+//! Three subprocesses, one after another, all with the same thread count:
+//!
+//! 1. burn, rows 1–5: the `twin_bench` example of `ntg-model` (release),
+//!    with `RAYON_NUM_THREADS=N` (burn's `flex` backend computes on rayon's
+//!    global pool); one JSON line per row;
+//! 2. PyTorch, rows 1–5: `crates/ntg-model/benches/pytorch/twin.py --bench
+//!    all --threads N` (`torch.set_num_threads(N)`) with the interpreter
+//!    `NTG_PYTHON` (default `python3`), on exactly the same batches; without
+//!    torch (or numpy) there, its column says so and the command still
+//!    succeeds;
+//! 3. burn, row 6: expert demos generated per second, `env-blocks`'
+//!    criterion bench `expert_demos/{state_only,rendered}_T_threads`
+//!    (T = 1 for `--threads 1`, else 2: the bench has those two pools),
+//!    read back from criterion's `estimates.json` (median) and
+//!    `benchmark.json` (demos per iteration). PyTorch has no counterpart.
+//!
+//! Each side reports a `shape` per row (batch, rows, frames, tokens, ...);
+//! a row whose shapes differ is flagged. The table is printed and written
+//! as JSON (default `target/bench/bench.json`).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use anyhow::{Context, bail};
+use serde_json::{Value, json};
+
+/// Settings of one `cargo xtask bench`.
+pub struct Bench {
+    /// Threads of both sides.
+    pub threads: usize,
+    /// A smoke check: few repeats.
+    pub quick: bool,
+    /// Timed repeats per training row (the policy row runs 10× as many).
+    pub repeats: usize,
+    /// Untimed calls before them.
+    pub warmup: usize,
+    /// Where the JSON table goes.
+    pub out: PathBuf,
+}
+
+/// The rows both sides time: (key, label).
+const NET_ROWS: [(&str, &str); 5] = [
+    ("state_step", "state training step (full model, batch 32)"),
+    (
+        "frame_step",
+        "frame encoder training step (stage A, 64 frames)",
+    ),
+    ("interpreter_step", "demo interpreter training step (state)"),
+    ("gcn_step", "GCN training step (32 graphs)"),
+    ("policy_step", "policy step at rollout (inference)"),
+];
+
+/// One line of the table.
+struct Row {
+    number: usize,
+    key: String,
+    label: String,
+    /// "ms" (a median time) or "demos/s" (a rate).
+    unit: &'static str,
+    burn: Option<f64>,
+    burn_repeats: Option<u64>,
+    pytorch: Option<f64>,
+    pytorch_repeats: Option<u64>,
+    shape: Option<String>,
+    shape_mismatch: bool,
+}
+
+/// What the PyTorch side gave: rows by key, or why there are none.
+enum Twin {
+    Rows(Vec<Value>, String),
+    Missing(String),
+}
+
+fn python() -> String {
+    std::env::var("NTG_PYTHON").unwrap_or_else(|_| "python3".to_owned())
+}
+
+/// The JSON objects among `stdout`'s lines.
+fn json_lines(stdout: &[u8]) -> Vec<Value> {
+    String::from_utf8_lossy(stdout)
+        .lines()
+        .filter(|l| l.trim_start().starts_with('{'))
+        .filter_map(|l| serde_json::from_str(l).ok())
+        .collect()
+}
+
+fn find<'a>(lines: &'a [Value], key: &str) -> Option<&'a Value> {
+    lines.iter().find(|v| v["row"] == key)
+}
+
+/// Rows 1–5 on burn: the `twin_bench` example.
+fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<Vec<Value>> {
+    eprintln!("bench: burn rows 1-5 (release build of ntg-model's twin_bench example)");
+    let out = Command::new(env!("CARGO"))
+        .args([
+            "run",
+            "--release",
+            "--quiet",
+            "-p",
+            "ntg-model",
+            "--example",
+            "twin_bench",
+            "--",
+        ])
+        .args(["--repeats", &b.repeats.to_string()])
+        .args(["--warmup", &b.warmup.to_string()])
+        .env("RAYON_NUM_THREADS", b.threads.to_string())
+        .current_dir(root)
+        .stderr(Stdio::inherit())
+        .output()
+        .context("could not start cargo")?;
+    if !out.status.success() {
+        bail!(
+            "the twin_bench example failed ({}):\n{}",
+            out.status,
+            String::from_utf8_lossy(&out.stdout)
+        );
+    }
+    let lines = json_lines(&out.stdout);
+    for (key, _) in NET_ROWS {
+        if find(&lines, key).is_none() {
+            bail!("the twin_bench example printed no row {key:?}");
+        }
+    }
+    Ok(lines)
+}
+
+/// Rows 1–5 on PyTorch: `twin.py --bench all`, or why not.
+fn pytorch_rows(root: &Path, b: &Bench) -> Twin {
+    let python = python();
+    let probe = Command::new(&python)
+        .args(["-c", "import numpy, torch; print(torch.__version__)"])
+        .stderr(Stdio::null())
+        .output();
+    let version = match probe {
+        Ok(o) if o.status.success() => String::from_utf8_lossy(&o.stdout).trim().to_owned(),
+        _ => {
+            eprintln!("bench: `{python}` has no torch (or numpy): burn column only");
+            return Twin::Missing("PyTorch not installed (set NTG_PYTHON)".into());
+        }
+    };
+    eprintln!("bench: PyTorch rows 1-5 ({python}, torch {version})");
+    let script = root.join("crates/ntg-model/benches/pytorch/twin.py");
+    let n = b.threads.to_string();
+    let out = Command::new(&python)
+        .arg(&script)
+        .args(["--bench", "all", "--threads", &n])
+        .args(["--repeats", &b.repeats.to_string()])
+        .args(["--warmup", &b.warmup.to_string()])
+        // torch.set_num_threads(N) sets the intra-op pool; these size the
+        // rest the same.
+        .env("OMP_NUM_THREADS", &n)
+        .env("MKL_NUM_THREADS", &n)
+        .current_dir(root)
+        .stderr(Stdio::inherit())
+        .output();
+    match out {
+        Ok(o) if o.status.success() => Twin::Rows(json_lines(&o.stdout), version),
+        Ok(o) => {
+            eprintln!(
+                "bench: twin.py failed ({}):\n{}",
+                o.status,
+                String::from_utf8_lossy(&o.stdout)
+            );
+            Twin::Missing(format!("twin.py failed ({})", o.status))
+        }
+        Err(e) => Twin::Missing(format!("could not run {python}: {e}")),
+    }
+}
+
+/// Row 6 on burn: env-blocks' criterion bench of expert demos. Returns
+/// `(state-only demos/s, rendered demos/s, pool threads)`.
+fn demo_rows(root: &Path, b: &Bench) -> anyhow::Result<(f64, f64, usize)> {
+    let pool = if b.threads == 1 { 1 } else { 2 };
+    eprintln!(
+        "bench: row 6, expert demos per second (env-blocks' criterion bench, {pool}-thread pool)"
+    );
+    let home = root.join("target/bench/criterion");
+    let mut cmd = Command::new(env!("CARGO"));
+    cmd.args([
+        "bench",
+        "--quiet",
+        "-p",
+        "env-blocks",
+        "--bench",
+        "blocks",
+        "--",
+        "--noplot",
+    ]);
+    if b.quick {
+        cmd.arg("--quick");
+    } else {
+        cmd.args(["--warm-up-time", "1", "--measurement-time", "4"]);
+    }
+    let out = cmd
+        .arg(format!(
+            "^expert_demos/(state_only|rendered)_{pool}_threads$"
+        ))
+        .env("CRITERION_HOME", &home)
+        .current_dir(root)
+        .stderr(Stdio::inherit())
+        .output()
+        .context("could not start cargo")?;
+    if !out.status.success() {
+        bail!(
+            "cargo bench -p env-blocks failed ({}):\n{}",
+            out.status,
+            String::from_utf8_lossy(&out.stdout)
+        );
+    }
+    let rate = |name: &str| -> anyhow::Result<f64> {
+        let dir = home
+            .join("expert_demos")
+            .join(format!("{name}_{pool}_threads/new"));
+        let read = |file: &str| -> anyhow::Result<Value> {
+            let path = dir.join(file);
+            let text = std::fs::read_to_string(&path)
+                .with_context(|| format!("reading {}", path.display()))?;
+            serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))
+        };
+        let ns = read("estimates.json")?["median"]["point_estimate"]
+            .as_f64()
+            .context("estimates.json: no median")?;
+        let demos = read("benchmark.json")?["throughput"]["Elements"]
+            .as_f64()
+            .context("benchmark.json: no element throughput")?;
+        Ok(demos / (ns * 1e-9))
+    };
+    Ok((rate("state_only")?, rate("rendered")?, pool))
+}
+
+/// `x` with about 3 significant digits.
+fn number(x: f64) -> String {
+    if x >= 1000.0 {
+        format!("{x:.0}")
+    } else if x >= 100.0 {
+        format!("{x:.1}")
+    } else if x >= 1.0 {
+        format!("{x:.2}")
+    } else {
+        format!("{x:.3}")
+    }
+}
+
+pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
+    let burn = burn_rows(root, b)?;
+    let twin = pytorch_rows(root, b);
+    let (state_rate, rendered_rate, pool) = demo_rows(root, b)?;
+
+    let (twin_rows, torch, missing) = match &twin {
+        Twin::Rows(rows, version) => (rows.as_slice(), Some(version.clone()), None),
+        Twin::Missing(why) => (&[][..], None, Some(why.clone())),
+    };
+    let mut rows: Vec<Row> = Vec::new();
+    for (i, (key, label)) in NET_ROWS.iter().enumerate() {
+        let ours = find(&burn, key);
+        let theirs = find(twin_rows, key);
+        let shape = ours.and_then(|v| v["shape"].as_str()).map(str::to_owned);
+        let their_shape = theirs.and_then(|v| v["shape"].as_str());
+        rows.push(Row {
+            number: i + 1,
+            key: (*key).to_owned(),
+            label: (*label).to_owned(),
+            unit: "ms",
+            burn: ours.and_then(|v| v["median_ms"].as_f64()),
+            burn_repeats: ours.and_then(|v| v["repeats"].as_u64()),
+            pytorch: theirs.and_then(|v| v["median_ms"].as_f64()),
+            pytorch_repeats: theirs.and_then(|v| v["repeats"].as_u64()),
+            shape_mismatch: theirs.is_some() && their_shape != shape.as_deref(),
+            shape,
+        });
+    }
+    for (key, label, rate) in [
+        (
+            "demos_state",
+            "expert demos generated, state only",
+            state_rate,
+        ),
+        (
+            "demos_rendered",
+            "expert demos generated, rendered 64x64",
+            rendered_rate,
+        ),
+    ] {
+        rows.push(Row {
+            number: 6,
+            key: key.to_owned(),
+            label: format!("{label} ({pool}-thread pool)"),
+            unit: "demos/s",
+            burn: Some(rate),
+            burn_repeats: None,
+            pytorch: None,
+            pytorch_repeats: None,
+            shape: None,
+            shape_mismatch: false,
+        });
+    }
+
+    // The table.
+    let cell = |r: &Row, v: Option<f64>| match v {
+        Some(x) if r.unit == "ms" => format!("{} ms", number(x)),
+        Some(x) => format!("{x:.0}/s"),
+        None => "–".to_owned(),
+    };
+    let pytorch_cell = |r: &Row| match (&missing, r.unit) {
+        (Some(why), "ms") => why.clone(),
+        _ => cell(r, r.pytorch),
+    };
+    let ratio = |r: &Row| match (r.burn, r.pytorch) {
+        (Some(a), Some(p)) if p > 0.0 => Some(a / p),
+        _ => None,
+    };
+    let label_w = rows
+        .iter()
+        .map(|r| r.label.chars().count())
+        .max()
+        .unwrap_or(0)
+        + 3;
+    let py_w = rows
+        .iter()
+        .map(|r| pytorch_cell(r).chars().count())
+        .max()
+        .unwrap_or(0)
+        .max("PyTorch median".len());
+    println!();
+    println!(
+        "cargo xtask bench: medians, {} threads on both sides{}",
+        b.threads,
+        if b.quick {
+            " (--quick: few repeats, a smoke check)"
+        } else {
+            ""
+        }
+    );
+    println!(
+        "{:<label_w$}  {:>16}  {:>py_w$}  {:>12}  {:>7}",
+        "row", "burn flex median", "PyTorch median", "burn/PyTorch", "threads"
+    );
+    for r in &rows {
+        let label = format!(
+            "{} {}{}",
+            r.number,
+            r.label,
+            if r.shape_mismatch { " !" } else { "" }
+        );
+        let threads = if r.unit == "ms" { b.threads } else { pool };
+        println!(
+            "{:<label_w$}  {:>16}  {:>py_w$}  {:>12}  {:>7}",
+            label,
+            cell(r, r.burn),
+            pytorch_cell(r),
+            ratio(r).map_or("–".to_owned(), |x| format!("{x:.2}")),
+            threads
+        );
+    }
+    println!(
+        "burn: RAYON_NUM_THREADS={}; PyTorch: torch.set_num_threads({}){}. \
+         Row 6 has no PyTorch counterpart.",
+        b.threads,
+        b.threads,
+        torch
+            .as_ref()
+            .map_or(String::new(), |v| format!(", torch {v}"))
+    );
+    if rows.iter().any(|r| r.shape_mismatch) {
+        println!("! the two sides timed differently shaped batches (see `shape` in the JSON)");
+    }
+
+    // The JSON.
+    let json_rows: Vec<Value> = rows
+        .iter()
+        .map(|r| {
+            json!({
+                "row": r.number,
+                "key": r.key,
+                "name": r.label,
+                "unit": r.unit,
+                "burn_flex_median": r.burn,
+                "burn_repeats": r.burn_repeats,
+                "pytorch_median": r.pytorch,
+                "pytorch_repeats": r.pytorch_repeats,
+                "ratio_burn_over_pytorch": ratio(r),
+                "threads": if r.unit == "ms" { b.threads } else { pool },
+                "shape": r.shape,
+                "shape_mismatch": r.shape_mismatch,
+            })
+        })
+        .collect();
+    let doc = json!({
+        "format": "ntg-bench/1",
+        "threads": b.threads,
+        "quick": b.quick,
+        "repeats": b.repeats,
+        "warmup": b.warmup,
+        "python": python(),
+        "torch": torch,
+        "pytorch_note": missing,
+        "rows": json_rows,
+    });
+    if let Some(dir) = b.out.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    std::fs::write(&b.out, serde_json::to_string_pretty(&doc)? + "\n")
+        .with_context(|| format!("writing {}", b.out.display()))?;
+    println!("table written to {}", b.out.display());
+    Ok(())
+}
