@@ -186,9 +186,11 @@ pub struct TrainFlags {
     #[arg(long, value_name = "W", value_parser = crate::spec::parse::non_negative)]
     pub encoder_reconstruction: Option<f32>,
     /// --obs vid: the frame encoder reads its last feature map through
-    /// spatial-softmax keypoints (off by default).
-    #[arg(long)]
-    pub encoder_keypoints: bool,
+    /// spatial-softmax keypoints (`--encoder-keypoints false` to turn them
+    /// off) [default: the domain's: on for block stacking, off for object
+    /// collection].
+    #[arg(long, value_name = "BOOL", num_args = 0..=1, default_missing_value = "true")]
+    pub encoder_keypoints: Option<bool>,
 }
 
 impl TrainFlags {
@@ -200,7 +202,7 @@ impl TrainFlags {
             || self.encoder_hidden.is_some()
             || self.encoder_lr.is_some()
             || self.encoder_reconstruction.is_some()
-            || self.encoder_keypoints
+            || self.encoder_keypoints.is_some()
     }
 
     /// Refuses the frame-encoder flags on a run that has no frames.
@@ -221,7 +223,7 @@ impl TrainFlags {
         stage.hidden = self.encoder_hidden.unwrap_or(stage.hidden);
         stage.learning_rate = self.encoder_lr.unwrap_or(stage.learning_rate);
         stage.reconstruction = self.encoder_reconstruction.unwrap_or(stage.reconstruction);
-        stage.spatial_softmax |= self.encoder_keypoints;
+        stage.spatial_softmax = self.encoder_keypoints.unwrap_or(stage.spatial_softmax);
         stage.shards = self.shards;
     }
 }
