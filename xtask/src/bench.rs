@@ -91,34 +91,46 @@ fn find<'a>(lines: &'a [Value], key: &str) -> Option<&'a Value> {
     lines.iter().find(|v| v["row"] == key)
 }
 
-/// Rows 1–5 on burn: the `twin_bench` example.
-fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<Vec<Value>> {
-    eprintln!("bench: burn rows 1-5 (release build of ntg-model's twin_bench example)");
-    let out = Command::new(env!("CARGO"))
-        .args([
-            "run",
-            "--release",
-            "--quiet",
-            "-p",
-            "ntg-model",
-            "--example",
-            "twin_bench",
-            "--",
-        ])
-        .args(["--repeats", &b.repeats.to_string()])
-        .args(["--warmup", &b.warmup.to_string()])
-        .env("RAYON_NUM_THREADS", b.threads.to_string())
+/// Runs a cargo command in `root` (its stderr shown) and returns its
+/// output, or an error naming `what` with its stdout if it failed.
+fn cargo_output(
+    cmd: &mut Command,
+    root: &Path,
+    what: &str,
+) -> anyhow::Result<std::process::Output> {
+    let out = cmd
         .current_dir(root)
         .stderr(Stdio::inherit())
         .output()
         .context("could not start cargo")?;
     if !out.status.success() {
         bail!(
-            "the twin_bench example failed ({}):\n{}",
+            "{what} failed ({}):\n{}",
             out.status,
             String::from_utf8_lossy(&out.stdout)
         );
     }
+    Ok(out)
+}
+
+/// Rows 1–5 on burn: the `twin_bench` example.
+fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<Vec<Value>> {
+    eprintln!("bench: burn rows 1-5 (release build of ntg-model's twin_bench example)");
+    let mut cmd = Command::new(env!("CARGO"));
+    cmd.args([
+        "run",
+        "--release",
+        "--quiet",
+        "-p",
+        "ntg-model",
+        "--example",
+        "twin_bench",
+        "--",
+    ])
+    .args(["--repeats", &b.repeats.to_string()])
+    .args(["--warmup", &b.warmup.to_string()])
+    .env("RAYON_NUM_THREADS", b.threads.to_string());
+    let out = cargo_output(&mut cmd, root, "the twin_bench example")?;
     let lines = json_lines(&out.stdout);
     for (key, _) in NET_ROWS {
         if find(&lines, key).is_none() {
@@ -195,22 +207,11 @@ fn demo_rows(root: &Path, b: &Bench) -> anyhow::Result<(f64, f64, usize)> {
     } else {
         cmd.args(["--warm-up-time", "1", "--measurement-time", "4"]);
     }
-    let out = cmd
-        .arg(format!(
-            "^expert_demos/(state_only|rendered)_{pool}_threads$"
-        ))
-        .env("CRITERION_HOME", &home)
-        .current_dir(root)
-        .stderr(Stdio::inherit())
-        .output()
-        .context("could not start cargo")?;
-    if !out.status.success() {
-        bail!(
-            "cargo bench -p env-blocks failed ({}):\n{}",
-            out.status,
-            String::from_utf8_lossy(&out.stdout)
-        );
-    }
+    cmd.arg(format!(
+        "^expert_demos/(state_only|rendered)_{pool}_threads$"
+    ))
+    .env("CRITERION_HOME", &home);
+    cargo_output(&mut cmd, root, "cargo bench -p env-blocks")?;
     let rate = |name: &str| -> anyhow::Result<f64> {
         let dir = home
             .join("expert_demos")
