@@ -5,7 +5,10 @@
 //!
 //! 1. burn, rows 1–5: the `twin_bench` example of `ntg-model` (release),
 //!    with `RAYON_NUM_THREADS=N` (burn's `flex` backend computes on rayon's
-//!    global pool); one JSON line per row;
+//!    global pool); one JSON line per row. Row 1b is the state step split
+//!    into 2 data-parallel shards, as `ntg train` trains by default; then
+//!    the state step again on 1 thread, 1 shard, the reference of row 7
+//!    (the data-parallel speedup in samples per second);
 //! 2. PyTorch, rows 1–5: `crates/ntg-model/benches/pytorch/twin.py --bench
 //!    all --threads N` (`torch.set_num_threads(N)`) with the interpreter
 //!    `NTG_PYTHON` (default `python3`), on exactly the same batches; without
@@ -41,9 +44,14 @@ pub struct Bench {
     pub out: PathBuf,
 }
 
-/// The rows both sides time: (key, label).
-const NET_ROWS: [(&str, &str); 5] = [
+/// The rows both sides time: (key, label). `state_step_2_shards` is burn's
+/// only; its PyTorch column is the twin's `state_step` (see [`twin_key`]).
+const NET_ROWS: [(&str, &str); 6] = [
     ("state_step", "state training step (full model, batch 32)"),
+    (
+        "state_step_2_shards",
+        "  the same, 2 data-parallel shards (ntg train --shards 2)",
+    ),
     (
         "frame_step",
         "frame encoder training step (stage A, 64 frames)",
@@ -55,10 +63,11 @@ const NET_ROWS: [(&str, &str); 5] = [
 
 /// One line of the table.
 struct Row {
-    number: usize,
+    /// "1", "1b", ...
+    number: String,
     key: String,
     label: String,
-    /// "ms" (a median time) or "demos/s" (a rate).
+    /// "ms" (a median time), "demos/s" (a rate) or "x" (a speedup).
     unit: &'static str,
     burn: Option<f64>,
     burn_repeats: Option<u64>,
@@ -87,6 +96,17 @@ fn json_lines(stdout: &[u8]) -> Vec<Value> {
         .collect()
 }
 
+/// The twin's row a burn row is compared with: the data-parallel step
+/// against the twin's plain step, which uses its threads inside each
+/// operation (the same batch, the same thread count).
+fn twin_key(key: &str) -> &str {
+    if key == "state_step_2_shards" {
+        "state_step"
+    } else {
+        key
+    }
+}
+
 fn find<'a>(lines: &'a [Value], key: &str) -> Option<&'a Value> {
     lines.iter().find(|v| v["row"] == key)
 }
@@ -113,9 +133,8 @@ fn cargo_output(
     Ok(out)
 }
 
-/// Rows 1–5 on burn: the `twin_bench` example.
-fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<Vec<Value>> {
-    eprintln!("bench: burn rows 1-5 (release build of ntg-model's twin_bench example)");
+/// The `twin_bench` example's rows `rows` with `threads` rayon threads.
+fn twin_bench(root: &Path, b: &Bench, rows: &str, threads: usize) -> anyhow::Result<Vec<Value>> {
     let mut cmd = Command::new(env!("CARGO"));
     cmd.args([
         "run",
@@ -127,17 +146,30 @@ fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<Vec<Value>> {
         "twin_bench",
         "--",
     ])
+    .args(["--rows", rows])
     .args(["--repeats", &b.repeats.to_string()])
     .args(["--warmup", &b.warmup.to_string()])
-    .env("RAYON_NUM_THREADS", b.threads.to_string());
+    .env("RAYON_NUM_THREADS", threads.to_string());
     let out = cargo_output(&mut cmd, root, "the twin_bench example")?;
-    let lines = json_lines(&out.stdout);
+    Ok(json_lines(&out.stdout))
+}
+
+/// Rows 1–5 on burn (the `twin_bench` example), and the state step's
+/// median on one thread, one shard (row 7's reference).
+fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<(Vec<Value>, f64)> {
+    eprintln!("bench: burn rows 1-5 (release build of ntg-model's twin_bench example)");
+    let lines = twin_bench(root, b, "all", b.threads)?;
     for (key, _) in NET_ROWS {
         if find(&lines, key).is_none() {
             bail!("the twin_bench example printed no row {key:?}");
         }
     }
-    Ok(lines)
+    eprintln!("bench: row 7's reference, the state step on 1 thread, 1 shard");
+    let single = twin_bench(root, b, "state_step", 1)?;
+    let single = find(&single, "state_step")
+        .and_then(|v| v["median_ms"].as_f64())
+        .context("the twin_bench example printed no state_step on 1 thread")?;
+    Ok((lines, single))
 }
 
 /// Rows 1–5 on PyTorch: `twin.py --bench all`, or why not.
@@ -247,7 +279,7 @@ fn number(x: f64) -> String {
 }
 
 pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
-    let burn = burn_rows(root, b)?;
+    let (burn, single_thread_state) = burn_rows(root, b)?;
     let twin = pytorch_rows(root, b);
     let (state_rate, rendered_rate, pool) = demo_rows(root, b)?;
 
@@ -256,13 +288,14 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
         Twin::Missing(why) => (&[][..], None, Some(why.clone())),
     };
     let mut rows: Vec<Row> = Vec::new();
-    for (i, (key, label)) in NET_ROWS.iter().enumerate() {
+    let numbers = ["1", "1b", "2", "3", "4", "5"];
+    for ((key, label), number) in NET_ROWS.iter().zip(numbers) {
         let ours = find(&burn, key);
-        let theirs = find(twin_rows, key);
+        let theirs = find(twin_rows, twin_key(key));
         let shape = ours.and_then(|v| v["shape"].as_str()).map(str::to_owned);
         let their_shape = theirs.and_then(|v| v["shape"].as_str());
         rows.push(Row {
-            number: i + 1,
+            number: number.to_owned(),
             key: (*key).to_owned(),
             label: (*label).to_owned(),
             unit: "ms",
@@ -287,7 +320,7 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
         ),
     ] {
         rows.push(Row {
-            number: 6,
+            number: "6".to_owned(),
             key: key.to_owned(),
             label: format!("{label} ({pool}-thread pool)"),
             unit: "demos/s",
@@ -300,9 +333,30 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
         });
     }
 
+    let sharded = rows
+        .iter()
+        .find(|r| r.key == "state_step_2_shards")
+        .and_then(|r| r.burn);
+    rows.push(Row {
+        number: "7".to_owned(),
+        key: "data_parallel_speedup".to_owned(),
+        label: format!(
+            "data-parallel speedup: state step samples/s, row 1b over 1 shard on 1 thread ({} ms)",
+            number(single_thread_state)
+        ),
+        unit: "x",
+        burn: sharded.map(|ms| single_thread_state / ms),
+        burn_repeats: None,
+        pytorch: None,
+        pytorch_repeats: None,
+        shape: None,
+        shape_mismatch: false,
+    });
+
     // The table.
     let cell = |r: &Row, v: Option<f64>| match v {
         Some(x) if r.unit == "ms" => format!("{} ms", number(x)),
+        Some(x) if r.unit == "x" => format!("{x:.2}x"),
         Some(x) => format!("{x:.0}/s"),
         None => "–".to_owned(),
     };
@@ -347,7 +401,7 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
             r.label,
             if r.shape_mismatch { " !" } else { "" }
         );
-        let threads = if r.unit == "ms" { b.threads } else { pool };
+        let threads = if r.unit == "demos/s" { pool } else { b.threads };
         println!(
             "{:<label_w$}  {:>16}  {:>py_w$}  {:>12}  {:>7}",
             label,
@@ -359,7 +413,7 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
     }
     println!(
         "burn: RAYON_NUM_THREADS={}; PyTorch: torch.set_num_threads({}){}. \
-         Row 6 has no PyTorch counterpart.",
+         Row 1b's PyTorch column is the twin's row 1; rows 6 and 7 have no PyTorch counterpart.",
         b.threads,
         b.threads,
         torch
@@ -384,7 +438,7 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
                 "pytorch_median": r.pytorch,
                 "pytorch_repeats": r.pytorch_repeats,
                 "ratio_burn_over_pytorch": ratio(r),
-                "threads": if r.unit == "ms" { b.threads } else { pool },
+                "threads": if r.unit == "demos/s" { pool } else { b.threads },
                 "shape": r.shape,
                 "shape_mismatch": r.shape_mismatch,
             })

@@ -13,6 +13,11 @@
 //!   of the whole model, block stacking's recommended recipe on state input,
 //!   its losses assembled as in `twin_export` (interpreter + localizer +
 //!   GCN + soft-edge edge classifier) on 32 demos;
+//! - `state_step_2_shards`: the same step data-parallel, as `ntg train
+//!   --shards 2` takes it: demos 0–15 and 16–31 each on their own thread
+//!   ([`ntg_model::sharded_gradients`]), losses weighted by half, gradients
+//!   summed, one Adam step (the twin has no such row: its `state_step`
+//!   uses its threads inside each operation);
 //! - `frame_step`: one stage A step (`FrameStageNet` at the trainer's
 //!   default settings: 3×3 convolutions, no decoder) on 64 frames of
 //!   3×64×64;
@@ -42,6 +47,10 @@
 //! backend computes on) and a `shape` string the twin prints identically.
 
 use std::error::Error;
+
+/// The allocator of the `ntg` binary (see its `main.rs`).
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 use std::time::Instant;
 
 use burn::module::Module;
@@ -69,8 +78,9 @@ const FRAME_DIM: usize = 3 * 64 * 64;
 /// Adam's learning rate (the twin's).
 const LR: f64 = 3e-3;
 /// Every row, in the table's order.
-const ROWS: [&str; 5] = [
+const ROWS: [&str; 6] = [
     "state_step",
+    "state_step_2_shards",
     "frame_step",
     "interpreter_step",
     "gcn_step",
@@ -106,9 +116,9 @@ fn demo_rows(b: usize, actions: usize) -> Vec<Vec<f32>> {
         .collect()
 }
 
-/// The 32 demos: actions and state rows.
-fn demos() -> Vec<(Vec<ActionId>, Vec<Vec<f32>>)> {
-    (0..BATCH)
+/// Demos `range` of the 32: actions and state rows.
+fn demos(range: std::ops::Range<usize>) -> Vec<(Vec<ActionId>, Vec<Vec<f32>>)> {
+    range
         .map(|b| {
             let actions = demo_actions(b);
             let rows = demo_rows(b, actions.len());
@@ -117,7 +127,9 @@ fn demos() -> Vec<(Vec<ActionId>, Vec<Vec<f32>>)> {
         .collect()
 }
 
-/// Every tensor of one state training step (built once, as the twin does).
+/// Every tensor of one state training step (built once, as the twin does)
+/// on demos `range` of the 32 (the GCN pairs demo `b` with `b xor 1`, so a
+/// range of even length starting at an even demo is closed under it).
 struct StateBatch {
     demo: DemoBatch,
     gcn_input: Tensor<3>,
@@ -131,19 +143,20 @@ struct StateBatch {
 }
 
 impl StateBatch {
-    fn new(device: &Device) -> Result<Self, Box<dyn Error>> {
+    fn new(range: std::ops::Range<usize>, device: &Device) -> Result<Self, Box<dyn Error>> {
         let n = NUM_NODES;
-        let demos = demos();
+        let batch = range.len();
+        let demos = demos(range);
         let pairs: Vec<(&[Vec<f32>], &[ActionId])> = demos
             .iter()
             .map(|(a, r)| (r.as_slice(), a.as_slice()))
             .collect();
         let demo = DemoBatch::new(&pairs, STATE_DIM, n, device)?;
         let partner = |b: usize| b ^ 1;
-        let inputs: Vec<Ctg> = (0..BATCH)
+        let inputs: Vec<Ctg> = (0..batch)
             .map(|b| Ctg::from_path(n, &demos[partner(b)].0))
             .collect::<Result<_, _>>()?;
-        let targets: Vec<Ctg> = (0..BATCH)
+        let targets: Vec<Ctg> = (0..batch)
             .map(|b| Ctg::from_paths(n, [demos[b].0.as_slice(), demos[partner(b)].0.as_slice()]))
             .collect::<Result<_, _>>()?;
         let gcn_input = adjacency_tensor(&inputs.iter().collect::<Vec<_>>(), n, device)?;
@@ -167,7 +180,7 @@ impl StateBatch {
         let [_, frames, _] = demo.frames.dims();
         let [_, tokens] = demo.targets.dims();
         Ok(StateBatch {
-            shape: format!("batch {BATCH}, rows {r}, frames {frames}, tokens {tokens}"),
+            shape: format!("batch {batch}, rows {r}, frames {frames}, tokens {tokens}"),
             demo,
             gcn_input,
             gcn_target,
@@ -183,7 +196,7 @@ impl StateBatch {
 /// The total loss of one training step of `model` on `x`, assembled as
 /// `twin_export` (and the trainer's `NtgStep`) does with the recommended
 /// recipe.
-fn state_loss(model: &NtgModel, x: &StateBatch) -> Result<Tensor<1>, Box<dyn Error>> {
+fn state_loss(model: &NtgModel, x: &StateBatch) -> ntg_model::Result<Tensor<1>> {
     let n = NUM_NODES;
     let interp = model.interpreter.loss(&x.demo)?;
     let gcn_out = model.gcn.forward(x.gcn_input.clone())?;
@@ -260,7 +273,7 @@ fn bench_row(
     let sync = |d: &Device| d.sync().map_err(|e| format!("device sync: {e:?}"));
     match row {
         "state_step" | "interpreter_step" | "gcn_step" => {
-            let x = StateBatch::new(&device)?;
+            let x = StateBatch::new(0..BATCH, &device)?;
             let mut slot = Some(NtgModel::new(config, &device)?);
             let mut optim: ModuleOptimizer = AdamConfig::new().init();
             let (median, min) = time(warmup, repeats, || {
@@ -289,6 +302,28 @@ fn bench_row(
             } else {
                 x.shape.clone()
             };
+            Ok((median, min, repeats, shape))
+        }
+        "state_step_2_shards" => {
+            // `ntg train --shards 2`: each half of the batch on its own
+            // thread (`ntg_model::sharded_gradients`, as the trainer's epoch
+            // loop calls it), losses weighted by half, one Adam step.
+            let halves = [
+                StateBatch::new(0..BATCH / 2, &device)?,
+                StateBatch::new(BATCH / 2..BATCH, &device)?,
+            ];
+            let shape = StateBatch::new(0..BATCH, &device)?.shape;
+            let mut slot = Some(NtgModel::new(config, &device)?);
+            let mut optim: ModuleOptimizer = AdamConfig::new().init();
+            let (median, min) = time(warmup, repeats, || {
+                let model = slot.take().ok_or("model")?;
+                let (grads, _) = ntg_model::sharded_gradients(&model, 2, |m, i| {
+                    Ok::<_, ntg_model::ModelError>((state_loss(m, &halves[i])?.mul_scalar(0.5), ()))
+                })?;
+                slot = Some(optim.step(LR, model, grads));
+                sync(&device)?;
+                Ok(())
+            })?;
             Ok((median, min, repeats, shape))
         }
         "frame_step" => {

@@ -53,6 +53,7 @@ mod localizer;
 mod model;
 pub mod nn;
 mod ntp;
+mod parallel;
 mod policy;
 
 pub use backend::{BackendKind, cpu_device};
@@ -80,6 +81,7 @@ pub use ntp::{
     ConditionedNtp, EncodedSpec, NtpBatch, NtpConfig, NtpCore, NtpDecision, NtpExample, NtpLoss,
     NtpNet, NtpOutput, ProgramCall, ProgramStack, StackFrame, StackStep, scope_from_logits,
 };
+pub use parallel::sharded_gradients;
 pub use policy::{MappedPolicy, NtgPolicy};
 
 #[cfg(test)]

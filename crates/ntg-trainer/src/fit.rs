@@ -26,7 +26,7 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsAccumulator, GradientsParams, ModuleOptimizer};
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor};
 use ntg_model::{EdgeCounts, FlatPolicy, NtgModel, load_optimizer, save_optimizer};
 use rand::seq::SliceRandom;
@@ -440,50 +440,27 @@ where
         from += len;
     }
     let total = batch.len() as f32;
-    type ShardResult = anyhow::Result<(GradientsParams, Vec<f32>, EdgeCounts, f32)>;
-    let results: Vec<ShardResult> = std::thread::scope(|scope| {
-        let handles: Vec<_> = parts
-            .iter()
-            .zip(&seeds)
-            .map(|(part, &seed)| {
-                // A replica with fresh autodiff leaves (same parameter
-                // ids): each thread records and walks its own graph.
-                let replica = model.valid().train();
-                scope.spawn(move || {
-                    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-                    let ctx = StepContext {
-                        epoch,
-                        step: index,
-                        seed: optim.seed,
-                        rng: &mut rng,
-                    };
-                    let report = step.step(&replica, part, ctx)?;
-                    let weight = part.len() as f32 / total;
-                    let grads = GradientsParams::from_grads(
-                        report.loss.mul_scalar(weight).backward(),
-                        &replica,
-                    );
-                    Ok((grads, report.values, report.edges, weight))
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| {
-                h.join()
-                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a training shard panicked")))
-            })
-            .collect()
-    });
-    let mut accumulator = GradientsAccumulator::<M>::new();
+    let (grads, reports) = ntg_model::sharded_gradients(model, shards, |replica, i| {
+        let mut rng = ChaCha8Rng::seed_from_u64(seeds[i]);
+        let ctx = StepContext {
+            epoch,
+            step: index,
+            seed: optim.seed,
+            rng: &mut rng,
+        };
+        let report = step.step(replica, parts[i], ctx)?;
+        let weight = parts[i].len() as f32 / total;
+        Ok::<_, anyhow::Error>((
+            report.loss.mul_scalar(weight),
+            (report.values, report.edges, weight),
+        ))
+    })?;
     let mut values: Vec<f32> = Vec::new();
     let mut edges = EdgeCounts::default();
-    for result in results {
-        let (grads, shard_values, shard_edges, weight) = result?;
-        accumulator.accumulate(model, grads);
+    for (shard_values, shard_edges, weight) in reports {
         add_weighted(&mut values, &mut edges, &shard_values, &shard_edges, weight);
     }
-    Ok((accumulator.grads(), values, edges))
+    Ok((grads, values, edges))
 }
 
 /// Adds `weight` × `values` to `sums` (sized on first use) and `more` to
