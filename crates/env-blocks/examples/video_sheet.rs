@@ -1,9 +1,9 @@
 //! Writes the contact sheet of a demonstration video (one labelled row per
 //! flat action, keyframes framed in yellow).
 //!
-//! `cargo run -p env-blocks --example video_sheet -- [stack|sort] TASK SEED OUT.png`
-//! (defaults: `stack 0 0 video_sheet.png`; TASK indexes the standard
-//! stacking tasks or the standard sorting tasks).
+//! `cargo run -p env-blocks --example video_sheet -- [stack|sort] TASK SEED OUT.png [SCALE]`
+//! (defaults: `stack 0 0 video_sheet.png 2`; TASK indexes the standard
+//! stacking tasks or the standard sorting tasks; SCALE magnifies each frame).
 
 use env_blocks::sheet::video_contact_sheet;
 use env_blocks::{
@@ -18,6 +18,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let index: usize = arg(1, "0").parse()?;
     let seed: u64 = arg(2, "0").parse()?;
     let out = arg(3, "video_sheet.png");
+    let scale: u32 = arg(4, "2").parse()?;
     let task = if sorting {
         BlocksTask::Sort(standard_sort_tasks()?.swap_remove(index))
     } else {
@@ -25,7 +26,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let video = record_video_demo(task, EnvConfig::default(), seed, &VideoConfig::default())?;
     let vocab = vocabulary(sorting, ActionLevel::Flat);
-    video_contact_sheet(&video, &vocab, 2).save(&out)?;
+    video_contact_sheet(&video, &vocab, scale).save(&out)?;
     println!(
         "{out}: {} frames, {} flat actions, segment lengths {:?}",
         video.num_frames(),

@@ -5,11 +5,15 @@
 //!
 //! ```text
 //! cargo run --release -p ntg-trainer --example encoder_heldout -- score RUN [TASKS]
+//! cargo run --release -p ntg-trainer --example encoder_heldout -- errors RUN [TASKS]
 //! cargo run --release -p ntg-trainer --example encoder_heldout -- \
 //!     train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [keypoints] [tasks=TASKS]
 //! ```
 //!
-//! `score` scores the stage A network of a video run. `train` trains a new
+//! `score` scores the stage A network of a video run; `errors` breaks its
+//! localizer's keyframe errors down (first keyframe or later, a retry's
+//! keyframe or a first visit, pick or place confused with which) and lists
+//! the most frequent confusions. `train` trains a new
 //! stage A network on the frames of the first `DEMOS` demo videos of a
 //! stage A frame dataset `FRAMES` (a run's `stage_a/dataset`, so that
 //! settings are compared on the same frames without re-rendering them),
@@ -20,6 +24,7 @@
 //! records its validation videos.
 
 use anyhow::Context;
+use burn::module::Module;
 use ntg_model::FrameStageNet;
 use ntg_trainer::blocks::{self, BlocksRunConfig};
 use ntg_trainer::dataset::DemoDataset;
@@ -29,7 +34,7 @@ use ntg_trainer::video::{
     EncoderEpochMetrics, EncoderStage, FrameStageStep, STAGE_A_DIR, frame_dataset,
 };
 
-const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [keypoints] [tasks=TASKS]";
+const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | errors RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [keypoints] [tasks=TASKS]";
 
 fn count(args: &[String], i: usize, name: &str, default: Option<usize>) -> anyhow::Result<usize> {
     match (args.get(i), default) {
@@ -59,35 +64,133 @@ fn validation_frames(
     )
 }
 
+/// What kind of node an action name is: "start", "pick", "place", ...
+fn kind(name: &str) -> &str {
+    name.split('(').next().unwrap_or(name)
+}
+
+/// Prints the breakdown of the localizer's keyframe errors on `frames`.
+fn keyframe_errors(net: &FrameStageNet, frames: &DemoDataset) -> anyhow::Result<()> {
+    use burn::tensor::{Tensor, TensorData};
+    use std::collections::BTreeMap;
+    let vocab = frames.vocabulary();
+    let name = |a: ctg_graph::ActionId| vocab.name(a).unwrap_or("?").to_owned();
+    let net = net.valid();
+    let device = ntg_model::cpu_device();
+    let (mut total, mut wrong) = (0usize, 0usize);
+    let mut by_case: BTreeMap<String, (usize, usize)> = BTreeMap::new();
+    let mut confusions: BTreeMap<(String, String), usize> = BTreeMap::new();
+    for d in frames.demos() {
+        let keys = d.keyframes();
+        let mut rows = Vec::new();
+        for &k in &keys {
+            frames.extend_row(d.first_row + k, &mut rows);
+        }
+        let x = Tensor::<2>::from_data(
+            TensorData::new(rows, [keys.len(), frames.obs_dim()]),
+            &device,
+        );
+        let encoded = net.encode(x)?;
+        let logits = encoded.matmul(net.loc_nodes.val().transpose());
+        let predicted = ntg_model::nn::to_vec_int(logits.argmax(1).reshape([keys.len()]))?;
+        let labels: Vec<ctg_graph::ActionId> = std::iter::once(ctg_graph::Vocabulary::START)
+            .chain(d.actions.iter().copied())
+            .collect();
+        for (s, (&label, &p)) in labels.iter().zip(&predicted).enumerate() {
+            let p = ctg_graph::ActionId::new(p as usize);
+            let retry = labels[..s].contains(&label);
+            let case = format!(
+                "{} keyframe, {}",
+                kind(&name(label)),
+                if retry { "a retry" } else { "first visit" }
+            );
+            let entry = by_case.entry(case).or_default();
+            entry.0 += 1;
+            total += 1;
+            if p != label {
+                entry.1 += 1;
+                wrong += 1;
+                let (t, q) = (name(label), name(p));
+                let what = if kind(&t) == kind(&q) {
+                    format!("{} -> another {}", kind(&t), kind(&q))
+                } else {
+                    format!("{} -> {}", kind(&t), kind(&q))
+                };
+                *confusions.entry((what, String::new())).or_default() += 1;
+                *confusions.entry((t, q)).or_default() += 1;
+            }
+        }
+    }
+    println!(
+        "{} keyframes of {} videos: {} wrong ({:.3} right)",
+        total,
+        frames.demos().len(),
+        wrong,
+        1.0 - wrong as f64 / total.max(1) as f64
+    );
+    for (case, (n, w)) in &by_case {
+        println!(
+            "  {case}: {w} wrong of {n} ({:.3} right)",
+            1.0 - *w as f64 / (*n).max(1) as f64
+        );
+    }
+    let mut kinds: Vec<_> = confusions
+        .iter()
+        .filter(|((_, q), _)| q.is_empty())
+        .collect();
+    kinds.sort_by(|a, b| b.1.cmp(a.1));
+    for ((what, _), n) in kinds {
+        println!("  errors {what}: {n}");
+    }
+    let mut pairs: Vec<_> = confusions
+        .iter()
+        .filter(|((_, q), _)| !q.is_empty())
+        .collect();
+    pairs.sort_by(|a, b| b.1.cmp(a.1));
+    for ((t, q), n) in pairs.into_iter().take(15) {
+        println!("  {t} read as {q}: {n}");
+    }
+    Ok(())
+}
+
+/// The stage A network a video run kept (its selected epoch, or its last).
+fn run_stage_a(
+    run: &str,
+    device: &burn::tensor::Device,
+) -> anyhow::Result<(BlocksRunConfig, FrameStageNet)> {
+    let run = RunDir::open(std::path::Path::new(run))?;
+    let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+    let stage_a = RunDir::open(&run.root().join(STAGE_A_DIR))?;
+    let dir = match ntg_trainer::fit::selected_epoch(&stage_a)? {
+        Some(_) => stage_a.best_dir(),
+        None => stage_a.checkpoint_dir(),
+    };
+    let net = FrameStageNet::load(&dir, device)
+        .with_context(|| format!("loading the stage A network in {}", dir.display()))?;
+    Ok((config, net))
+}
+
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let device = ntg_model::cpu_device().autodiff();
     match args.first().map(String::as_str) {
-        Some("score") => {
+        Some(command @ ("score" | "errors")) => {
             let run = args.get(1).context(USAGE)?;
             let tasks = count(&args, 2, "TASKS", Some(100))?;
-            let run = RunDir::open(std::path::Path::new(run))?;
-            let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+            let (config, net) = run_stage_a(run, &device)?;
             let video = config
                 .video
                 .context("not a video run (no `video` settings)")?;
-            let stage_a = RunDir::open(&run.root().join(STAGE_A_DIR))?;
-            let dir = match ntg_trainer::fit::selected_epoch(&stage_a)? {
-                Some(_) => stage_a.best_dir(),
-                None => stage_a.checkpoint_dir(),
-            };
-            let net = FrameStageNet::load(&dir, &device)
-                .with_context(|| format!("loading the stage A network in {}", dir.display()))?;
             let frames = validation_frames(tasks, config.failures, &video.frames)?;
-            let acc = FrameStageStep::new(&frames, &device)?.accuracy(&net)?;
-            println!(
-                "{}: {} validation videos, localizer {:.3} (keyframes {:.3}), edges {:.3}",
-                run.root().display(),
-                tasks,
-                acc.localizer,
-                acc.keyframe_localizer,
-                acc.edge
-            );
+            if command == "errors" {
+                keyframe_errors(&net, &frames)?;
+            } else {
+                let acc = FrameStageStep::new(&frames, &device)?.accuracy(&net)?;
+                println!(
+                    "{run}: {} validation videos, localizer {:.3} (keyframes {:.3}), edges {:.3}",
+                    tasks, acc.localizer, acc.keyframe_localizer, acc.edge
+                );
+            }
         }
         Some("train") => {
             let (frames_dir, out) = (args.get(1).context(USAGE)?, args.get(2).context(USAGE)?);
