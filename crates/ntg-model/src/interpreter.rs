@@ -63,6 +63,13 @@ pub struct DemoInterpreterConfig {
     /// so an annotation depends on its neighbours only, not on how long
     /// the demo has run. `None` means false.
     pub local_annotations: Option<bool>,
+    /// Temporal pooling (`Some(k)`, k ≥ 2): the encoded frames are averaged
+    /// in windows of `k` consecutive frames (padding frames left out)
+    /// before the encoder GRU, so the GRU and the attention run over `T/k`
+    /// steps. For demo videos, whose actions span several frames each:
+    /// the interpreter's cost grows with the frames it reads. `None` (and
+    /// `Some(1)`) means no pooling.
+    pub frame_pool: Option<usize>,
 }
 
 impl DemoInterpreterConfig {
@@ -87,6 +94,11 @@ impl DemoInterpreterConfig {
             return Err(ModelError::Config(
                 "demo interpreter: local annotations replace the (bidirectional) GRU states; choose one"
                     .into(),
+            ));
+        }
+        if self.frame_pool == Some(0) {
+            return Err(ModelError::Config(
+                "demo interpreter: frame_pool must be at least 1".into(),
             ));
         }
         if self.hidden == 0 || self.token_embed == 0 || self.max_decode_len == 0 {
@@ -152,6 +164,7 @@ impl DemoInterpreterConfig {
             stateless: self.stateless_decoder == Some(true),
             local: (self.local_annotations == Some(true))
                 .then(|| extra.linear(3 * encoder_dim, h, true)),
+            frame_pool: self.frame_pool.unwrap_or(1),
         })
     }
 }
@@ -211,6 +224,8 @@ pub struct DemoInterpreter {
     pub stateless: bool,
     /// `W_l` of local annotations.
     pub local: Option<Linear>,
+    /// Frames averaged into one step of the encoder (1: none).
+    pub frame_pool: usize,
 }
 
 /// The output of [`DemoInterpreter::forward`].
@@ -232,6 +247,8 @@ pub struct LossOutput {
 }
 
 struct Encoded {
+    /// The (pooled) frame mask `[B, T]` the states were read with.
+    mask: Tensor<2>,
     /// `h̄` `[B, T, H]`.
     states: Tensor<3>,
     /// `W_a h̄` `[B, T, H]`.
@@ -246,6 +263,31 @@ pub const LOCATION_SHIFTS: [isize; 4] = [-1, 0, 1, 2];
 /// The fixed gain `G` of location-aware attention: the learned weights start
 /// at 0 and reach score-sized values in a few hundred Adam steps.
 pub const LOCATION_GAIN: f32 = 10.0;
+
+/// Encoded frames `x` `[B, T, E]` averaged in windows of `k` consecutive
+/// frames, padding frames (mask 0) left out: `[B, ⌈T/k⌉, E]` and the mask
+/// of the windows holding at least one frame `[B, ⌈T/k⌉]`.
+fn pool_frames(x: Tensor<3>, frame_mask: Tensor<2>, k: usize) -> (Tensor<3>, Tensor<2>) {
+    let [b, steps, e] = x.dims();
+    let pooled = steps.div_ceil(k);
+    let pad = pooled * k - steps;
+    let device = x.device();
+    let (x, mask) = if pad > 0 {
+        (
+            Tensor::cat(vec![x, Tensor::zeros([b, pad, e], &device)], 1),
+            Tensor::cat(vec![frame_mask, Tensor::zeros([b, pad], &device)], 1),
+        )
+    } else {
+        (x, frame_mask)
+    };
+    let weights = mask.reshape([b, pooled, k]);
+    let counts = weights.clone().sum_dim(2); // [B, T/k, 1]
+    let sums = (x.reshape([b, pooled, k, e]) * weights.unsqueeze_dim::<4>(3))
+        .sum_dim(2)
+        .reshape([b, pooled, e]);
+    let means = sums / counts.clone().clamp_min(1.0);
+    (means, counts.reshape([b, pooled]).clamp_max(1.0))
+}
 
 /// `[x_{s−1}; x_s; x_{s+1}]` `[B, T, 3E]` for encoded frames `x` `[B, T, E]`,
 /// with padding frames (mask 0) and the frames beyond the ends as zeros.
@@ -315,6 +357,11 @@ impl DemoInterpreter {
             ));
         }
         let x = self.encoder.forward_sequence(frames)?;
+        let (x, frame_mask) = if self.frame_pool > 1 {
+            pool_frames(x, frame_mask, self.frame_pool)
+        } else {
+            (x, frame_mask)
+        };
         let (forward, last) =
             self.enc_gru
                 .forward_sequence(x.clone(), None, Some(frame_mask.clone()));
@@ -325,13 +372,18 @@ impl DemoInterpreter {
                 // zero state untouched, so each demo is read from its own
                 // last frame.
                 let (backward, _) =
-                    bwd.forward_sequence(x.flip([1]), None, Some(frame_mask.flip([1])));
+                    bwd.forward_sequence(x.flip([1]), None, Some(frame_mask.clone().flip([1])));
                 tanh(merge.forward(Tensor::cat(vec![forward, backward.flip([1])], 2)))
             }
             _ => forward,
         };
         let keys = self.attn.forward(states.clone());
-        Ok(Encoded { states, keys, last })
+        Ok(Encoded {
+            mask: frame_mask,
+            states,
+            keys,
+            last,
+        })
     }
 
     /// Luong attention of decoder states `[B, L, H]` over the encoder
@@ -340,7 +392,6 @@ impl DemoInterpreter {
     fn attend(
         &self,
         enc: &Encoded,
-        frame_mask: &Tensor<2>,
         dec: Tensor<3>,
         bias: Option<Tensor<3>>,
     ) -> (Tensor<3>, Tensor<3>, Tensor<3>) {
@@ -348,7 +399,7 @@ impl DemoInterpreter {
             &self.combine,
             enc.states.clone(),
             enc.keys.clone(),
-            frame_mask,
+            &enc.mask,
             dec,
             bias,
         );
@@ -404,7 +455,6 @@ impl DemoInterpreter {
     fn fed_step(
         &self,
         enc: &Encoded,
-        frame_mask: &Tensor<2>,
         x: Tensor<2>,
         state: FedState,
     ) -> (Tensor<3>, Tensor<3>, FedState) {
@@ -416,8 +466,7 @@ impl DemoInterpreter {
             state.h
         };
         let h = self.dec_gru.step(Tensor::cat(vec![x, state.feed], 1), h0);
-        let (logits, alpha, combined) =
-            self.attend(enc, frame_mask, h.clone().unsqueeze_dim(1), bias);
+        let (logits, alpha, combined) = self.attend(enc, h.clone().unsqueeze_dim(1), bias);
         let steps = alpha.dims()[2];
         let next = FedState {
             h,
@@ -462,7 +511,7 @@ impl DemoInterpreter {
                 [batch, len],
             ));
         }
-        let enc = self.encode(frames, frame_mask.clone())?;
+        let enc = self.encode(frames, frame_mask)?;
         let device = targets.device();
         let start = Tensor::<2, Int>::full([batch, 1], Vocabulary::START.index() as i64, &device);
         let mut inputs = Tensor::cat(vec![start, targets.narrow(1, 0, len - 1)], 1);
@@ -486,7 +535,7 @@ impl DemoInterpreter {
             let (mut logits, mut attention) = (Vec::new(), Vec::new());
             for t in 0..len {
                 let x = embedded.clone().narrow(1, t, 1).reshape([batch as i32, -1]);
-                let (l, a, next) = self.fed_step(&enc, &frame_mask, x, state);
+                let (l, a, next) = self.fed_step(&enc, x, state);
                 logits.push(l);
                 attention.push(a);
                 state = next;
@@ -499,7 +548,7 @@ impl DemoInterpreter {
         let (dec, _) = self
             .dec_gru
             .forward_sequence(embedded, Some(enc.last.clone()), None);
-        let (logits, attention, _) = self.attend(&enc, &frame_mask, dec, None);
+        let (logits, attention, _) = self.attend(&enc, dec, None);
         Ok(InterpreterOutput { logits, attention })
     }
 
@@ -565,13 +614,12 @@ impl DemoInterpreter {
             let ids = Tensor::<1, Int>::from_data(TensorData::new(tokens.clone(), [b]), &device);
             let x = self.tokens.val().select(0, ids);
             let logits = if self.input_feeding {
-                let (logits, _, next) = self.fed_step(&enc, &batch.frame_mask, x, state.clone());
+                let (logits, _, next) = self.fed_step(&enc, x, state.clone());
                 state = next;
                 logits
             } else {
                 h = self.dec_gru.step(x, h);
-                self.attend(&enc, &batch.frame_mask, h.clone().unsqueeze_dim(1), None)
-                    .0
+                self.attend(&enc, h.clone().unsqueeze_dim(1), None).0
             };
             let logits = logits.reshape([b, self.num_nodes]) + forbid.clone();
             let next = to_vec_int(logits.argmax(1).reshape([b]))?;

@@ -323,6 +323,69 @@ fn interpreter_shapes_and_attention() {
     ));
 }
 
+/// Temporal pooling: the interpreter reads `⌈T/k⌉` averaged frames. A
+/// padded demo scores as it does alone (padding stays out of every
+/// window's mean), junk in the padding changes nothing, and greedy decoding
+/// runs; a pool of 0 is refused.
+#[test]
+fn interpreter_frame_pool_reads_windows_of_frames() {
+    let dev = device();
+    let mut config = small_config(1).interpreter;
+    config.frame_pool = Some(2);
+    let interp = config.init(0, &dev).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let (batch, short_obs, short_actions) = demo_batch(&dev, &mut rng);
+    let out = interp
+        .forward(
+            batch.frames.clone(),
+            batch.frame_mask.clone(),
+            batch.targets.clone(),
+        )
+        .unwrap();
+    // 6 frames in windows of 2: 3 attention columns; the short demo's 3
+    // frames fill 2 windows, its padding the third, which gets no weight.
+    assert_eq!(out.attention.dims(), [2, 6, 3]);
+    let att = to_vec(out.attention.clone()).unwrap();
+    for row in att[18..].chunks(3) {
+        assert_eq!(row[2], 0.0, "padding window attended: {row:?}");
+    }
+    let junk = Tensor::<3>::ones([2, 6, D], &dev) * 100.0;
+    let pad = (batch.frame_mask.clone().neg() + 1.0).unsqueeze_dim::<3>(2);
+    let out_junk = interp
+        .forward(
+            batch.frames.clone() + junk * pad,
+            batch.frame_mask.clone(),
+            batch.targets.clone(),
+        )
+        .unwrap();
+    let alone = DemoBatch::new(&[(&short_obs[..], &short_actions[..])], D, N, &dev).unwrap();
+    let out_alone = interp
+        .forward(alone.frames, alone.frame_mask, alone.targets)
+        .unwrap();
+    let [_, l, _] = out_alone.logits.dims();
+    let short =
+        |o: &InterpreterOutput| to_vec(o.logits.clone().narrow(0, 1, 1).narrow(1, 0, l)).unwrap();
+    assert!(close(&short(&out), &short(&out_junk), 1e-5));
+    assert!(close(
+        &short(&out),
+        &to_vec(out_alone.logits).unwrap(),
+        1e-4
+    ));
+    assert!(interp.decode(&short_obs).unwrap().len() <= config.max_decode_len);
+    // Pooling changes what the interpreter reads: not the unpooled output.
+    let plain = small_config(1).interpreter.init(0, &dev).unwrap();
+    let unpooled = plain
+        .forward(batch.frames, batch.frame_mask, batch.targets)
+        .unwrap();
+    assert!(!close(
+        &to_vec(out.logits).unwrap(),
+        &to_vec(unpooled.logits).unwrap(),
+        1e-4
+    ));
+    config.frame_pool = Some(0);
+    assert!(matches!(config.init(0, &dev), Err(ModelError::Config(_))));
+}
+
 /// An older configuration without the interpreter options still loads,
 /// with both off; the options do not change the default weights.
 #[test]
@@ -334,6 +397,7 @@ fn interpreter_options_default_to_off() {
     old.remove("location_attention");
     old.remove("stateless_decoder");
     old.remove("local_annotations");
+    old.remove("frame_pool");
     let back: DemoInterpreterConfig = serde_json::from_value(old.into()).unwrap();
     assert_eq!(
         (

@@ -179,6 +179,14 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--encoder-keypoints"]),
             "--encoder-keypoints".into(),
         ),
+        (
+            train(&["--interpreter-frame-pool", "2"]),
+            "--interpreter-frame-pool".into(),
+        ),
+        (
+            train(&["--obs", "vid", "--interpreter-frame-pool", "0"]),
+            "--interpreter-frame-pool".into(),
+        ),
         // Methods a domain or an input does not have.
         (
             train(&["--domain", "collect", "--method", "ntp"]),

@@ -1,6 +1,7 @@
 //! `ntg train` → `ntg trace` end to end on a tiny run: the trace folder's
 //! files, agreement with `ntg eval`'s rollout of the same task, and the
-//! errors for a missing run, an unknown task and an occupied folder.
+//! errors for a missing run, an unknown task and an occupied folder; a
+//! video run whose interpreter reads pooled frames (`--interpreter-frame-pool`).
 
 use std::path::Path;
 
@@ -142,4 +143,42 @@ fn renaming_cubes_of_video_runs_is_refused_before_anything_is_written() {
     assert_ne!(code, 0);
     assert!(err.contains("--permute-objects"), "{err}");
     assert!(!out.exists(), "no run folder is created");
+}
+
+#[test]
+fn the_interpreter_reads_pooled_frames_when_asked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("run");
+    let (code, _, err) = ntg(&[
+        "train",
+        "--obs",
+        "vid",
+        "--train-tasks",
+        "2",
+        "--demos-per-task",
+        "1",
+        "--epochs",
+        "1",
+        "--encoder-demos",
+        "2",
+        "--encoder-epochs",
+        "1",
+        "--validation-tasks",
+        "0",
+        "--interpreter-frame-pool",
+        "3",
+        "--out",
+        s(&run),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let read = |p: &Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+    };
+    let config = read(&run.join("config.json"));
+    assert_eq!(config["video"]["interpreter_frame_pool"], 3, "{config}");
+    let model = read(&run.join("checkpoint/config.json"));
+    assert_eq!(model["interpreter"]["frame_pool"], 3, "{model}");
+    let (code, stdout, err) = ntg(&["eval", "--run", s(&run), "--test-tasks", "1"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(stdout.contains("success"), "{stdout}");
 }

@@ -203,6 +203,15 @@ pub struct BlocksVideo {
     /// held-out configuration). Each renamed group is its own task for the
     /// GCN's target graph. 0 = no renaming.
     pub demos_per_renaming: usize,
+    /// The demo interpreter reads the video's frame embeddings averaged in
+    /// windows of this many frames (`DemoInterpreterConfig::frame_pool`;
+    /// 1 = every frame, as runs saved before it).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub interpreter_frame_pool: usize,
+}
+
+fn is_one(n: &usize) -> bool {
+    *n == 1
 }
 
 impl BlocksVideo {
@@ -229,6 +238,7 @@ impl BlocksVideo {
                 ..EncoderStage::default()
             },
             demos_per_renaming: if recommended { 4 } else { 0 },
+            interpreter_frame_pool: 1,
         }
     }
 }
@@ -362,6 +372,11 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     }
     if config.soft_edges {
         model_config.soft_edges = Some(true);
+    }
+    if let Some(pool) = config.video.as_ref().map(|v| v.interpreter_frame_pool)
+        && pool > 1
+    {
+        model_config.interpreter.frame_pool = Some(pool);
     }
     model_config.seed = config.model_seed;
     Ok(NtgModel::new(model_config, device)?)
@@ -1411,6 +1426,10 @@ pub struct BlocksFlags {
     /// Turn stochastic grasp/drop failures off (they are on by default).
     #[arg(long)]
     pub no_failures: bool,
+    /// --obs vid: the demo interpreter reads the demo video's frames
+    /// averaged in windows of this many (1 = every frame) [default: 1].
+    #[arg(long, value_name = "K", value_parser = crate::spec::parse::positive)]
+    pub interpreter_frame_pool: Option<usize>,
     /// --method ntp-detector: primitive-level expert episodes of the
     /// training tasks whose rendered frames train the detector [default:
     /// 2000].
@@ -1441,6 +1460,9 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
     );
     let video = base.video.clone().map(|mut v| {
         flags.apply_encoder_flags(&mut v.encoder);
+        v.interpreter_frame_pool = own
+            .interpreter_frame_pool
+            .unwrap_or(v.interpreter_frame_pool);
         v
     });
     BlocksRunConfig {
@@ -1511,6 +1533,13 @@ impl DomainRuns for Blocks {
         {
             bail!(
                 "--detector-episodes, --detector-epochs and --ntp-on-true-states train NTP (Detector): they need --method ntp-detector"
+            );
+        }
+        if own.interpreter_frame_pool.is_some()
+            && (config.obs != ObsKind::Vid || config.method != MethodId::Ntg)
+        {
+            bail!(
+                "--interpreter-frame-pool sets NTG's demo interpreter on videos: it needs --obs vid and --method ntg"
             );
         }
         match config.method {
