@@ -4,7 +4,9 @@
 //!   step (forward, backward, Adam) of block stacking's recommended recipe,
 //!   32 demos, on state rows (one per action) and on frame embeddings (every
 //!   frame of a demo video, as stage B trains). The target: the
-//!   second at most 1.5x the first.
+//!   second at most 1.5x the first. `stage_b/embedding_step_pool_K`: the
+//!   same with the demo interpreter reading the frames averaged in windows
+//!   of K (`--interpreter-frame-pool K`).
 //! - `stage_a/train`: one stage A step on 64 frames (the shared encoder
 //!   with the localizer's and edge head's losses), throughput in frames.
 //!   `benches/pytorch/stage_a.py` (its own `requirements.txt`) times the
@@ -59,9 +61,13 @@ fn ntg_step_bench(
     name: &str,
     obs: ObsKind,
     dataset: &DemoDataset,
+    frame_pool: usize,
 ) {
     let device = ntg_model::cpu_device().autodiff();
-    let config = Recipe::Recommended.config(obs, TASKS, DEMOS_PER_TASK, 1, 0);
+    let mut config = Recipe::Recommended.config(obs, TASKS, DEMOS_PER_TASK, 1, 0);
+    if let Some(video) = config.video.as_mut() {
+        video.interpreter_frame_pool = frame_pool;
+    }
     let model = blocks::new_model(&config, &device).expect("model");
     let training = NtgTraining {
         gcn_source: GcnSource::OtherSeeded,
@@ -132,8 +138,12 @@ fn stages(c: &mut Criterion) {
         .sample_size(20)
         .warm_up_time(Duration::from_secs(2))
         .measurement_time(Duration::from_secs(10));
-    ntg_step_bench(&mut group, "state_step", ObsKind::State, &state);
-    ntg_step_bench(&mut group, "embedding_step", ObsKind::Vid, &embeddings);
+    ntg_step_bench(&mut group, "state_step", ObsKind::State, &state, 1);
+    ntg_step_bench(&mut group, "embedding_step", ObsKind::Vid, &embeddings, 1);
+    for pool in [2, 4] {
+        let name = format!("embedding_step_pool_{pool}");
+        ntg_step_bench(&mut group, &name, ObsKind::Vid, &embeddings, pool);
+    }
     group.finish();
 
     let frames =
