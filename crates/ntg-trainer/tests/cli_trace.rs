@@ -124,11 +124,9 @@ fn trace_of_a_missing_run_is_a_one_line_error() {
     assert!(err.contains("/nonexistent/run"), "{err}");
 }
 
-#[test]
-fn renaming_cubes_of_video_runs_is_refused_before_anything_is_written() {
-    let tmp = tempfile::tempdir().unwrap();
-    let out = tmp.path().join("run");
-    let (code, _, err) = ntg(&[
+/// `ntg train --obs vid` on 2 tasks x 1 demo into `out`, with `extra` flags.
+fn train_tiny_video_run(out: &Path, extra: &[&str]) -> (i32, String, String) {
+    let mut args = vec![
         "train",
         "--obs",
         "vid",
@@ -136,10 +134,18 @@ fn renaming_cubes_of_video_runs_is_refused_before_anything_is_written() {
         "2",
         "--demos-per-task",
         "1",
-        "--permute-objects",
         "--out",
-        s(&out),
-    ]);
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    ntg(&args)
+}
+
+#[test]
+fn renaming_cubes_of_video_runs_is_refused_before_anything_is_written() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let (code, _, err) = train_tiny_video_run(&out, &["--permute-objects"]);
     assert_ne!(code, 0);
     assert!(err.contains("--permute-objects"), "{err}");
     assert!(!out.exists(), "no run folder is created");
@@ -149,27 +155,21 @@ fn renaming_cubes_of_video_runs_is_refused_before_anything_is_written() {
 fn the_interpreter_reads_pooled_frames_when_asked() {
     let tmp = tempfile::tempdir().unwrap();
     let run = tmp.path().join("run");
-    let (code, _, err) = ntg(&[
-        "train",
-        "--obs",
-        "vid",
-        "--train-tasks",
-        "2",
-        "--demos-per-task",
-        "1",
-        "--epochs",
-        "1",
-        "--encoder-demos",
-        "2",
-        "--encoder-epochs",
-        "1",
-        "--validation-tasks",
-        "0",
-        "--interpreter-frame-pool",
-        "3",
-        "--out",
-        s(&run),
-    ]);
+    let (code, _, err) = train_tiny_video_run(
+        &run,
+        &[
+            "--epochs",
+            "1",
+            "--encoder-demos",
+            "2",
+            "--encoder-epochs",
+            "1",
+            "--validation-tasks",
+            "0",
+            "--interpreter-frame-pool",
+            "3",
+        ],
+    );
     assert_eq!(code, 0, "{err}");
     let read = |p: &Path| -> serde_json::Value {
         serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
