@@ -24,6 +24,12 @@ use crate::{ModelError, Result};
 /// - `demo_interpreter: false`: the initial CTG is fully connected instead
 ///   of the demo's path;
 /// - `node_localizer: false`: ℓ(n|o) is uniform;
+/// - `executed_node: true` (not an ablation of the paper: a replacement,
+///   not in the paper): ℓ(n|o) is 1 at the last action the agent executed
+///   (`<start>` before the first), read from its own record instead of the
+///   frame. Demo frames are labelled with the action they belong to, so
+///   after an action the localizer's target is that action: this is the
+///   localizer's answer without its reading errors;
 /// - `edge_classifier: false`: ε(a|n,o) is uniform over the successors of n;
 /// - `gcn: false`: the initial CTG is used as is, and the edge classifier
 ///   gets the GCN's initial (task-independent) node embeddings `N⁰`.
@@ -38,6 +44,11 @@ pub struct AblationConfig {
     /// Use the edge classifier.
     #[config(default = true)]
     pub edge_classifier: bool,
+    /// Take the current node from the agent's record of its actions (the
+    /// last one executed) instead of the localizer (see above; overrides
+    /// `node_localizer`). `None`: off (an `Option` so that models saved
+    /// before it load).
+    pub executed_node: Option<bool>,
     /// Complete the initial CTG with the GCN.
     #[config(default = true)]
     pub gcn: bool,

@@ -21,7 +21,11 @@ use crate::{ModelError, Result};
 struct Scores {
     observation: Vec<f32>,
     memory: Option<Vec<f32>>,
-    /// Localizer logits `[N]` (`None` when the localizer is ablated).
+    /// The last executed action, when the node comes from the record.
+    executed_node: Option<ActionId>,
+    /// Localizer logits `[N]` (`None` when the localizer is ablated;
+    /// 0 at the executed node and −∞ elsewhere with
+    /// [`crate::AblationConfig::executed_node`]).
     node_logits: Option<Vec<f32>>,
     /// Edge logits `[N × N]`, row = current node (`None` when ablated).
     edge_logits: Option<Vec<f32>>,
@@ -62,6 +66,9 @@ pub struct NtgPolicy {
     weights: Option<Ctg>,
     ne_gcn: Tensor<2>,
     memory: RefCell<Option<Vec<f32>>>,
+    /// The last action executed (`<start>` before the first), from
+    /// [`NtgPolicy::set_executed`].
+    last_executed: RefCell<ActionId>,
     cache: RefCell<Option<Scores>>,
 }
 
@@ -110,6 +117,7 @@ impl NtgPolicy {
             weights,
             ne_gcn: completed.embeddings,
             memory: RefCell::new(None),
+            last_executed: RefCell::new(Vocabulary::START),
             cache: RefCell::new(None),
         })
     }
@@ -159,11 +167,20 @@ impl NtgPolicy {
         self.model.edges.memory_dim > 0
     }
 
+    /// Whether the current node is taken from the record of executed
+    /// actions ([`crate::AblationConfig::executed_node`]; then
+    /// [`NtgPolicy::set_executed`] must be called before scoring).
+    pub fn uses_executed_node(&self) -> bool {
+        self.model.config.ablation.executed_node == Some(true)
+    }
+
     /// Tells a policy with an execution memory which actions the agent has
     /// taken so far in this episode; its edge classifier then reads
-    /// [`crate::pending_nodes`] of the initial graph (the demo's path). A
-    /// no-op for a policy without memory.
+    /// [`crate::pending_nodes`] of the initial graph (the demo's path). With
+    /// [`crate::AblationConfig::executed_node`] the last of them is the
+    /// current node. A no-op for a policy without either.
     pub fn set_executed(&self, executed: &[ActionId]) {
+        *self.last_executed.borrow_mut() = executed.last().copied().unwrap_or(Vocabulary::START);
         if self.has_memory() {
             *self.memory.borrow_mut() = Some(crate::pending_nodes(&self.initial, executed));
         }
@@ -274,9 +291,13 @@ impl NtgPolicy {
     /// Runs (or reuses) the networks on one observation.
     fn scores(&self, observation: &[f32]) -> Result<Scores> {
         let memory = self.memory.borrow().clone();
+        let executed_node = self
+            .uses_executed_node()
+            .then(|| *self.last_executed.borrow());
         if let Some(cached) = self.cache.borrow().as_ref()
             && cached.observation == observation
             && cached.memory == memory
+            && cached.executed_node == executed_node
         {
             return Ok(cached.clone());
         }
@@ -285,7 +306,25 @@ impl NtgPolicy {
         let device = model.device();
         let obs = rows_tensor(&[observation], model.obs_dim(), &device)?;
         let n = model.num_nodes();
-        let node_logits = if ablation.node_localizer {
+        let node_logits = if let Some(node) = executed_node {
+            if node.index() >= n {
+                return Err(ModelError::Input(format!(
+                    "executed action {} is outside the {n} nodes",
+                    node.index()
+                )));
+            }
+            Some(
+                (0..n)
+                    .map(|i| {
+                        if i == node.index() {
+                            0.0
+                        } else {
+                            f32::NEG_INFINITY
+                        }
+                    })
+                    .collect(),
+            )
+        } else if ablation.node_localizer {
             Some(to_vec(model.localizer.forward(obs.clone())?)?)
         } else {
             None
@@ -320,6 +359,7 @@ impl NtgPolicy {
         let scores = Scores {
             observation: observation.to_vec(),
             memory,
+            executed_node,
             node_logits,
             edge_logits,
         };

@@ -782,6 +782,51 @@ fn ablations_replace_components() {
 }
 
 #[test]
+fn the_executed_node_replaces_the_localizer_with_the_last_action_taken() {
+    let dev = device();
+    let mut cfg = small_config(9);
+    cfg.ablation.executed_node = Some(true);
+    let model = NtgModel::new(cfg, &dev).unwrap();
+    let path = ids(&[2, 4, 3]);
+    let policy = NtgPolicy::from_actions(&model, &path).unwrap();
+    assert!(policy.uses_executed_node());
+    let obs = one_hot_row(1);
+    let one_hot_at = |node: usize| {
+        let nodes = policy.node_probabilities(&obs).unwrap();
+        nodes
+            .iter()
+            .enumerate()
+            .all(|(i, &p)| p == if i == node { 1.0 } else { 0.0 })
+    };
+    // Before any action the agent is at <start>.
+    policy.set_executed(&[]);
+    assert!(one_hot_at(Vocabulary::START.index()));
+    // The same observation, another record: the node follows the record,
+    // and π is that node's edge row.
+    policy.set_executed(&ids(&[2, 4]));
+    assert!(one_hot_at(4));
+    let pi = policy.action_distribution(&obs).unwrap();
+    let edges = policy
+        .edge_probabilities_for(policy.execution_graph(), &obs)
+        .unwrap();
+    for (a, &p) in edges[4 * N..5 * N].iter().enumerate() {
+        assert!((pi.probability(ActionId::new(a)) - p).abs() < 1e-6);
+    }
+    let logp = policy.log_probabilities(&obs).unwrap();
+    for (a, &l) in logp.iter().enumerate() {
+        assert!((l.exp() - pi.probability(ActionId::new(a))).abs() < 1e-5);
+    }
+    // Models saved before the switch existed load with it off.
+    let mut json: serde_json::Value = serde_json::to_value(small_config(9)).unwrap();
+    json["ablation"]
+        .as_object_mut()
+        .unwrap()
+        .remove("executed_node");
+    let old: NtgConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(old.ablation.executed_node, None);
+}
+
+#[test]
 fn save_then_load_gives_identical_outputs() {
     let dev = device();
     let dir = tempfile::tempdir().unwrap();

@@ -6,6 +6,7 @@
 //! ```text
 //! cargo run --release -p ntg-trainer --example encoder_heldout -- score RUN [TASKS]
 //! cargo run --release -p ntg-trainer --example encoder_heldout -- errors RUN [TASKS]
+//! cargo run --release -p ntg-trainer --example encoder_heldout -- decisions RUN [TASKS]
 //! cargo run --release -p ntg-trainer --example encoder_heldout -- \
 //!     train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [keypoints] [tasks=TASKS]
 //! ```
@@ -13,7 +14,14 @@
 //! `score` scores the stage A network of a video run; `errors` breaks its
 //! localizer's keyframe errors down (first keyframe or later, a retry's
 //! keyframe or a first visit, pick or place confused with which) and lists
-//! the most frequent confusions. `train` trains a new
+//! the most frequent confusions. `decisions` replays expert videos through
+//! the whole trained policy: conditioned on one validation-task video, it
+//! is shown the keyframes of another video of the same task (another seed,
+//! so other slips) with the expert's actions so far as its record, and
+//! every next action it picks is scored against the expert's, by the
+//! situation (after a slipped grasp, after a missed drop, ...), once with
+//! the localizer and once with the node taken from the record
+//! (`--variant executed-node`). `train` trains a new
 //! stage A network on the frames of the first `DEMOS` demo videos of a
 //! stage A frame dataset `FRAMES` (a run's `stage_a/dataset`, so that
 //! settings are compared on the same frames without re-rendering them),
@@ -34,7 +42,7 @@ use ntg_trainer::video::{
     EncoderEpochMetrics, EncoderStage, FrameStageStep, STAGE_A_DIR, frame_dataset,
 };
 
-const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | errors RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [keypoints] [tasks=TASKS]";
+const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | errors RUN [TASKS] | decisions RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [keypoints] [tasks=TASKS]";
 
 fn count(args: &[String], i: usize, name: &str, default: Option<usize>) -> anyhow::Result<usize> {
     match (args.get(i), default) {
@@ -153,6 +161,104 @@ fn keyframe_errors(net: &FrameStageNet, frames: &DemoDataset) -> anyhow::Result<
     Ok(())
 }
 
+/// The situation of the decision after `done` (the expert's actions so
+/// far) when the expert's next action is `next`.
+fn situation(done: &[String], next: &str) -> &'static str {
+    let last_pick = done.iter().rev().find(|a| kind(a) == "pick");
+    match (done.last().map(|a| kind(a)), kind(next)) {
+        (None, _) => "first action",
+        (_, "<end>") => "end after the last drop",
+        (Some("pick"), "pick") => "retry after a slipped grasp",
+        (Some("pick"), _) => "place after a grasp",
+        (Some("place"), "pick") if last_pick.is_some_and(|p| p == next) => {
+            "retry after a missed drop"
+        }
+        (Some("place"), _) => "next pick after a drop",
+        _ => "other",
+    }
+}
+
+/// Replays `tasks` validation tasks' expert videos through the trained
+/// policy of `run` (see the module docs) and prints its decisions'
+/// accuracy by situation.
+fn decisions(run: &str, tasks: usize) -> anyhow::Result<()> {
+    use ntg_trainer::blocks::{TrainedBlocks, VALIDATION_DEMO_SEED_BASE};
+    use ntg_trainer::method::TrainedPolicy;
+    use ntg_trainer::method::ntg::Variant;
+    use ntg_trainer::method::on_frames::NtgBased;
+    use std::collections::BTreeMap;
+    let device = ntg_model::cpu_device();
+    let dir = RunDir::open(std::path::Path::new(run))?;
+    let config: BlocksRunConfig = RunDir::read_json(&dir.config_path())?;
+    let video = config
+        .video
+        .context("not a video run (no `video` settings)")?;
+    let TrainedBlocks::Video(model) = blocks::load_trained(&dir, None, &device)? else {
+        anyhow::bail!("{run} is not a video run");
+    };
+    let vocab = blocks::flat_vocabulary();
+    let validation = env_blocks::validation_tasks(tasks)?;
+    // Another seed than the demo's: an expert episode with its own slips.
+    const EPISODE_SEED_OFFSET: u64 = 1_000_000;
+    for variant in [Variant::Full, Variant::ExecutedNode] {
+        let mut model = model.clone();
+        model.ntg_mut().config.ablation = variant.ablation();
+        let mut by_case: BTreeMap<&str, (usize, usize)> = BTreeMap::new();
+        let mut wrong_as: BTreeMap<(&str, String), usize> = BTreeMap::new();
+        for (i, task) in validation.iter().enumerate() {
+            let seed = VALIDATION_DEMO_SEED_BASE + i as u64;
+            let demo = blocks::record_video(task.clone(), config.failures, &video.frames, seed)?;
+            let agent = model.condition(demo.frames(), &vocab)?;
+            let episode = blocks::record_video(
+                task.clone(),
+                config.failures,
+                &video.frames,
+                seed + EPISODE_SEED_OFFSET,
+            )?;
+            let keyframes = episode.keyframes();
+            let actions = episode.actions();
+            for (s, row) in keyframes.observations().iter().enumerate() {
+                let expected = actions
+                    .get(s)
+                    .copied()
+                    .unwrap_or(ctg_graph::Vocabulary::END);
+                let name = |a: ctg_graph::ActionId| vocab.name(a).unwrap_or("?").to_owned();
+                let done: Vec<String> = actions[..s].iter().map(|&a| name(a)).collect();
+                let case = situation(&done, &name(expected));
+                let chosen = agent.act(row, &actions[..s])?;
+                let entry = by_case.entry(case).or_default();
+                entry.0 += 1;
+                if chosen != expected {
+                    entry.1 += 1;
+                    let what = match situation(&done, &name(chosen)) {
+                        c if c == case => format!("another {}", kind(&name(chosen))),
+                        c => c.to_owned(),
+                    };
+                    *wrong_as.entry((case, what)).or_default() += 1;
+                }
+            }
+        }
+        let (n, w) = by_case
+            .values()
+            .fold((0, 0), |(n, w), (a, b)| (n + a, w + b));
+        println!(
+            "{}: {n} decisions on {tasks} validation tasks, {w} wrong ({:.3} right)",
+            variant.name(),
+            1.0 - w as f64 / n.max(1) as f64
+        );
+        for (case, (n, w)) in &by_case {
+            println!(
+                "  {case}: {w} wrong of {n} ({:.3} right)",
+                1.0 - *w as f64 / (*n).max(1) as f64
+            );
+        }
+        for ((case, what), k) in &wrong_as {
+            println!("    {case}, chose: {what}: {k}");
+        }
+    }
+    Ok(())
+}
+
 /// The stage A network a video run kept (its selected epoch, or its last).
 fn run_stage_a(
     run: &str,
@@ -187,10 +293,14 @@ fn main() -> anyhow::Result<()> {
             } else {
                 let acc = FrameStageStep::new(&frames, &device)?.accuracy(&net)?;
                 println!(
-                    "{run}: {} validation videos, localizer {:.3} (keyframes {:.3}), edges {:.3}",
-                    tasks, acc.localizer, acc.keyframe_localizer, acc.edge
+                    "{run}: {} validation videos, localizer {:.3} (keyframes {:.3}), edges {:.3} (retries {:?})",
+                    tasks, acc.localizer, acc.keyframe_localizer, acc.edge, acc.retry_edge
                 );
             }
+        }
+        Some("decisions") => {
+            let run = args.get(1).context(USAGE)?;
+            decisions(run, count(&args, 2, "TASKS", Some(100))?)?;
         }
         Some("train") => {
             let (frames_dir, out) = (args.get(1).context(USAGE)?, args.get(2).context(USAGE)?);
@@ -226,8 +336,8 @@ fn main() -> anyhow::Result<()> {
             let mut validator = |net: &FrameStageNet| -> anyhow::Result<ValidationScore> {
                 let acc = held_out.accuracy(net)?;
                 println!(
-                    "  held-out: localizer {:.3} (keyframes {:.3}) | edges {:.3}",
-                    acc.localizer, acc.keyframe_localizer, acc.edge
+                    "  held-out: localizer {:.3} (keyframes {:.3}) | edges {:.3} (retries {:?})",
+                    acc.localizer, acc.keyframe_localizer, acc.edge, acc.retry_edge
                 );
                 Ok(ValidationScore {
                     success: acc.keyframe_localizer,

@@ -104,10 +104,25 @@ pub struct EncoderStage {
     /// 1: one thread).
     #[serde(default, skip_serializing_if = "crate::fit::is_one_shard")]
     pub shards: usize,
+    /// Times each epoch shows a *retry keyframe*: the scene after an action
+    /// whose next action repeats an earlier one (a pick after a slipped
+    /// grasp or a missed drop). Retries are a few percent of the
+    /// keyframes, and the edge head's loss barely weighs the scene that
+    /// calls for one. Absent in runs saved before it: 1.
+    #[serde(default = "one_repeat", skip_serializing_if = "is_one_repeat")]
+    pub retry_repeats: usize,
 }
 
 fn one() -> f64 {
     1.0
+}
+
+fn one_repeat() -> usize {
+    1
+}
+
+fn is_one_repeat(r: &usize) -> bool {
+    *r == 1
 }
 
 impl Default for EncoderStage {
@@ -126,6 +141,7 @@ impl Default for EncoderStage {
             coord_channels: false,
             spatial_softmax: false,
             shards: 0,
+            retry_repeats: 1,
         }
     }
 }
@@ -205,6 +221,10 @@ pub struct FrameAccuracy {
     /// The localizer's accuracy on the keyframes alone (the scene after
     /// each action: what the policy localizes at run time).
     pub keyframe_localizer: f64,
+    /// The edge head's accuracy on the retry keyframes (see
+    /// [`EncoderStage::retry_repeats`]); `None` without any.
+    #[serde(default)]
+    pub retry_edge: Option<f64>,
 }
 
 /// Stage A's [`TrainStep`]: the examples are single frames of a dataset of
@@ -215,6 +235,12 @@ pub struct FrameStageStep<'a> {
     frames: Vec<(usize, ActionId, ActionId, usize)>,
     /// Indices into `frames` of the keyframes (what the policy acts on).
     keyframes: Vec<usize>,
+    /// Indices into `frames` of the retry keyframes (the next action
+    /// repeats an earlier one).
+    retries: Vec<usize>,
+    /// How many of `frames` are the dataset's own (the rest repeat retry
+    /// keyframes, [`FrameStageStep::with_retry_repeats`]).
+    own_frames: usize,
     graphs: std::collections::BTreeMap<usize, Ctg>,
     device: Device,
 }
@@ -222,7 +248,7 @@ pub struct FrameStageStep<'a> {
 impl<'a> FrameStageStep<'a> {
     /// The step over every frame of `dataset` (video demos).
     pub fn new(dataset: &'a DemoDataset, device: &Device) -> anyhow::Result<Self> {
-        let (mut frames, mut keyframes) = (Vec::new(), Vec::new());
+        let (mut frames, mut keyframes, mut retries) = (Vec::new(), Vec::new(), Vec::new());
         for d in dataset.demos() {
             let ends = d
                 .segment_ends
@@ -237,6 +263,9 @@ impl<'a> FrameStageStep<'a> {
                 for k in start..end {
                     if k + 1 == end {
                         keyframes.push(frames.len());
+                        if d.actions[..s].contains(&next[s]) {
+                            retries.push(frames.len());
+                        }
                     }
                     frames.push((d.first_row + k, nodes[s], next[s], d.task));
                 }
@@ -245,8 +274,10 @@ impl<'a> FrameStageStep<'a> {
         }
         Ok(FrameStageStep {
             dataset,
+            own_frames: frames.len(),
             frames,
             keyframes,
+            retries,
             graphs: task_graphs(dataset)?,
             device: device.clone(),
         })
@@ -260,8 +291,28 @@ impl<'a> FrameStageStep<'a> {
             .demos()
             .get(demos)
             .map_or(usize::MAX, |d| d.first_row);
-        self.frames.retain(|f| f.0 < end);
-        self.keyframes.retain(|&k| k < self.frames.len());
+        let own = self.frames[..self.own_frames]
+            .iter()
+            .take_while(|f| f.0 < end)
+            .count();
+        let repeated = self.frames.split_off(self.own_frames);
+        self.frames.truncate(own);
+        self.frames
+            .extend(repeated.into_iter().filter(|f| f.0 < end));
+        self.own_frames = own;
+        self.keyframes.retain(|&k| k < own);
+        self.retries.retain(|&k| k < own);
+        self
+    }
+
+    /// The same step with each retry keyframe shown `repeats` times per
+    /// epoch (see [`EncoderStage::retry_repeats`]; 0 and 1: once).
+    pub fn with_retry_repeats(mut self, repeats: usize) -> Self {
+        for _ in 1..repeats {
+            for &k in &self.retries {
+                self.frames.push(self.frames[k]);
+            }
+        }
         self
     }
 
@@ -308,13 +359,19 @@ impl<'a> FrameStageStep<'a> {
             let total = frames.len().max(1) as f64;
             Ok((localizer / total, edge / total))
         };
-        let all: Vec<usize> = (0..self.frames.len()).collect();
+        let all: Vec<usize> = (0..self.own_frames).collect();
         let (localizer, edge) = mean(&all)?;
         let (keyframe_localizer, _) = mean(&self.keyframes)?;
+        let retry_edge = if self.retries.is_empty() {
+            None
+        } else {
+            Some(mean(&self.retries)?.1)
+        };
         Ok(FrameAccuracy {
             localizer,
             edge,
             keyframe_localizer,
+            retry_edge,
         })
     }
 }
@@ -538,7 +595,7 @@ pub fn train_encoder(
     let net = stage
         .net_config(video.vocabulary.len(), video.seed)
         .init(device)?;
-    let step = FrameStageStep::new(&frames, device)?;
+    let step = FrameStageStep::new(&frames, device)?.with_retry_repeats(stage.retry_repeats);
     eprintln!(
         "stage A: encoder on {} frames of {} demo videos, {} epochs",
         step.num_examples(),
@@ -563,12 +620,14 @@ pub fn train_encoder(
         let step = held_out_step.as_ref().context("no validation videos")?;
         let acc = step.accuracy(net)?;
         eprintln!(
-            "  stage A held-out ({} frames of {} videos): localizer {:.3} (keyframes {:.3}) | edges {:.3}",
+            "  stage A held-out ({} frames of {} videos): localizer {:.3} (keyframes {:.3}) | edges {:.3} (retries {})",
             step.num_examples(),
             step.dataset.demos().len(),
             acc.localizer,
             acc.keyframe_localizer,
-            acc.edge
+            acc.edge,
+            acc.retry_edge
+                .map_or_else(|| "-".to_owned(), |a| format!("{a:.3}"))
         );
         Ok(ValidationScore {
             success: acc.localizer,
@@ -708,6 +767,42 @@ mod tests {
             .unwrap()
             .first_demos(10);
         assert_eq!(more.num_examples(), all.num_examples());
+    }
+
+    #[test]
+    fn retry_keyframes_are_found_and_repeated() {
+        // Two videos: "a a b" (the first `a` was retried) and "a b".
+        let vocab = Vocabulary::from_sequences([["a", "b"].as_slice()]).unwrap();
+        let video = |actions: &str| {
+            let actions = vocab.parse_sequence(actions).unwrap();
+            let ends: Vec<usize> = (0..=actions.len()).map(|s| 1 + 2 * s).collect();
+            let frames = (0..*ends.last().unwrap()).map(|f| vec![f as f32]).collect();
+            VideoDemonstration::new(frames, ends, actions, &vocab).unwrap()
+        };
+        let videos = [(0, 0, video("a a b")), (1, 1, video("a b"))];
+        let dataset = DemoDataset::from_videos(vocab.clone(), 1, videos).unwrap();
+        let device = ntg_model::cpu_device();
+        let step = FrameStageStep::new(&dataset, &device).unwrap();
+        // The keyframe after the first `a` (frame 2: its next action is `a`
+        // again) is the only retry.
+        assert_eq!(step.retries.len(), 1);
+        assert_eq!(step.frames[step.retries[0]].0, 2);
+        assert_eq!(step.num_examples(), 7 + 5);
+        let repeated = FrameStageStep::new(&dataset, &device)
+            .unwrap()
+            .with_retry_repeats(4);
+        assert_eq!(repeated.num_examples(), 7 + 5 + 3);
+        assert!(repeated.frames[12..].iter().all(|f| f.0 == 2));
+        // Scoring counts every frame once, repeats or not.
+        assert_eq!(repeated.keyframes, step.keyframes);
+        // Keeping the first demo keeps its retry and its repeats.
+        let first = repeated.first_demos(1);
+        assert_eq!((first.num_examples(), first.retries.len()), (7 + 3, 1));
+        let second_only_has_none = FrameStageStep::new(&dataset, &device)
+            .unwrap()
+            .with_retry_repeats(4)
+            .first_demos(0);
+        assert_eq!(second_only_has_none.num_examples(), 0);
     }
 
     #[test]

@@ -180,6 +180,14 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             "--encoder-keypoints".into(),
         ),
         (
+            train(&["--encoder-retry-repeats", "4"]),
+            "--encoder-retry-repeats".into(),
+        ),
+        (
+            train(&["--obs", "vid", "--encoder-retry-repeats", "0"]),
+            "--encoder-retry-repeats".into(),
+        ),
+        (
             train(&["--interpreter-frame-pool", "2"]),
             "--interpreter-frame-pool".into(),
         ),

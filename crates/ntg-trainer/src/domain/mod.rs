@@ -191,6 +191,11 @@ pub struct TrainFlags {
     /// collection].
     #[arg(long, value_name = "BOOL", num_args = 0..=1, default_missing_value = "true")]
     pub encoder_keypoints: Option<bool>,
+    /// --obs vid: stage A shows each keyframe whose next action repeats an
+    /// earlier one (a retry after a slip or a missed drop) this many times
+    /// per epoch [default: 1].
+    #[arg(long, value_name = "R", value_parser = crate::spec::parse::positive)]
+    pub encoder_retry_repeats: Option<usize>,
 }
 
 impl TrainFlags {
@@ -203,13 +208,14 @@ impl TrainFlags {
             || self.encoder_lr.is_some()
             || self.encoder_reconstruction.is_some()
             || self.encoder_keypoints.is_some()
+            || self.encoder_retry_repeats.is_some()
     }
 
     /// Refuses the frame-encoder flags on a run that has no frames.
     pub fn check_encoder_flags(&self) -> anyhow::Result<()> {
         if self.obs == ObsKind::State && self.sets_the_frame_encoder() {
             anyhow::bail!(
-                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr, --encoder-reconstruction and --encoder-keypoints set the frame encoder of --obs vid runs"
+                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr, --encoder-reconstruction, --encoder-keypoints and --encoder-retry-repeats set the frame encoder of --obs vid runs"
             );
         }
         Ok(())
@@ -224,6 +230,7 @@ impl TrainFlags {
         stage.learning_rate = self.encoder_lr.unwrap_or(stage.learning_rate);
         stage.reconstruction = self.encoder_reconstruction.unwrap_or(stage.reconstruction);
         stage.spatial_softmax = self.encoder_keypoints.unwrap_or(stage.spatial_softmax);
+        stage.retry_repeats = self.encoder_retry_repeats.unwrap_or(stage.retry_repeats);
         stage.shards = self.shards;
     }
 }

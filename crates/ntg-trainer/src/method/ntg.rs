@@ -611,6 +611,9 @@ pub enum Variant {
     NoEdgeClassifier,
     /// Uniform ℓ (no node localizer).
     NoNodeLocalizer,
+    /// ℓ replaced by the agent's record: the current node is the last
+    /// action it executed (not in the paper).
+    ExecutedNode,
     /// Fully connected initial graph (no demo interpreter).
     NoDemoInterpreter,
     /// The demo's path graph as is (no GCN).
@@ -625,6 +628,7 @@ impl Variant {
             Variant::Full => a,
             Variant::NoEdgeClassifier => a.with_edge_classifier(false),
             Variant::NoNodeLocalizer => a.with_node_localizer(false),
+            Variant::ExecutedNode => a.with_executed_node(Some(true)),
             Variant::NoDemoInterpreter => a.with_demo_interpreter(false),
             Variant::NoGcn => a.with_gcn(false),
         }
@@ -636,6 +640,7 @@ impl Variant {
             Variant::Full => "full",
             Variant::NoEdgeClassifier => "no-edge-classifier",
             Variant::NoNodeLocalizer => "no-node-localizer",
+            Variant::ExecutedNode => "executed-node",
             Variant::NoDemoInterpreter => "no-demo-interpreter",
             Variant::NoGcn => "no-gcn",
         }
