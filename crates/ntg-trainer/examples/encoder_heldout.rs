@@ -21,7 +21,10 @@
 //! every next action it picks is scored against the expert's, by the
 //! situation (after a slipped grasp, after a missed drop, ...), once with
 //! the localizer and once with the node taken from the record
-//! (`--variant executed-node`). `train` trains a new
+//! (`--variant executed-node`). Where the task leaves the order of towers
+//! free (the first action, the next pick after a drop) another valid
+//! order counts as wrong; the other situations have one right answer.
+//! `train` trains a new
 //! stage A network on the frames of the first `DEMOS` demo videos of a
 //! stage A frame dataset `FRAMES` (a run's `stage_a/dataset`, so that
 //! settings are compared on the same frames without re-rendering them),
