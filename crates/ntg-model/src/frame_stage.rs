@@ -31,12 +31,12 @@ use burn::config::Config;
 use burn::module::{Module, Param};
 use burn::nn::Linear;
 use burn::nn::conv::Conv2d;
-use burn::tensor::activation::relu;
+use burn::tensor::activation::{relu, softplus};
 use burn::tensor::{Bool, Device, Int, Tensor};
 
 use crate::encoder::{Encoder, EncoderConfig};
 use crate::interpreter::LossOutput;
-use crate::nn::{Init, mask_logits, masked_accuracy, masked_cross_entropy};
+use crate::nn::{Init, mask_logits, masked_accuracy, masked_cross_entropy, to_vec};
 use crate::{ModelError, Result};
 
 /// Configuration of a [`FrameStageNet`].
@@ -55,6 +55,14 @@ pub struct FrameStageConfig {
     /// `None` or 0: no decoder. An `Option` so that networks saved before
     /// it load.
     pub reconstruction: Option<f32>,
+    /// Weight of the progress loss: a linear head reads from `Enc(o)`
+    /// which actions of the demo have taken effect by the frame (a
+    /// multi-hot target over the `N` nodes, built from the flat action
+    /// labels alone; see `FrameStageNet::loss_with_progress`), so that
+    /// the embedding keeps what is done in the scene and not only the last
+    /// action. `None` or 0: no head. An `Option` so that networks saved
+    /// before it load.
+    pub progress: Option<f32>,
 }
 
 impl FrameStageConfig {
@@ -74,6 +82,13 @@ impl FrameStageConfig {
             return Err(ModelError::Config(
                 "frame stage: reconstruction needs a frame encoder".into(),
             ));
+        }
+        if let Some(w) = self.progress
+            && !(w.is_finite() && w >= 0.0)
+        {
+            return Err(ModelError::Config(format!(
+                "frame stage: progress weight must be finite and at least 0, got {w}"
+            )));
         }
         if self.num_nodes < 3 {
             return Err(ModelError::Config(format!(
@@ -114,11 +129,17 @@ impl FrameStageConfig {
             }
             _ => None,
         };
+        // Drawn last, so that the other weights do not depend on it.
+        let progress = self
+            .progress
+            .is_some_and(|w| w > 0.0)
+            .then(|| init.linear(h, self.num_nodes, true));
         Ok(FrameStageNet {
             loc_nodes,
             edge_nodes,
             w,
             decoder,
+            progress,
             encoder,
             config: self.clone(),
         })
@@ -138,6 +159,9 @@ pub struct FrameStageNet {
     pub w: Linear,
     /// The frame decoder of [`FrameStageConfig::reconstruction`].
     pub decoder: Option<FrameDecoder>,
+    /// The progress head of [`FrameStageConfig::progress`]: `Enc(o)` →
+    /// one logit per node.
+    pub progress: Option<Linear>,
     /// The configuration the network was built from.
     #[module(skip)]
     pub config: FrameStageConfig,
@@ -155,6 +179,10 @@ pub struct FrameStageLoss {
     /// Mean squared error of the rebuilt frames (unweighted), with a
     /// decoder.
     pub reconstruction: Option<Tensor<1>>,
+    /// The progress head's binary cross-entropy (summed over the nodes,
+    /// unweighted) and the fraction of frames whose whole multi-hot it
+    /// gets right, with a progress head and targets.
+    pub progress: Option<LossOutput>,
 }
 
 /// Rebuilds a frame at half resolution from its embedding: a dense layer
@@ -208,6 +236,25 @@ impl FrameDecoder {
         let target: Tensor<4> = target.mean_dim(5).mean_dim(3).reshape([b, c, half, half]);
         (self.forward(encoded) - target).powi_scalar(2).mean()
     }
+}
+
+/// Binary cross-entropy of `logits` `[B, N]` against 0/1 `targets`,
+/// summed over the nodes and averaged over the rows, and the fraction of
+/// rows whose every node is on the right side of 0.
+fn progress_loss(logits: Tensor<2>, targets: Tensor<2>) -> Result<LossOutput> {
+    let b = logits.dims()[0];
+    // softplus(z) − y·z = −[y ln σ(z) + (1 − y) ln(1 − σ(z))].
+    let loss = (softplus(logits.clone(), 1.0) - logits.clone() * targets.clone())
+        .sum()
+        .div_scalar(b as f32);
+    let predicted = logits.detach().greater_elem(0.0).float();
+    let wrong = (predicted - targets).abs().sum_dim(1).reshape([b]);
+    let right = to_vec(wrong.lower_elem(0.5).float())?;
+    let accuracy = right.iter().sum::<f32>() / b.max(1) as f32;
+    Ok(LossOutput {
+        loss: loss.reshape([1]),
+        accuracy,
+    })
 }
 
 impl FrameStageNet {
@@ -279,7 +326,31 @@ impl FrameStageNet {
         next: Tensor<1, Int>,
         successors: Tensor<2, Bool>,
     ) -> Result<FrameStageLoss> {
+        self.loss_with_progress(frames, labels, next, successors, None)
+    }
+
+    /// [`FrameStageNet::loss`] plus, with a progress head, its loss against
+    /// `done` `[B, N]`: 1 at each action of the frame's demo that has
+    /// taken effect by the frame, 0 elsewhere. (Without `done` a progress
+    /// head is not trained; without a head `done` is ignored.)
+    pub fn loss_with_progress(
+        &self,
+        frames: Tensor<2>,
+        labels: Tensor<1, Int>,
+        next: Tensor<1, Int>,
+        successors: Tensor<2, Bool>,
+        done: Option<Tensor<2>>,
+    ) -> Result<FrameStageLoss> {
         let b = frames.dims()[0];
+        if let Some(d) = &done
+            && d.dims() != [b, self.config.num_nodes]
+        {
+            return Err(ModelError::shape(
+                "progress targets",
+                format!("[{b}, {}]", self.config.num_nodes),
+                d.dims(),
+            ));
+        }
         if next.dims() != [b] {
             return Err(ModelError::shape(
                 "next actions",
@@ -293,6 +364,10 @@ impl FrameStageNet {
             .decoder
             .as_ref()
             .map(|d| d.loss(encoded.clone(), frames));
+        let progress = match (&self.progress, done) {
+            (Some(head), Some(done)) => Some(progress_loss(head.forward(encoded.clone()), done)?),
+            _ => None,
+        };
         let (loc_logits, edge_logits) = self.heads(encoded, labels.clone(), successors);
         let ones = Tensor::<1>::ones([b], &loc_logits.device());
         let localizer = LossOutput {
@@ -307,11 +382,15 @@ impl FrameStageNet {
         if let (Some(decoder), Some(r)) = (&self.decoder, &reconstruction) {
             loss = loss + r.clone().mul_scalar(decoder.weight);
         }
+        if let (Some(weight), Some(p)) = (self.config.progress, &progress) {
+            loss = loss + p.loss.clone().mul_scalar(weight);
+        }
         Ok(FrameStageLoss {
             loss,
             localizer,
             edge,
             reconstruction,
+            progress,
         })
     }
 
@@ -404,6 +483,77 @@ mod tests {
         assert_eq!(accuracy, 1.0);
     }
 
+    /// With a progress weight, the head learns a multi-hot target that the
+    /// frame shows (which of two regions is bright), and the other weights
+    /// start as without the head.
+    #[test]
+    fn the_progress_head_learns_what_the_frame_shows_is_done() {
+        let device = Device::flex().autodiff();
+        let config = small().with_progress(Some(1.0));
+        let mut net = config.init(&device).unwrap();
+        let plain = small().init(&device).unwrap();
+        assert_eq!(
+            crate::nn::to_vec(net.loc_nodes.val()).unwrap(),
+            crate::nn::to_vec(plain.loc_nodes.val()).unwrap()
+        );
+        let dim = 3 * 16 * 16;
+        // Frame k: the left half bright if bit 0 of k, the right if bit 1;
+        // targets: node 2 for the left, node 3 for the right.
+        let rows: Vec<Vec<f32>> = (0..8)
+            .map(|k| {
+                (0..dim)
+                    .map(|i| {
+                        let left = i % 16 < 8;
+                        let on = if left { k & 1 == 1 } else { k & 2 == 2 };
+                        if on { 0.9 } else { 0.1 }
+                    })
+                    .collect()
+            })
+            .collect();
+        let done: Vec<f32> = (0..8)
+            .flat_map(|k| {
+                let mut row = vec![0.0; 5];
+                row[2] = (k & 1) as f32;
+                row[3] = ((k >> 1) & 1) as f32;
+                row
+            })
+            .collect();
+        let labels = vec![ActionId::new(2); 8];
+        let graph = Ctg::from_path(5, &[ActionId::new(2)]).unwrap();
+        let next = vec![ActionId::new(1); 8];
+        let mut optim = AdamConfig::new().init();
+        let mut accuracy = 0.0;
+        for _ in 0..80 {
+            let out = net
+                .loss_with_progress(
+                    rows_tensor(&rows, dim, &device).unwrap(),
+                    ids_tensor(&labels, 5, &device).unwrap(),
+                    ids_tensor(&next, 5, &device).unwrap(),
+                    successor_mask(&[&graph; 8], &labels, Some(&next), 5, &device).unwrap(),
+                    Some(Tensor::from_data(
+                        burn::tensor::TensorData::new(done.clone(), [8, 5]),
+                        &device,
+                    )),
+                )
+                .unwrap();
+            accuracy = out.progress.as_ref().unwrap().accuracy;
+            let grads = GradientsParams::from_grads(out.loss.backward(), &net);
+            net = optim.step(3e-3, net, grads);
+        }
+        assert_eq!(accuracy, 1.0);
+        // Targets of the wrong shape are an error, not a panic.
+        assert!(
+            net.loss_with_progress(
+                rows_tensor(&rows, dim, &device).unwrap(),
+                ids_tensor(&labels, 5, &device).unwrap(),
+                ids_tensor(&next, 5, &device).unwrap(),
+                successor_mask(&[&graph; 8], &labels, Some(&next), 5, &device).unwrap(),
+                Some(Tensor::zeros([8, 4], &device)),
+            )
+            .is_err()
+        );
+    }
+
     #[test]
     fn saves_and_loads() {
         let device = Device::flex();
@@ -433,6 +583,7 @@ mod tests {
             frame.remove(field);
         }
         json.as_object_mut().unwrap().remove("reconstruction");
+        json.as_object_mut().unwrap().remove("progress");
         std::fs::write(&path, serde_json::to_string(&json).unwrap()).unwrap();
         std::fs::remove_file(dir.path().join("config.json.sha256")).unwrap();
         assert!(FrameStageNet::load(dir.path(), &device).is_ok());

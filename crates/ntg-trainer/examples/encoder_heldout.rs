@@ -332,8 +332,13 @@ fn main() -> anyhow::Result<()> {
             } else {
                 let acc = FrameStageStep::new(&frames, &device)?.accuracy(&net)?;
                 println!(
-                    "{run}: {} validation videos, localizer {:.3} (keyframes {:.3}), edges {:.3} (retries {:?})",
-                    tasks, acc.localizer, acc.keyframe_localizer, acc.edge, acc.retry_edge
+                    "{run}: {} validation videos, localizer {:.3} (keyframes {:.3}), edges {:.3} (retries {:?}), keyframe progress {:?}",
+                    tasks,
+                    acc.localizer,
+                    acc.keyframe_localizer,
+                    acc.edge,
+                    acc.retry_edge,
+                    acc.keyframe_progress
                 );
             }
         }

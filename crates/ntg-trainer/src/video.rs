@@ -111,6 +111,16 @@ pub struct EncoderStage {
     /// calls for one. Absent in runs saved before it: 1.
     #[serde(default = "one_repeat", skip_serializing_if = "is_one_repeat")]
     pub retry_repeats: usize,
+    /// Weight of the progress loss (a head reads from each frame's
+    /// embedding which of its demo's actions have taken effect; see
+    /// `ntg_model::FrameStageConfig::progress`). 0: none (absent in runs
+    /// saved before it: 0).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub progress: f32,
+}
+
+fn is_zero(w: &f32) -> bool {
+    *w == 0.0
 }
 
 fn one() -> f64 {
@@ -142,6 +152,7 @@ impl Default for EncoderStage {
             spatial_softmax: false,
             shards: 0,
             retry_repeats: 1,
+            progress: 0.0,
         }
     }
 }
@@ -163,6 +174,7 @@ impl EncoderStage {
         )
         .with_seed(seed)
         .with_reconstruction((self.reconstruction > 0.0).then_some(self.reconstruction))
+        .with_progress((self.progress > 0.0).then_some(self.progress))
     }
 
     /// Stage A's optimiser settings, shuffling seeded by `seed`: the
@@ -207,6 +219,10 @@ pub struct EncoderEpochMetrics {
     /// weight).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reconstruction: Option<f32>,
+    /// Fraction of frames whose progress (the actions taken effect) the
+    /// progress head gets all right (with a progress weight).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub progress_accuracy: Option<f32>,
     /// Wall-clock seconds of the epoch.
     pub seconds: f32,
 }
@@ -225,14 +241,19 @@ pub struct FrameAccuracy {
     /// [`EncoderStage::retry_repeats`]); `None` without any.
     #[serde(default)]
     pub retry_edge: Option<f64>,
+    /// Fraction of keyframes whose progress the progress head gets all
+    /// right (`None` without a head).
+    #[serde(default)]
+    pub keyframe_progress: Option<f64>,
 }
 
 /// Stage A's [`TrainStep`]: the examples are single frames of a dataset of
 /// video demos.
 pub struct FrameStageStep<'a> {
     dataset: &'a DemoDataset,
-    /// Per frame: (row, its label, the next action, its demo's task).
-    frames: Vec<(usize, ActionId, ActionId, usize)>,
+    /// Per frame: (row, its label, the next action, its demo's task, the
+    /// actions taken effect by the frame as a bit set over the nodes).
+    frames: Vec<(usize, ActionId, ActionId, usize, u64)>,
     /// Indices into `frames` of the keyframes (what the policy acts on).
     keyframes: Vec<usize>,
     /// Indices into `frames` of the retry keyframes (the next action
@@ -258,16 +279,21 @@ impl<'a> FrameStageStep<'a> {
                 .chain(d.actions.iter().copied())
                 .collect();
             let next: Vec<ActionId> = d.actions.iter().copied().chain([Vocabulary::END]).collect();
+            let done = progress_bits(&d.actions);
             let mut start = 0;
             for (s, &end) in ends.iter().enumerate() {
                 for k in start..end {
-                    if k + 1 == end {
+                    // Segment s shows action s - 1 under way; its last
+                    // frame, the keyframe, the scene after it.
+                    let key = k + 1 == end;
+                    if key {
                         keyframes.push(frames.len());
                         if d.actions[..s].contains(&next[s]) {
                             retries.push(frames.len());
                         }
                     }
-                    frames.push((d.first_row + k, nodes[s], next[s], d.task));
+                    let done = done[if key { s } else { s.saturating_sub(1) }];
+                    frames.push((d.first_row + k, nodes[s], next[s], d.task, done));
                 }
                 start = end;
             }
@@ -326,21 +352,32 @@ impl<'a> FrameStageStep<'a> {
         let dim = self.dataset.obs_dim();
         let mut rows = Vec::with_capacity(batch.len() * dim);
         let (mut labels, mut next, mut graphs) = (Vec::new(), Vec::new(), Vec::new());
+        let mut done = Vec::new();
+        let with_progress = model.progress.is_some();
+        if with_progress && n > 64 {
+            anyhow::bail!("stage A's progress loss handles at most 64 nodes, not {n}");
+        }
         for &i in batch {
-            let (row, label, nx, task) = self.frames[i];
+            let (row, label, nx, task, bits) = self.frames[i];
             self.dataset.extend_row(row, &mut rows);
             labels.push(label);
             next.push(nx);
             graphs.push(&self.graphs[&task]);
+            if with_progress {
+                done.extend((0..n).map(|a| ((bits >> a) & 1) as f32));
+            }
         }
         let frames =
             Tensor::<2>::from_data(TensorData::new(rows, [batch.len(), dim]), &self.device);
         let mask = successor_mask(&graphs, &labels, Some(&next), n, &self.device)?;
-        Ok(model.loss(
+        let done = with_progress
+            .then(|| Tensor::<2>::from_data(TensorData::new(done, [batch.len(), n]), &self.device));
+        Ok(model.loss_with_progress(
             frames,
             ids_tensor(&labels, n, &self.device)?,
             ids_tensor(&next, n, &self.device)?,
             mask,
+            done,
         )?)
     }
 
@@ -349,29 +386,36 @@ impl<'a> FrameStageStep<'a> {
     /// generalises.
     pub fn accuracy(&self, model: &FrameStageNet) -> anyhow::Result<FrameAccuracy> {
         let model = model.valid();
-        let mean = |frames: &[usize]| -> anyhow::Result<(f64, f64)> {
-            let (mut localizer, mut edge) = (0.0f64, 0.0f64);
+        // Mean localizer, edge and progress accuracy over `frames`.
+        let mean = |frames: &[usize]| -> anyhow::Result<[f64; 3]> {
+            let mut sums = [0.0f64; 3];
             for batch in frames.chunks(256) {
                 let out = self.batch_loss(&model, batch)?;
-                localizer += f64::from(out.localizer.accuracy) * batch.len() as f64;
-                edge += f64::from(out.edge.accuracy) * batch.len() as f64;
+                let progress = out.progress.map_or(0.0, |p| p.accuracy);
+                for (sum, a) in
+                    sums.iter_mut()
+                        .zip([out.localizer.accuracy, out.edge.accuracy, progress])
+                {
+                    *sum += f64::from(a) * batch.len() as f64;
+                }
             }
             let total = frames.len().max(1) as f64;
-            Ok((localizer / total, edge / total))
+            Ok(sums.map(|s| s / total))
         };
         let all: Vec<usize> = (0..self.own_frames).collect();
-        let (localizer, edge) = mean(&all)?;
-        let (keyframe_localizer, _) = mean(&self.keyframes)?;
+        let [localizer, edge, _] = mean(&all)?;
+        let [keyframe_localizer, _, keyframe_progress] = mean(&self.keyframes)?;
         let retry_edge = if self.retries.is_empty() {
             None
         } else {
-            Some(mean(&self.retries)?.1)
+            Some(mean(&self.retries)?[1])
         };
         Ok(FrameAccuracy {
             localizer,
             edge,
             keyframe_localizer,
             retry_edge,
+            keyframe_progress: model.progress.is_some().then_some(keyframe_progress),
         })
     }
 }
@@ -390,16 +434,19 @@ impl TrainStep<FrameStageNet> for FrameStageStep<'_> {
         _ctx: StepContext<'_>,
     ) -> anyhow::Result<StepReport> {
         let out = self.batch_loss(model, batch)?;
-        let mut values = vec![
+        // NaN marks a loss the network does not have.
+        let values = vec![
             scalar(out.loss.clone())?,
             scalar(out.localizer.loss)?,
             out.localizer.accuracy,
             scalar(out.edge.loss)?,
             out.edge.accuracy,
+            out.reconstruction
+                .map(scalar)
+                .transpose()?
+                .unwrap_or(f32::NAN),
+            out.progress.map_or(f32::NAN, |p| p.accuracy),
         ];
-        if let Some(r) = out.reconstruction {
-            values.push(scalar(r)?);
-        }
         Ok(StepReport {
             values,
             loss: out.loss,
@@ -421,10 +468,32 @@ impl TrainStep<FrameStageNet> for FrameStageStep<'_> {
             localizer_accuracy: m[2],
             edge_loss: m[3],
             edge_accuracy: m[4],
-            reconstruction: m.get(5).copied(),
+            reconstruction: m.get(5).copied().filter(|r| r.is_finite()),
+            progress_accuracy: m.get(6).copied().filter(|p| p.is_finite()),
             seconds,
         }
     }
+}
+
+/// The actions of a demo that have taken effect after each of its first
+/// `k` actions (`k` = 0..=len), as bit sets over the nodes (ids below 64):
+/// an action takes effect unless the next one repeats an earlier action (a
+/// retry: the grasp slipped or the drop missed). Built from the flat
+/// action labels alone, with hindsight; the bits only accumulate.
+pub fn progress_bits(actions: &[ActionId]) -> Vec<u64> {
+    let mut done = Vec::with_capacity(actions.len() + 1);
+    let mut bits = 0u64;
+    done.push(bits);
+    for (j, &a) in actions.iter().enumerate() {
+        let retried = actions
+            .get(j + 1)
+            .is_some_and(|next| actions[..=j].contains(next));
+        if !retried && a.index() < 64 {
+            bits |= 1 << a.index();
+        }
+        done.push(bits);
+    }
+    done
 }
 
 /// The `(task, seed)` pairs of `demos_per_task` demos of `tasks` tasks
@@ -629,6 +698,9 @@ pub fn train_encoder(
             acc.retry_edge
                 .map_or_else(|| "-".to_owned(), |a| format!("{a:.3}"))
         );
+        if let Some(p) = acc.keyframe_progress {
+            eprintln!("  stage A held-out keyframes' progress all right: {p:.3}");
+        }
         Ok(ValidationScore {
             success: acc.localizer,
             goal_fraction: acc.edge,
@@ -767,6 +839,36 @@ mod tests {
             .unwrap()
             .first_demos(10);
         assert_eq!(more.num_examples(), all.num_examples());
+    }
+
+    #[test]
+    fn progress_counts_the_actions_that_were_not_retried() {
+        let vocab = Vocabulary::new(["pick(A)", "place(B)", "pick(C)", "place(A)"]).unwrap();
+        let bit = |name: &str| 1u64 << vocab.id(name).unwrap().index();
+        // The grasp of A slips once, then the drop of C on A misses once.
+        let actions = vocab
+            .parse_sequence("pick(A) pick(A) place(B) pick(C) place(A) pick(C) place(A)")
+            .unwrap();
+        let done = progress_bits(&actions);
+        let (a, b, c, on_a) = (
+            bit("pick(A)"),
+            bit("place(B)"),
+            bit("pick(C)"),
+            bit("place(A)"),
+        );
+        assert_eq!(
+            done,
+            vec![
+                0,
+                0,
+                a,
+                a | b,
+                a | b | c,
+                a | b | c,
+                a | b | c,
+                a | b | c | on_a
+            ]
+        );
     }
 
     #[test]

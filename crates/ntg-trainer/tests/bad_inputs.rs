@@ -188,6 +188,14 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             "--encoder-retry-repeats".into(),
         ),
         (
+            train(&["--encoder-progress", "1"]),
+            "--encoder-progress".into(),
+        ),
+        (
+            train(&["--obs", "vid", "--encoder-progress", "nan"]),
+            "--encoder-progress".into(),
+        ),
+        (
             train(&["--interpreter-frame-pool", "2"]),
             "--interpreter-frame-pool".into(),
         ),

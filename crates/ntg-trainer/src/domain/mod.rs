@@ -196,6 +196,11 @@ pub struct TrainFlags {
     /// per epoch [default: 1].
     #[arg(long, value_name = "R", value_parser = crate::spec::parse::positive)]
     pub encoder_retry_repeats: Option<usize>,
+    /// --obs vid: weight of stage A's progress loss (a head reads from each
+    /// frame's embedding which of the demo's actions have taken effect,
+    /// built from the action labels), 0 for none [default: 0].
+    #[arg(long, value_name = "W", value_parser = crate::spec::parse::non_negative)]
+    pub encoder_progress: Option<f32>,
 }
 
 impl TrainFlags {
@@ -209,13 +214,14 @@ impl TrainFlags {
             || self.encoder_reconstruction.is_some()
             || self.encoder_keypoints.is_some()
             || self.encoder_retry_repeats.is_some()
+            || self.encoder_progress.is_some()
     }
 
     /// Refuses the frame-encoder flags on a run that has no frames.
     pub fn check_encoder_flags(&self) -> anyhow::Result<()> {
         if self.obs == ObsKind::State && self.sets_the_frame_encoder() {
             anyhow::bail!(
-                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr, --encoder-reconstruction, --encoder-keypoints and --encoder-retry-repeats set the frame encoder of --obs vid runs"
+                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr, --encoder-reconstruction, --encoder-keypoints, --encoder-retry-repeats and --encoder-progress set the frame encoder of --obs vid runs"
             );
         }
         Ok(())
@@ -231,6 +237,7 @@ impl TrainFlags {
         stage.reconstruction = self.encoder_reconstruction.unwrap_or(stage.reconstruction);
         stage.spatial_softmax = self.encoder_keypoints.unwrap_or(stage.spatial_softmax);
         stage.retry_repeats = self.encoder_retry_repeats.unwrap_or(stage.retry_repeats);
+        stage.progress = self.encoder_progress.unwrap_or(stage.progress);
         stage.shards = self.shards;
     }
 }
