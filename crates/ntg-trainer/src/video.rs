@@ -41,7 +41,7 @@ use crate::dataset::{DemoDataset, ObsDtype, progress_bar};
 use crate::fit::{
     OptimConfig, Selection, StepContext, StepReport, TrainStep, ValidationScore, fit, scalar,
 };
-use crate::method::ntg::task_graphs;
+use crate::method::ntg::{next_is_retry, task_graphs};
 pub use crate::method::on_frames::{OnFrames, OnFramesStep, VideoNtgModel, encode_rows};
 use crate::run_dir::RunDir;
 
@@ -288,7 +288,7 @@ impl<'a> FrameStageStep<'a> {
                     let key = k + 1 == end;
                     if key {
                         keyframes.push(frames.len());
-                        if d.actions[..s].contains(&next[s]) {
+                        if next_is_retry(&d.actions, s) {
                             retries.push(frames.len());
                         }
                     }
@@ -485,10 +485,7 @@ pub fn progress_bits(actions: &[ActionId]) -> Vec<u64> {
     let mut bits = 0u64;
     done.push(bits);
     for (j, &a) in actions.iter().enumerate() {
-        let retried = actions
-            .get(j + 1)
-            .is_some_and(|next| actions[..=j].contains(next));
-        if !retried && a.index() < 64 {
+        if !next_is_retry(actions, j + 1) && a.index() < 64 {
             bits |= 1 << a.index();
         }
         done.push(bits);

@@ -102,6 +102,15 @@ pub fn edge_f1_of(counts: &EdgeCounts) -> Option<f32> {
     (counted > 0).then(|| counts.f1())
 }
 
+/// Whether the action after the first `done` of a demo's `actions`
+/// repeats one of them: a retry (the grasp slipped or the drop missed).
+/// `false` after the last action (`<end>` comes next).
+pub fn next_is_retry(actions: &[ActionId], done: usize) -> bool {
+    actions
+        .get(done)
+        .is_some_and(|next| actions[..done].contains(next))
+}
+
 /// The ground-truth CTG of every task in `dataset`: the union of the paths
 /// of that task's demonstrations.
 pub fn task_graphs(dataset: &DemoDataset) -> anyhow::Result<BTreeMap<usize, Ctg>> {
@@ -432,7 +441,7 @@ impl TrainStep<NtgModel> for NtgStep<'_> {
                 if t.skip_end && nx == Vocabulary::END {
                     continue;
                 }
-                let repeats = actions[..i.min(actions.len())].contains(&nx);
+                let repeats = next_is_retry(actions, i);
                 e_weights.push(if repeats { retry_weight } else { 1.0 });
                 e_obs.push(o);
                 e_nodes.push(node);
