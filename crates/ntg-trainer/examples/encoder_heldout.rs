@@ -236,7 +236,7 @@ fn decisions(run: &str, tasks: usize) -> anyhow::Result<()> {
     let validation = env_blocks::validation_tasks(tasks)?;
     // Another seed than the demo's: an expert episode with its own slips.
     const EPISODE_SEED_OFFSET: u64 = 1_000_000;
-    for variant in [Variant::Full, Variant::ExecutedNode] {
+    for variant in [Variant::LocalizerNode, Variant::ExecutedNode] {
         let mut model = model.clone();
         model.ntg_mut().config.ablation = variant.ablation();
         let mut by_case: BTreeMap<&str, (usize, usize)> = BTreeMap::new();

@@ -164,14 +164,16 @@ pub struct TrainFlags {
     #[arg(long)]
     pub resume: bool,
     /// --obs vid: demo videos whose frames train the shared frame encoder
-    /// (stage A) [default: 1000].
+    /// (stage A) [default: block stacking 20000, object collection 1000].
     #[arg(long, value_parser = crate::spec::parse::positive)]
     pub encoder_demos: Option<usize>,
-    /// --obs vid: passes of stage A over those frames [default: 4].
+    /// --obs vid: passes of stage A over those frames [default: block
+    /// stacking 3, object collection 4].
     #[arg(long, value_parser = crate::spec::parse::positive)]
     pub encoder_epochs: Option<usize>,
     /// --obs vid: fraction of each demo's frames besides its keyframes
-    /// that stage A trains on [default: 1].
+    /// that stage A trains on [default: block stacking 0.15, object
+    /// collection 1].
     #[arg(long, value_name = "F", value_parser = crate::spec::parse::fraction)]
     pub encoder_frame_fraction: Option<f64>,
     /// --obs vid: width of the frame encoder's hidden layer between its
@@ -193,12 +195,14 @@ pub struct TrainFlags {
     pub encoder_keypoints: Option<bool>,
     /// --obs vid: stage A shows each keyframe whose next action repeats an
     /// earlier one (a retry after a slip or a missed drop) this many times
-    /// per epoch [default: 1].
+    /// per epoch [default: 8 for block stacking's recommended recipe,
+    /// else 1].
     #[arg(long, value_name = "R", value_parser = crate::spec::parse::positive)]
     pub encoder_retry_repeats: Option<usize>,
     /// --obs vid: weight of stage A's progress loss (a head reads from each
     /// frame's embedding which of the demo's actions have taken effect,
-    /// built from the action labels), 0 for none [default: 0].
+    /// built from the action labels), 0 for none [default: 0.1 for block
+    /// stacking's recommended recipe, else 0].
     #[arg(long, value_name = "W", value_parser = crate::spec::parse::non_negative)]
     pub encoder_progress: Option<f32>,
 }

@@ -614,7 +614,8 @@ pub fn train_with(
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Variant {
-    /// The full NTG model.
+    /// The full NTG model, as trained (its current node from the localizer,
+    /// or from the agent's record where the run was configured so).
     Full,
     /// Uniform ε over successors (no edge classifier).
     NoEdgeClassifier,
@@ -623,6 +624,9 @@ pub enum Variant {
     /// ℓ replaced by the agent's record: the current node is the last
     /// action it executed (not in the paper).
     ExecutedNode,
+    /// The current node from the node localizer (the paper's way), also in
+    /// a run configured to take it from the agent's record.
+    LocalizerNode,
     /// Fully connected initial graph (no demo interpreter).
     NoDemoInterpreter,
     /// The demo's path graph as is (no GCN).
@@ -636,11 +640,24 @@ impl Variant {
         match self {
             Variant::Full => a,
             Variant::NoEdgeClassifier => a.with_edge_classifier(false),
-            Variant::NoNodeLocalizer => a.with_node_localizer(false),
+            // Uniform ℓ, whatever the run's source of the current node.
+            Variant::NoNodeLocalizer => {
+                a.with_node_localizer(false).with_executed_node(Some(false))
+            }
             Variant::ExecutedNode => a.with_executed_node(Some(true)),
+            Variant::LocalizerNode => a.with_executed_node(Some(false)),
             Variant::NoDemoInterpreter => a.with_demo_interpreter(false),
             Variant::NoGcn => a.with_gcn(false),
         }
+    }
+
+    /// The switches of this variant for a model trained with `trained`:
+    /// the variant's own, with the trained model's source of the current
+    /// node unless the variant names one.
+    pub fn ablation_of(self, trained: &AblationConfig) -> AblationConfig {
+        let mut a = self.ablation();
+        a.executed_node = a.executed_node.or(trained.executed_node);
+        a
     }
 
     /// Name used in files and reports.
@@ -650,6 +667,7 @@ impl Variant {
             Variant::NoEdgeClassifier => "no-edge-classifier",
             Variant::NoNodeLocalizer => "no-node-localizer",
             Variant::ExecutedNode => "executed-node",
+            Variant::LocalizerNode => "localizer-node",
             Variant::NoDemoInterpreter => "no-demo-interpreter",
             Variant::NoGcn => "no-gcn",
         }
@@ -701,6 +719,31 @@ impl Agent for NtgPolicy {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn full_keeps_the_trained_source_of_the_current_node_and_others_name_theirs() {
+        let localizer = AblationConfig::new();
+        let executed = AblationConfig::new().with_executed_node(Some(true));
+        assert_eq!(Variant::Full.ablation_of(&localizer).executed_node, None);
+        assert_eq!(
+            Variant::Full.ablation_of(&executed).executed_node,
+            Some(true)
+        );
+        let forced = Variant::LocalizerNode.ablation_of(&executed);
+        assert_eq!(forced.executed_node, Some(false));
+        assert_eq!(
+            Variant::ExecutedNode.ablation_of(&localizer).executed_node,
+            Some(true)
+        );
+        // An ablation keeps the trained source and switches its part off.
+        let no_gcn = Variant::NoGcn.ablation_of(&executed);
+        assert!(!no_gcn.gcn);
+        assert_eq!(no_gcn.executed_node, Some(true));
+        // Without the localizer ℓ is uniform, not the agent's record.
+        let uniform = Variant::NoNodeLocalizer.ablation_of(&executed);
+        assert!(!uniform.node_localizer);
+        assert_eq!(uniform.executed_node, Some(false));
+    }
 
     #[test]
     fn edge_f1_is_absent_when_nothing_was_counted() {
