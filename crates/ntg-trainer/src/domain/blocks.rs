@@ -247,10 +247,10 @@ impl BlocksVideo {
     /// frames averaged in windows of 4 (1000 x 20, 200 validation tasks:
     /// every frame 0.595, pairs 0.625; with the changes here pairs 0.860
     /// and 4 0.845, paired 8 tasks won to 5, a tie, and a stage B step
-    /// about 1.4x the state path's instead of 2x), and the policy's
-    /// current node taken from the
-    /// agent's record (200 validation tasks, 1000 x 20: 0.595 -> 0.675,
-    /// 0.625 -> 0.710 and 0.785 -> 0.825 on three runs).
+    /// 1.23x the state path's instead of 1.62x, idle bench), and the
+    /// policy's current node taken from the agent's record (200 validation
+    /// tasks, 1000 x 20: 0.595 -> 0.675, 0.625 -> 0.710 and 0.785 -> 0.825
+    /// on three runs).
     pub fn new(recommended: bool) -> Self {
         BlocksVideo {
             frames: env_blocks::VideoConfig::default(),
