@@ -427,13 +427,18 @@ impl DemoDataset {
     }
 }
 
-/// A progress bar for `len` items of work. When stderr is not a terminal
-/// (a background run writing to a log), it is written as a plain line at
-/// most every 30 seconds instead, so the log shows that the work goes on.
+/// A progress bar for `len` items of work. On a terminal the bars of work
+/// that runs at once (`ntg reproduce --jobs`) stack, one line each. When
+/// stderr is not a terminal (a background run writing to a log), it is
+/// written as a plain line at most every 30 seconds instead, so the log
+/// shows that the work goes on.
 pub fn progress_bar(len: u64, what: &str) -> ProgressBar {
     use std::io::IsTerminal;
-    let bar = ProgressBar::new(len);
-    if !std::io::stderr().is_terminal() {
+    static BARS: std::sync::OnceLock<indicatif::MultiProgress> = std::sync::OnceLock::new();
+    let mut bar = ProgressBar::new(len);
+    if std::io::stderr().is_terminal() {
+        bar = BARS.get_or_init(indicatif::MultiProgress::new).add(bar);
+    } else {
         bar.set_draw_target(indicatif::ProgressDrawTarget::term_like_with_hz(
             Box::new(LogLines::default()),
             1,

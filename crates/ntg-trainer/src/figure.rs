@@ -86,13 +86,19 @@ pub struct Panel {
     pub series: Vec<Series>,
 }
 
-const PALETTE: [RGBColor; 6] = [
+/// Series colours, in order (the first six as before; ten, so that the
+/// five curves of success and goals met in one panel stay distinct).
+const PALETTE: [RGBColor; 10] = [
     RGBColor(31, 119, 180),
     RGBColor(214, 39, 40),
     RGBColor(44, 160, 44),
     RGBColor(255, 127, 14),
     RGBColor(148, 103, 189),
     RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
 ];
 
 fn x_bounds(panel: &Panel) -> (f64, f64) {

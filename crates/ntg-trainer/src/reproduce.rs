@@ -37,13 +37,14 @@ pub struct Results {
 /// writing figures, `results.json` and `REPORT.md` into `out`. The figures'
 /// runs come from their experiment files in `experiments`. Fig. "jigsaws"
 /// runs on the synthetic stand-in unless `jigsaws_root` names a JIGSAWS
-/// copy.
+/// copy. Up to `jobs` runs train at once (each on one thread).
 pub fn reproduce(
     profile: Profile,
     runs: &Path,
     out: &Path,
     jigsaws_root: Option<&Path>,
     experiments: Source<'_>,
+    jobs: usize,
 ) -> anyhow::Result<Results> {
     let started = Instant::now();
     // Read and check every experiment file first, so a bad edit fails
@@ -56,8 +57,8 @@ pub fn reproduce(
     }
     // First, so a wrong --jigsaws-root fails before the long runs.
     let jigsaws = crate::jigsaws::reproduce(profile, jigsaws_root, runs, out, experiments)?;
-    let points = ntp_exp::run(&ntp_exp_file, profile, runs)?;
-    let thor_all = thor_all::run(&thor_all_file, profile, runs)?;
+    let points = ntp_exp::run(&ntp_exp_file, profile, runs, jobs)?;
+    let thor_all = thor_all::run(&thor_all_file, profile, runs, jobs)?;
     let results = Results {
         profile,
         ntp_exp: points,

@@ -594,14 +594,22 @@ pub fn embedding_dataset(
     let net = net.valid();
     let mut dataset = DemoDataset::from_videos(vocab.clone(), net.encoder.out_dim(), [])?;
     record_in_chunks(pairs, record, "encoding", |videos| {
-        for (t, seed, v) in videos {
-            let (frames, ends, actions) = v.into_parts();
-            let embedded = encode_rows(&net, &frames)?;
-            dataset.push_video(
-                t,
-                seed,
-                VideoDemonstration::new(embedded, ends, actions, vocab)?,
-            )?;
+        // One video per thread at a time, each in the batches it would have
+        // alone: the embeddings do not depend on the number of threads.
+        let encoded = videos
+            .into_par_iter()
+            .map(|(t, seed, v)| {
+                let (frames, ends, actions) = v.into_parts();
+                let embedded = encode_rows(&net, &frames)?;
+                Ok((
+                    t,
+                    seed,
+                    VideoDemonstration::new(embedded, ends, actions, vocab)?,
+                ))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        for (t, seed, video) in encoded {
+            dataset.push_video(t, seed, video)?;
         }
         Ok(())
     })?;

@@ -203,6 +203,10 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--obs", "vid", "--interpreter-frame-pool", "0"]),
             "--interpreter-frame-pool".into(),
         ),
+        (
+            train(&["--video-renaming-group", "2"]),
+            "--video-renaming-group".into(),
+        ),
         // Methods a domain or an input does not have.
         (
             train(&["--domain", "collect", "--method", "ntp"]),

@@ -70,6 +70,11 @@ pub struct ReproduceArgs {
     /// (`crates/ntg-trainer/experiments/`).
     #[arg(long, value_name = "DIR")]
     pub experiments: Option<PathBuf>,
+    /// Runs trained at once. The figures' runs train on one thread each,
+    /// so 2 keeps both cores of a 2-core machine busy; a run's result does
+    /// not depend on it.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u16).range(1..))]
+    pub jobs: u16,
 }
 
 /// Runs `ntg reproduce`.
@@ -88,6 +93,7 @@ pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
             Some(dir) => crate::experiment::Source::Dir(dir),
             None => crate::experiment::Source::BuiltIn,
         },
+        usize::from(args.jobs),
     )?;
     println!(
         "wrote {} (figure ntp_exp: {} points)",
@@ -113,6 +119,15 @@ mod tests {
             Command::Train(train) => blocks::train_config(&train.flags, &train.own.blocks),
             other => panic!("parsed as {other:?}"),
         }
+    }
+
+    #[test]
+    fn the_video_renaming_group_is_the_recipe_s_unless_set() {
+        let group = |args: &[&str]| config_of(args).video.unwrap().demos_per_renaming;
+        assert_eq!(group(&["--obs", "vid"]), 4);
+        assert_eq!(group(&["--obs", "vid", "--recipe", "paper"]), 0);
+        assert_eq!(group(&["--obs", "vid", "--video-renaming-group", "2"]), 2);
+        assert_eq!(group(&["--obs", "vid", "--video-renaming-group", "0"]), 0);
     }
 
     #[test]

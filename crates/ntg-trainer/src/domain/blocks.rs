@@ -298,6 +298,14 @@ pub enum Recipe {
 }
 
 impl Recipe {
+    /// The recipe's name, as `--recipe` and the experiment files write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Recipe::Recommended => "recommended",
+            Recipe::Paper => "paper",
+        }
+    }
+
     /// The run configuration of this recipe for `obs` on `train_tasks` x
     /// `demos_per_task` demos (failures on), trained `epochs` epochs with
     /// weights and shuffling from `seed`, selected on 100 validation tasks.
@@ -1465,6 +1473,14 @@ pub struct BlocksFlags {
     /// the recommended recipe, 1 in the paper's].
     #[arg(long, value_name = "K", value_parser = crate::spec::parse::positive)]
     pub interpreter_frame_pool: Option<usize>,
+    /// --obs vid: cube renaming for frames (not in the paper): each task's
+    /// demos are recorded in groups of this many, the first group on the
+    /// task itself, every other group on the task with its cubes renamed
+    /// (a cube's colour follows its name; never onto a held-out
+    /// configuration); 0 = no renaming [default: 4 in the recommended
+    /// recipe, 0 in the paper's].
+    #[arg(long, value_name = "K")]
+    pub video_renaming_group: Option<usize>,
     /// --method ntp-detector: primitive-level expert episodes of the
     /// training tasks whose rendered frames train the detector [default:
     /// 2000].
@@ -1498,6 +1514,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         v.interpreter_frame_pool = own
             .interpreter_frame_pool
             .unwrap_or(v.interpreter_frame_pool);
+        v.demos_per_renaming = own.video_renaming_group.unwrap_or(v.demos_per_renaming);
         v
     });
     BlocksRunConfig {
@@ -1569,6 +1586,9 @@ impl DomainRuns for Blocks {
             bail!(
                 "--detector-episodes, --detector-epochs and --ntp-on-true-states train NTP (Detector): they need --method ntp-detector"
             );
+        }
+        if own.video_renaming_group.is_some() && config.video.is_none() {
+            bail!("--video-renaming-group renames cubes in demo videos: it needs --obs vid");
         }
         if own.interpreter_frame_pool.is_some()
             && (config.obs != ObsKind::Vid || config.method != MethodId::Ntg)

@@ -31,6 +31,62 @@ pub const BUILT_IN: [(&str, &str); 3] = [
     ("jigsaws", include_str!("../../experiments/jigsaws.toml")),
 ];
 
+/// One run of a figure, to be started by [`in_parallel`].
+pub(crate) type Job<'a, T> = Box<dyn FnOnce() -> anyhow::Result<T> + Send + 'a>;
+
+/// Runs `jobs` (each a run of a figure: trained or reused, then evaluated)
+/// on up to `workers` threads at once, in list order, and returns their
+/// results in that order. A run's result does not depend on which others
+/// run beside it (each is seeded on its own), only the wall time does: the
+/// figures' runs train on one thread each (`shards` unset), so two at once
+/// use both cores of a 2-core machine. After a job fails no new one starts,
+/// and the first failure in list order is returned. A line on stderr
+/// after each run says how many of `what` are done, and the time left at
+/// the pace so far (a rough guide: runs differ in size).
+pub(crate) fn in_parallel<T: Send>(
+    what: &str,
+    workers: usize,
+    jobs: Vec<Job<'_, T>>,
+) -> anyhow::Result<Vec<T>> {
+    use std::sync::Mutex;
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    let count = jobs.len();
+    let started = std::time::Instant::now();
+    let finished = AtomicUsize::new(0);
+    let queue = Mutex::new(jobs.into_iter().enumerate());
+    let results: Mutex<Vec<Option<anyhow::Result<T>>>> =
+        Mutex::new((0..count).map(|_| None).collect());
+    let failed = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        for _ in 0..workers.clamp(1, count.max(1)) {
+            scope.spawn(|| {
+                while !failed.load(Ordering::SeqCst) {
+                    let next = queue.lock().unwrap_or_else(|e| e.into_inner()).next();
+                    let Some((index, job)) = next else { break };
+                    let result = job();
+                    failed.fetch_or(result.is_err(), Ordering::SeqCst);
+                    let done = finished.fetch_add(1, Ordering::SeqCst) + 1;
+                    let seconds = started.elapsed().as_secs_f64();
+                    eprintln!(
+                        "{what}: {done} of {count} runs done, {seconds:.0} s; about {:.0} s left at this pace",
+                        seconds / done as f64 * (count - done) as f64
+                    );
+                    results.lock().unwrap_or_else(|e| e.into_inner())[index] = Some(result);
+                }
+            });
+        }
+    });
+    let results = results.into_inner().unwrap_or_else(|e| e.into_inner());
+    let mut done = Vec::with_capacity(count);
+    for result in results {
+        match result {
+            Some(result) => done.push(result?),
+            None => bail!("a run before this one failed, so it was not started"),
+        }
+    }
+    Ok(done)
+}
+
 /// One table per profile.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -174,6 +230,34 @@ mod tests {
         );
         let wrong_type: toml::Table = toml::from_str("epochs = \"many\"").unwrap();
         assert!(with_overrides(&optim(), &wrong_type, "x.toml").is_err());
+    }
+
+    #[test]
+    fn parallel_jobs_keep_their_order_and_the_first_failure_wins() {
+        let jobs: Vec<Job<'static, usize>> = (0..7_usize)
+            .map(|i| {
+                Box::new(move || {
+                    std::thread::sleep(std::time::Duration::from_millis(7 - i as u64));
+                    Ok(i * 10)
+                }) as Job<'static, usize>
+            })
+            .collect();
+        assert_eq!(
+            in_parallel("test", 3, jobs).unwrap(),
+            vec![0, 10, 20, 30, 40, 50, 60]
+        );
+        let jobs: Vec<Job<'static, usize>> = vec![
+            Box::new(|| Ok(1)),
+            Box::new(|| bail!("run two broke")),
+            Box::new(|| bail!("run three broke")),
+        ];
+        let err = in_parallel("test", 1, jobs).unwrap_err().to_string();
+        assert_eq!(err, "run two broke");
+        assert!(
+            in_parallel::<usize>("test", 2, Vec::new())
+                .unwrap()
+                .is_empty()
+        );
     }
 
     #[test]

@@ -81,6 +81,12 @@ pub struct PanelScale {
     /// `method`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub methods: Option<Vec<MethodId>>,
+    /// The recipe of this panel's runs (default: the experiment's
+    /// `recipe`). Two panels of one input with different recipes are two
+    /// curves of one plot (item 4b of the figure's issue: NTG both as the
+    /// paper describes it and with ntg-rs's additions).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recipe: Option<Recipe>,
     /// The detector's settings of the panel's NTP (Detector) runs, over
     /// [`DetectorSettings::default`].
     #[serde(default)]
@@ -107,6 +113,27 @@ impl NtpExpExperiment {
     /// The methods of `panel`, in order.
     pub fn methods_of(&self, panel: &PanelScale) -> Vec<MethodId> {
         panel.methods.clone().unwrap_or_else(|| vec![self.method])
+    }
+
+    /// The recipe of `panel`'s runs.
+    pub fn recipe_of(&self, panel: &PanelScale) -> Recipe {
+        panel.recipe.unwrap_or(self.recipe)
+    }
+
+    /// The run folder's name of `method` at the point with `train_tasks`
+    /// tasks of `panel`. NTG's folders keep the names they had before the
+    /// baselines; a panel with another recipe than the experiment's adds
+    /// the recipe's name.
+    pub fn run_name(&self, panel: &PanelScale, method: MethodId, train_tasks: usize) -> String {
+        let mut name = format!("ntp_exp-{}", panel.obs.name());
+        if !method.is_ntg() {
+            name = format!("{name}-{}", method.name());
+        }
+        let recipe = self.recipe_of(panel);
+        if recipe != self.recipe {
+            name = format!("{name}-{}", recipe.name());
+        }
+        format!("{name}-{train_tasks}")
     }
 
     /// Every run configuration of the figure at `profile`, checked.
@@ -151,9 +178,8 @@ impl NtpExpExperiment {
             panel.obs,
             method.name()
         );
-        let base = self
-            .recipe
-            .config(panel.obs, train_tasks, panel.demos_per_task, 1, self.seed);
+        let recipe = self.recipe_of(panel);
+        let base = recipe.config(panel.obs, train_tasks, panel.demos_per_task, 1, self.seed);
         let what = self.origin.as_str();
         let config = crate::experiment::with_overrides(&base, &self.overrides, what)?;
         let config = crate::experiment::with_overrides(
@@ -162,7 +188,7 @@ impl NtpExpExperiment {
             what,
         )?;
         let config = crate::experiment::with_overrides(&config, &panel.overrides, what)?;
-        let mut config = self.recipe.for_method(config, method);
+        let mut config = recipe.for_method(config, method);
         if let Some(detector) = config.detector.as_mut() {
             *detector = crate::experiment::with_overrides(
                 &*detector,
@@ -184,6 +210,10 @@ pub struct NtpExpPoint {
     /// NTG's).
     #[serde(default, skip_serializing_if = "MethodId::is_ntg")]
     pub method: MethodId,
+    /// The recipe it was trained with (results written before recipes per
+    /// panel are the paper's).
+    #[serde(default = "paper_recipe", skip_serializing_if = "is_paper_recipe")]
+    pub recipe: Recipe,
     /// Observation kind of the panel.
     pub obs: ObsKind,
     /// Training tasks.
@@ -211,22 +241,62 @@ pub struct NtpExpPoint {
     pub run: PathBuf,
 }
 
+fn paper_recipe() -> Recipe {
+    Recipe::Paper
+}
+
+fn is_paper_recipe(recipe: &Recipe) -> bool {
+    *recipe == Recipe::Paper
+}
+
 /// Trains (or reuses, or resumes) and evaluates every point of the figure
-/// at `profile`, with run folders under `runs`.
+/// at `profile`, with run folders under `runs`, `jobs` runs at a time, in
+/// the file's order (the results: state input first). The video baselines that reuse NTG's frame encoder (NTP and NTP Flat) start
+/// after every other run has finished, so that encoder is trained once.
 pub fn run(
     experiment: &NtpExpExperiment,
     profile: Profile,
     runs: &Path,
+    jobs: usize,
 ) -> anyhow::Result<Vec<NtpExpPoint>> {
-    let mut points = Vec::new();
+    // Each point with its place in the file's order: panel, method,
+    // training tasks.
+    let (mut first, mut after) = (Vec::new(), Vec::new());
     for scale in &experiment.profiles.get(profile).panels {
         for method in experiment.methods_of(scale) {
             for &n in &scale.train_tasks {
-                points.push(run_point(experiment, profile, scale, method, n, runs)?);
+                let order = first.len() + after.len();
+                let wave = if reuses_stage_a(scale.obs, method) {
+                    &mut after
+                } else {
+                    &mut first
+                };
+                wave.push((order, scale, method, n));
             }
         }
     }
-    Ok(points)
+    let mut points = Vec::new();
+    for wave in [first, after] {
+        let wave: Vec<crate::experiment::Job<'_, (usize, NtpExpPoint)>> = wave
+            .into_iter()
+            .map(|(order, scale, method, n)| {
+                Box::new(move || {
+                    run_point(experiment, profile, scale, method, n, runs)
+                        .map(|point| (order, point))
+                }) as crate::experiment::Job<'_, _>
+            })
+            .collect();
+        points.extend(crate::experiment::in_parallel("ntp_exp", jobs, wave)?);
+    }
+    // State input first, then each input in the file's order (a long run
+    // may be listed first so that it starts first).
+    points.sort_by_key(|(order, point)| (point.obs == ObsKind::Vid, *order));
+    Ok(points.into_iter().map(|(_, point)| point).collect())
+}
+
+/// Whether `method` on `obs` starts from NTG's frame encoder of its point.
+fn reuses_stage_a(obs: ObsKind, method: MethodId) -> bool {
+    obs == ObsKind::Vid && matches!(method, MethodId::Ntp | MethodId::NtpFlat)
 }
 
 /// Trains (or reuses, or resumes) and evaluates one point of one method.
@@ -241,24 +311,21 @@ fn run_point(
     let config = experiment.run_config(profile, scale, method, n)?;
     let obs = scale.obs;
     let epochs = config.optim.epochs;
-    // NTG's folders keep the names they had before the baselines.
-    let name = if method.is_ntg() {
-        format!("ntp_exp-{}-{n}", obs.name())
-    } else {
-        format!("ntp_exp-{}-{}-{n}", obs.name(), method.name())
-    };
-    let dir = runs.join(name);
+    let recipe = experiment.recipe_of(scale);
+    let name = experiment.run_name(scale, method, n);
+    let dir = runs.join(&name);
     let run = RunDir::open_or_create(&dir, &config)?;
-    if obs == ObsKind::Vid && matches!(method, MethodId::Ntp | MethodId::NtpFlat) {
+    if reuses_stage_a(obs, method) {
         share_stage_a(
-            &runs.join(format!("ntp_exp-{}-{n}", obs.name())),
+            &runs.join(experiment.run_name(scale, MethodId::Ntg, n)),
             &run,
             &config,
         )?;
     }
     eprintln!(
-        "ntp_exp ({}, {obs:?}, {n} tasks x {} demos, {epochs} epochs): training -> {}",
+        "ntp_exp ({}, {} recipe, {obs:?}, {n} tasks x {} demos, {epochs} epochs): training -> {}",
         method.legend(),
+        recipe.name(),
         scale.demos_per_task,
         dir.display()
     );
@@ -266,7 +333,7 @@ fn run_point(
     let result = if method.is_ntg() {
         let model = blocks::train_run(&run, &config, &device, |m| {
             eprintln!(
-                "  epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
+                "  [{name}] epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
                 m.epoch, m.loss, m.token_accuracy, m.step_accuracy
             )
         })?;
@@ -276,7 +343,7 @@ fn run_point(
     } else {
         let model = blocks::train_ntp_run(&run, &config, &device, |m| {
             eprintln!(
-                "  epoch {:>3}: loss {:.3}, programs {:.3}, arguments {:.3}",
+                "  [{name}] epoch {:>3}: loss {:.3}, programs {:.3}, arguments {:.3}",
                 m.epoch, m.loss, m.program_accuracy, m.argument_accuracy
             )
         })?;
@@ -287,7 +354,7 @@ fn run_point(
     };
     let train_seconds = run.epoch_seconds()?;
     eprintln!(
-        "  success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}",
+        "  [{name}] success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}",
         scale.test_tasks,
         result.success.rate,
         result.success.ci_low,
@@ -296,6 +363,7 @@ fn run_point(
     );
     Ok(NtpExpPoint {
         method,
+        recipe,
         obs,
         train_tasks: n,
         demos_per_task: scale.demos_per_task,
@@ -331,7 +399,8 @@ fn share_stage_a(ntg_run: &Path, run: &RunDir, config: &BlocksRunConfig) -> anyh
         return Ok(());
     }
     eprintln!(
-        "  stage A: the frame encoder of {} (the same videos and settings)",
+        "  [{}] stage A: the frame encoder of {} (the same videos and settings)",
+        run.root().file_name().unwrap_or_default().to_string_lossy(),
         ntg_run.display()
     );
     crate::run_dir::link_or_copy_tree(&source, &target)
@@ -340,10 +409,10 @@ fn share_stage_a(ntg_run: &Path, run: &RunDir, config: &BlocksRunConfig) -> anyh
 /// Writes the figure (two panels: success and goals met against training
 /// tasks) as `stem.svg` and `stem.png`.
 pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
-    let mut methods: Vec<MethodId> = Vec::new();
+    let mut curves: Vec<(MethodId, Recipe)> = Vec::new();
     for p in points {
-        if !methods.contains(&p.method) {
-            methods.push(p.method);
+        if !curves.contains(&(p.method, p.recipe)) {
+            curves.push((p.method, p.recipe));
         }
     }
     let panel = |obs: ObsKind, title: &str| Panel {
@@ -353,15 +422,12 @@ pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
         x_log: true,
         x_ticks_at_points: false,
         y_range: (0.0, 1.0),
-        series: methods
+        series: curves
             .iter()
-            .flat_map(|&method| {
-                let of = |p: &&NtpExpPoint| p.obs == obs && p.method == method;
-                let name = if method.is_ntg() {
-                    "NTG (ours)".to_owned()
-                } else {
-                    method.legend().to_owned()
-                };
+            .flat_map(|&(method, recipe)| {
+                let of =
+                    |p: &&NtpExpPoint| p.obs == obs && p.method == method && p.recipe == recipe;
+                let name = curve_name(method, recipe);
                 [
                     Series {
                         name: format!("{name}: success"),
@@ -395,6 +461,16 @@ pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
     )
 }
 
+/// The legend of `method` trained with `recipe`: the paper's recipe is
+/// the figure's default and goes unnamed.
+fn curve_name(method: MethodId, recipe: Recipe) -> String {
+    let name = method.legend();
+    match recipe {
+        Recipe::Paper => name.to_owned(),
+        Recipe::Recommended => format!("{name}, recommended recipe"),
+    }
+}
+
 /// The report section of fig. "ntp_exp" (Markdown).
 pub fn report_section(points: &[NtpExpPoint]) -> String {
     let mut s = String::new();
@@ -409,6 +485,7 @@ pub fn report_section(points: &[NtpExpPoint]) -> String {
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
     for p in points {
         let paper = match (p.method, p.obs, p.train_tasks) {
+            _ if p.recipe != Recipe::Paper => "not in the paper (our additions)",
             (MethodId::Ntg, _, 50) => "≈ 0.1 (NTG, 50 tasks)",
             (MethodId::Ntg, _, 1000) => "≈ 0.9 (NTG, 1000 tasks, 100 demos/task)",
             (MethodId::Ntg, _, _) => "rising with tasks",
@@ -420,7 +497,7 @@ pub fn report_section(points: &[NtpExpPoint]) -> String {
         let _ = writeln!(
             s,
             "| {} | {:?} | {} | {} | {} ({}) | {} | {:.0} s | {} | {:.3} ({:.3}–{:.3}) | {:.3} | {paper} |",
-            p.method.legend(),
+            curve_name(p.method, p.recipe),
             p.obs,
             p.train_tasks,
             p.demos_per_task,
@@ -438,7 +515,7 @@ pub fn report_section(points: &[NtpExpPoint]) -> String {
     }
     let _ = writeln!(
         s,
-        "\nThe paper trains with 100 demos per task; the reduced profiles use far fewer demos and optimisation steps, so lower values are expected there. Every point gets at least the profile's minimum number of steps (small training sets get more epochs). \"Goals met\" is the mean fraction of a task's `on_top` constraints that hold at the end: partial progress where whole tasks rarely succeed.\n\n**Model selection (not in the paper).** Each run is scored on held-out validation tasks (end configurations in neither the training pool nor the test set) several times during training, and the best-scoring epoch (\"selected\", counted from 1) is the one evaluated on the test tasks. **The recommended recipe (not used in this figure).** `ntg train` by default (`--recipe recommended`) adds five things to the paper's method: cube renaming (every training demo shown with its cubes renamed by a fresh random permutation: state columns, actions and task graph together; never into a held-out task), a fusion layer in the edge classifier, the GCN reading another demo of the task than the one the edge classifier imitates, the edge loss kept out of the GCN, and soft edges. At 1000 tasks x 20 demos x 20 epochs it reaches 0.960 (seed 0) on 200 unseen tasks (README). Its curve over training tasks does not rise either, for the opposite reason: renaming makes each task stand for all its renamings, so 50 tasks are already enough. With 10 demos per task and the same number of steps per point (first 100 test tasks, seed 0, measured outside this profile and before renamings onto held-out tasks were excluded; README), it scored 0.22 / 0.11 / 0.07 / 0.23 at 50 / 100 / 500 / 1000 tasks with about 1250 steps (undertrained, small sets fitting first) and 0.91 / 0.88 / 0.92 / 0.80 with about 3750 steps (882 s of training epochs for the four points on 2 cores shared with other jobs, more than this profile's whole budget). So the figure keeps the paper's method, whose demo interpreter memorises the training sequences at 50 and 100 tasks.\n"
+        "\nThe paper trains with 100 demos per task; the reduced profiles use far fewer demos and optimisation steps, so lower values are expected there. Every point gets at least the profile's minimum number of steps (small training sets get more epochs). \"Goals met\" is the mean fraction of a task's `on_top` constraints that hold at the end: partial progress where whole tasks rarely succeed.\n\n**Model selection (not in the paper).** Each run is scored on held-out validation tasks (end configurations in neither the training pool nor the test set) several times during training, and the best-scoring epoch (\"selected\", counted from 1) is the one evaluated on the test tasks. **The recommended recipe.** Rows marked \"recommended recipe\" are NTG trained with it (item 4b of the figure's issue: on video at the quick profile, the cheapest protocol found that shows NTG learning from frames, see `experiments/ntp_exp.toml`); every other row is the paper's method. `ntg train` by default (`--recipe recommended`) adds five things to the paper's method: cube renaming (every training demo shown with its cubes renamed by a fresh random permutation: state columns, actions and task graph together; never into a held-out task), a fusion layer in the edge classifier, the GCN reading another demo of the task than the one the edge classifier imitates, the edge loss kept out of the GCN, and soft edges. At 1000 tasks x 20 demos x 20 epochs it reaches 0.960 (seed 0) on 200 unseen tasks (README). Its curve over training tasks does not rise either, for the opposite reason: renaming makes each task stand for all its renamings, so 50 tasks are already enough. With 10 demos per task and the same number of steps per point (first 100 test tasks, seed 0, measured outside this profile and before renamings onto held-out tasks were excluded; README), it scored 0.22 / 0.11 / 0.07 / 0.23 at 50 / 100 / 500 / 1000 tasks with about 1250 steps (undertrained, small sets fitting first) and 0.91 / 0.88 / 0.92 / 0.80 with about 3750 steps (882 s of training epochs for the four points on 2 cores shared with other jobs, more than this profile's whole budget). So the figure's curves over training tasks keep the paper's method, whose demo interpreter memorises the training sequences at 50 and 100 tasks.\n"
     );
     s
 }
@@ -458,6 +535,7 @@ mod tests {
             test_tasks: 10,
             overrides: toml::Table::new(),
             methods: None,
+            recipe: None,
             detector: toml::Table::new(),
         };
         // 500 demos = 16 steps per epoch -> 63 epochs to reach 1000 steps.
@@ -488,7 +566,7 @@ mod tests {
         panel.epochs = 1;
         panel.test_tasks = 2;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &runs).unwrap();
+        let points = run(&experiment, Profile::Smoke, &runs, 1).unwrap();
         assert_eq!(points.len(), 1);
         let p = &points[0];
         assert_eq!(
@@ -500,7 +578,7 @@ mod tests {
         let config: BlocksRunConfig = RunDir::read_json(&p.run.join("config.json")).unwrap();
         assert_eq!(config.method, MethodId::Ntp);
         // A second pass reuses the run and its evaluation.
-        assert_eq!(run(&experiment, Profile::Smoke, &runs).unwrap(), points);
+        assert_eq!(run(&experiment, Profile::Smoke, &runs, 2).unwrap(), points);
         // Methods the figure has not are refused before anything runs:
         // the Flat Policy, NTP (Detector) on states.
         let state = &experiment.profiles.smoke.panels[0];
@@ -525,7 +603,7 @@ mod tests {
         panel.train_tasks = vec![2];
         panel.test_tasks = 1;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &runs).unwrap();
+        let points = run(&experiment, Profile::Smoke, &runs, 2).unwrap();
         assert_eq!(points.len(), 2);
         let stage = |p: &NtpExpPoint| p.run.join(crate::video::STAGE_A_DIR);
         let weights =
@@ -559,7 +637,7 @@ mod tests {
         panel.train_tasks = vec![2];
         panel.test_tasks = 2;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &runs).unwrap();
+        let points = run(&experiment, Profile::Smoke, &runs, 1).unwrap();
         let p = &points[0];
         assert_eq!(
             (p.method, p.obs, p.train_tasks, p.success.trials),
@@ -588,14 +666,14 @@ mod tests {
                 .downcast_ref::<crate::method::ntp_detector::NtpOnDetector>()
                 .is_some()
         );
-        assert_eq!(run(&experiment, Profile::Smoke, &runs).unwrap(), points);
+        assert_eq!(run(&experiment, Profile::Smoke, &runs, 1).unwrap(), points);
     }
 
     #[test]
     fn the_built_in_file_gives_the_configurations_the_figure_was_measured_with() {
         let experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
         let quick = experiment.profiles.get(Profile::Quick);
-        let state = &quick.panels[0];
+        let state = &quick.panels[1];
         // What reproduce.rs built in code before the figure was a file.
         let expected = |n: usize, epochs: usize, validation_tasks, cosine_decay| BlocksRunConfig {
             obs: ObsKind::State,
@@ -655,10 +733,34 @@ mod tests {
         // The video panel's own overrides reach its encoder stage only.
         let encoder = &c.video.as_ref().unwrap().encoder;
         assert_eq!((encoder.demos, encoder.epochs), (10, 1));
-        let quick_vid = &quick.panels[1];
+        let quick_vid = &quick.panels[2];
         let c = experiment
             .run_config(Profile::Quick, quick_vid, MethodId::Ntg, 50)
             .unwrap();
         assert_eq!(c.video.as_ref().unwrap().encoder.demos, 100);
+        assert_eq!(
+            experiment.run_name(quick_vid, MethodId::Ntp, 50),
+            "ntp_exp-vid-ntp-50"
+        );
+        // NTG with the recommended recipe on video: its own panel, folder
+        // and configuration (the recipe's, at the panel's scale).
+        let recommended = &quick.panels[0];
+        assert_eq!(experiment.recipe_of(recommended), Recipe::Recommended);
+        assert_eq!(
+            experiment.run_name(recommended, MethodId::Ntg, 1000),
+            "ntp_exp-vid-recommended-1000"
+        );
+        let c = experiment
+            .run_config(Profile::Quick, recommended, MethodId::Ntg, 1000)
+            .unwrap();
+        let mut expected = Recipe::Recommended.config(ObsKind::Vid, 1000, 2, 10, 0);
+        expected.state_hidden_layers = 3;
+        expected.pairwise = true;
+        expected.validation_tasks = 50;
+        expected.validate_every = 1;
+        expected.optim.shards = 0; // unset in the file: one thread
+        let video = expected.video.as_mut().unwrap();
+        video.encoder.demos = 2000;
+        assert_eq!(c, expected);
     }
 }

@@ -151,17 +151,19 @@ impl ThorAllExperiment {
 
 /// Runs fig. "thor_all" at `profile`: trains every method of the
 /// experiment (finished runs under `runs` are reused, interrupted ones
-/// resumed) and evaluates them on unseen tasks with N = 1..5.
+/// resumed), `jobs` at a time, and evaluates them on unseen tasks with
+/// N = 1..5.
 pub fn run(
     experiment: &ThorAllExperiment,
     profile: Profile,
     runs: &Path,
+    jobs: usize,
 ) -> anyhow::Result<ThorAllResult> {
     let scale = experiment.profiles.get(profile).clone();
-    let mut lines = Vec::new();
-    for &method in &experiment.methods {
+    let line = |method: MethodId| -> anyhow::Result<ThorAllLine> {
         let config = experiment.run_config(profile, method)?;
-        let dir = runs.join(format!("thor_all-{}", method.name()));
+        let name = format!("thor_all-{}", method.name());
+        let dir = runs.join(&name);
         let run = RunDir::open_or_create(&dir, &config)?;
         eprintln!(
             "thor_all ({}): training -> {}",
@@ -169,23 +171,37 @@ pub fn run(
             dir.display()
         );
         let device = crate::spec::device().autodiff();
-        let model = train_run(&run, &config, &device, |line| eprintln!("  {line}"))?;
+        let model = train_run(&run, &config, &device, |line| {
+            eprintln!("  [{name}] {line}")
+        })?;
         let eval = run.cached_eval(&format!("collect-{}.json", scale.test_episodes), || {
             evaluate(model.as_ref(), &config, &EVAL_OBJECTS, scale.test_episodes)
         })?;
         for p in &eval.points {
             eprintln!(
-                "  N = {}: success {:.3} ({:.3}-{:.3})",
+                "  [{name}] N = {}: success {:.3} ({:.3}-{:.3})",
                 p.objects, p.success.rate, p.success.ci_low, p.success.ci_high
             );
         }
-        lines.push(ThorAllLine {
+        Ok(ThorAllLine {
             method,
             points: eval.points,
             train_seconds: run.epoch_seconds()?,
             run: dir,
-        });
-    }
+        })
+    };
+    let line = &line;
+    let lines = crate::experiment::in_parallel(
+        "thor_all",
+        jobs,
+        experiment
+            .methods
+            .iter()
+            .map(|&method| {
+                Box::new(move || line(method)) as crate::experiment::Job<'_, ThorAllLine>
+            })
+            .collect(),
+    )?;
     Ok(ThorAllResult {
         scale,
         train_objects: experiment.train_objects.clone(),
