@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::experiment::Source;
 use crate::experiment::ntp_exp::{self, NtpExpPoint};
 use crate::experiment::thor_all::{self, ThorAllResult};
+use crate::experiment::{ablation, qualitative};
 use crate::run_dir::RunDir;
 
 pub use crate::spec::Profile;
@@ -24,12 +25,24 @@ pub struct Results {
     pub profile: Profile,
     /// Fig. "ntp_exp", NTG.
     pub ntp_exp: Vec<NtpExpPoint>,
+    /// Fig. "ablation" (a): NTG whole and without each part (results
+    /// written before it: none).
+    #[serde(default)]
+    pub ablation: Vec<NtpExpPoint>,
+    /// The qualitative block-stacking trace (results written before it, or
+    /// no qualifying rollout: none).
+    #[serde(default)]
+    pub trace_blocks: Option<qualitative::BlocksTraceFigure>,
     /// Fig. "jigsaws": cross-task NLL on Needle Passing (issue 7).
     pub jigsaws: crate::jigsaws::JigsawsResult,
     /// Fig. "thor_all" (b), NTG and the Flat Policy.
     pub thor_all: ThorAllResult,
     /// Figures not reproduced yet, with the reason.
     pub not_yet: Vec<(String, String)>,
+    /// What each block-stacking figure's file changes in its recipe
+    /// (`(figure, note)`; results written before it: none).
+    #[serde(default)]
+    pub recipe_notes: Vec<(String, String)>,
 }
 
 /// Runs every figure this build can make at `profile`, keeping run folders
@@ -51,6 +64,8 @@ pub fn reproduce(
     // before the long runs.
     let ntp_exp_file = ntp_exp::NtpExpExperiment::load(experiments)?;
     ntp_exp_file.run_configs(profile)?;
+    let ablation_file = ablation::load(experiments)?;
+    ablation_file.run_configs(profile)?;
     let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
     for &method in &thor_all_file.methods {
         thor_all_file.run_config(profile, method)?;
@@ -58,19 +73,47 @@ pub fn reproduce(
     // First, so a wrong --jigsaws-root fails before the long runs.
     let jigsaws = crate::jigsaws::reproduce(profile, jigsaws_root, runs, out, experiments)?;
     let points = ntp_exp::run(&ntp_exp_file, profile, runs, jobs)?;
+    let ablation_points = ntp_exp::run(&ablation_file, profile, runs, jobs)?;
+    // The qualitative trace: from the state-input NTG run that scored best
+    // (the most training tasks among equals).
+    let traced = points
+        .iter()
+        .filter(|p| p.obs == crate::spec::ObsKind::State && p.method.is_ntg())
+        .max_by(|a, b| {
+            (a.success.rate, a.train_tasks)
+                .partial_cmp(&(b.success.rate, b.train_tasks))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+    let trace_blocks = match traced {
+        Some(p) => qualitative::blocks_trace(&p.run, p.success.trials, &out.join("trace_blocks"))?,
+        None => None,
+    };
     let thor_all = thor_all::run(&thor_all_file, profile, runs, jobs)?;
     let results = Results {
         profile,
         ntp_exp: points,
+        ablation: ablation_points,
+        trace_blocks,
         jigsaws,
         thor_all,
-        not_yet: vec![(
-            "ablation".into(),
-            "ablation configs not wired into reproduce yet (ntg eval --variant exists)".into(),
-        )],
+        recipe_notes: vec![
+            ("ntp_exp".into(), ntp_exp_file.recipe_note(profile)),
+            ("ablation".into(), ablation_file.recipe_note(profile)),
+        ],
+        not_yet: vec![
+            (
+                "ablation (b)".into(),
+                "Object Sorting with alternate orders: the sorting tasks and demos exist (ntg blocks sorting), training on them does not yet".into(),
+            ),
+            (
+                "qualitative: Object Sorting".into(),
+                "the figure of a sorting task finished in another order than the demo's needs NTG trained on sorting (ablation (b))".into(),
+            ),
+        ],
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     ntp_exp::write_figure(&results.ntp_exp, &out.join("ntp_exp"))?;
+    ablation::write_figure(&results.ablation, &out.join("ablation"))?;
     thor_all::write_figure(&results.thor_all, &out.join("thor_all"))?;
     RunDir::write_json(&out.join("results.json"), &results)?;
     std::fs::write(
@@ -89,7 +132,22 @@ fn report(results: &Results, seconds: f64) -> String {
         "Profile `{:?}`, {:.0} s in the invocation that wrote this report (finished runs and their evaluations are reused; the training time column is each run's own). Measured on 2 CPU cores shared with other jobs. Seeds: model 0, shuffling 0, demos and rollouts as documented in `ntg_trainer::blocks`. Intervals are 95% Wilson intervals over test tasks (one seed per point).\n",
         results.profile, seconds
     );
-    s.push_str(&ntp_exp::report_section(&results.ntp_exp));
+    let note = |figure: &str| {
+        results
+            .recipe_notes
+            .iter()
+            .find(|(f, _)| f == figure)
+            .map_or("", |(_, note)| note.as_str())
+    };
+    s.push_str(&ntp_exp::report_section(&results.ntp_exp, note("ntp_exp")));
+    s.push_str(&ablation::report_section(
+        &results.ablation,
+        note("ablation"),
+    ));
+    s.push_str(&qualitative::report_section(
+        results.trace_blocks.as_ref(),
+        "trace_blocks",
+    ));
     let _ = writeln!(s, "{}", crate::jigsaws::report_section(&results.jigsaws));
     s.push_str(&thor_all::report_section(&results.thor_all));
     let _ = writeln!(s, "## Not reproduced yet\n");

@@ -207,6 +207,34 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--video-renaming-group", "2"]),
             "--video-renaming-group".into(),
         ),
+        // An evaluation setting is not a trained ablation; only NTG has
+        // parts to ablate; object collection has no --ablation.
+        (
+            train(&["--ablation", "executed-node"]),
+            "executed-node is an evaluation setting".into(),
+        ),
+        (
+            train(&["--method", "ntp", "--ablation", "no-gcn"]),
+            "the ablations are NTG's".into(),
+        ),
+        (
+            train(&["--domain", "collect", "--ablation", "no-gcn"]),
+            "--ablation".into(),
+        ),
+        // Object sorting: NTG on states, from its 200-task pool, with its
+        // own flags only.
+        (
+            train(&["--domain", "sorting", "--obs", "vid"]),
+            "object sorting trains NTG on state input".into(),
+        ),
+        (
+            train(&["--domain", "sorting", "--train-tasks", "201"]),
+            "1 to 200".into(),
+        ),
+        (
+            train(&["--domain", "sorting", "--pairwise"]),
+            "--pairwise is a flag of --domain blocks".into(),
+        ),
         // Methods a domain or an input does not have.
         (
             train(&["--domain", "collect", "--method", "ntp"]),

@@ -26,6 +26,7 @@ fn config() -> BlocksRunConfig {
         retry_weight: 3.0,
         detach_gcn_from_edges: true,
         soft_edges: true,
+        ablation: Default::default(),
         video: None,
         method: ntg_trainer::method::MethodId::Ntg,
         detector: None,

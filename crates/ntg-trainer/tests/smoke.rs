@@ -37,6 +37,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         retry_weight: 0.0,
         detach_gcn_from_edges: false,
         soft_edges: false,
+        ablation: Default::default(),
         video: None,
         method: ntg_trainer::method::MethodId::Ntg,
         detector: None,

@@ -250,3 +250,58 @@ fn the_renaming_filter_is_consulted_for_every_renamed_demo() {
     };
     assert_eq!(run("all", Some(&accept_all)), run("none", None));
 }
+
+#[test]
+fn an_ablation_is_trained_without_its_part_and_keeps_it_off() {
+    use ntg_trainer::blocks::Variant;
+    let device = ntg_model::cpu_device().autodiff();
+    let trained = |ablation: Variant| {
+        let tmp = tempfile::tempdir().unwrap();
+        let config = BlocksRunConfig {
+            ablation,
+            ..config()
+        };
+        let run = RunDir::create(&tmp.path().join("run")).unwrap();
+        let untrained = new_model(&config, &device).unwrap();
+        let model = train_tiny(&config, &run, TrainExtras::default());
+        (untrained, model)
+    };
+    // Without the edge classifier its weights get no gradient; the GCN
+    // still learns to complete graphs.
+    let (before, after) = trained(Variant::NoEdgeClassifier);
+    assert_eq!(params(&before.edges), params(&after.edges));
+    assert_ne!(params(&before.gcn), params(&after.gcn));
+    assert!(!after.config.ablation.edge_classifier);
+    // Without the GCN its message passing is never trained (only its
+    // initial node embeddings N⁰, the edge classifier's input), and the
+    // switch stays in the model: evaluating the run as "full" keeps it off.
+    let (before, after) = trained(Variant::NoGcn);
+    let initial = |m: &NtgModel| m.gcn.nodes.val().into_data().try_to_vec::<f32>().unwrap();
+    let passing = |m: &NtgModel| {
+        let mut p = params(&m.gcn);
+        p.retain(|t| *t != initial(m));
+        p
+    };
+    assert_eq!(passing(&before), passing(&after));
+    assert_eq!(passing(&before).len() + 1, params(&before.gcn).len());
+    assert_ne!(initial(&before), initial(&after));
+    assert_ne!(params(&before.edges), params(&after.edges));
+    assert!(!Variant::Full.ablation_of(&after.config.ablation).gcn);
+    // The full model trains every part.
+    let (before, after) = trained(Variant::Full);
+    assert_ne!(params(&before.gcn), params(&after.gcn));
+    assert_ne!(params(&before.edges), params(&after.edges));
+    // The configuration records the ablation only where there is one.
+    let json = serde_json::to_value(BlocksRunConfig {
+        ablation: Variant::NoDemoInterpreter,
+        ..config()
+    })
+    .unwrap();
+    assert_eq!(json["ablation"], "no-demo-interpreter");
+    assert!(
+        serde_json::to_value(config())
+            .unwrap()
+            .get("ablation")
+            .is_none()
+    );
+}

@@ -169,6 +169,12 @@ pub struct BlocksRunConfig {
     /// classifier is trained the same way (softmax over every node).
     #[serde(default)]
     pub soft_edges: bool,
+    /// The part of NTG this run is trained and evaluated without (fig.
+    /// "ablation" (a); [`Variant::trains`]): `full` = none. The switch is
+    /// in the model's configuration, so every evaluation of the run keeps
+    /// it. Runs saved before it: full.
+    #[serde(default, skip_serializing_if = "Variant::is_full")]
+    pub ablation: Variant,
     /// Video runs (`obs: vid`): how demo videos are recorded and the
     /// staged training's encoder stage (see [`crate::video`]). `None` on
     /// state runs.
@@ -335,6 +341,7 @@ impl Recipe {
             retry_weight: 0.0,
             detach_gcn_from_edges: recommended,
             soft_edges: recommended,
+            ablation: Variant::Full,
             video: (obs == ObsKind::Vid).then(|| BlocksVideo::new(recommended)),
             method: MethodId::Ntg,
             detector: None,
@@ -419,6 +426,9 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     {
         model_config.interpreter.frame_pool = Some(pool);
     }
+    let executed_node = model_config.ablation.executed_node;
+    model_config.ablation = config.ablation.ablation();
+    model_config.ablation.executed_node = executed_node;
     model_config.seed = config.model_seed;
     Ok(NtgModel::new(model_config, device)?)
 }
@@ -479,6 +489,27 @@ impl TrainedBlocks {
     }
 }
 
+/// Refuses an ablation that is not one of the paper's (see
+/// [`Variant::trains`]) or that is asked of another method than NTG.
+fn check_ablation(config: &BlocksRunConfig) -> anyhow::Result<()> {
+    let ablation = config.ablation;
+    if !ablation.trains() {
+        bail!(
+            "ablation {}: a run is trained full or without one part (no-demo-interpreter, no-node-localizer, no-edge-classifier, no-gcn); {} is an evaluation setting (ntg eval --variant)",
+            ablation.name(),
+            ablation.name()
+        );
+    }
+    if !ablation.is_full() && !config.method.is_ntg() {
+        bail!(
+            "ablation {}: the ablations are NTG's; {} is trained whole",
+            ablation.name(),
+            config.method.name()
+        );
+    }
+    Ok(())
+}
+
 /// Trains (or resumes) a block-stacking run in `run`, returning the model.
 pub fn train_run(
     run: &RunDir,
@@ -486,6 +517,7 @@ pub fn train_run(
     device: &Device,
     on_epoch: impl FnMut(&EpochMetrics),
 ) -> anyhow::Result<TrainedBlocks> {
+    check_ablation(config)?;
     match config.obs {
         ObsKind::State => train_state_run(run, config, device, on_epoch).map(TrainedBlocks::State),
         ObsKind::Vid => train_video_run(run, config, device, on_epoch).map(TrainedBlocks::Video),
@@ -791,6 +823,7 @@ pub fn train_ntp_run(
     device: &Device,
     mut on_epoch: impl FnMut(&NtpEpochMetrics),
 ) -> anyhow::Result<Model> {
+    check_ablation(config)?;
     let kind = match config.method {
         MethodId::Ntp | MethodId::NtpDetector => NtpKind::Hierarchical,
         MethodId::NtpFlat => NtpKind::Flat,
@@ -1537,6 +1570,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         retry_weight: own.retry_weight,
         detach_gcn_from_edges: base.detach_gcn_from_edges || own.detach_gcn_from_edges,
         soft_edges: base.soft_edges || own.soft_edges,
+        ablation: flags.ablation,
         optim: OptimConfig {
             batch_size: flags.batch_size,
             learning_rate: flags.lr.unwrap_or(base.optim.learning_rate),
@@ -1597,6 +1631,7 @@ impl DomainRuns for Blocks {
                 "--interpreter-frame-pool sets NTG's demo interpreter on videos: it needs --obs vid and --method ntg"
             );
         }
+        check_ablation(&config)?;
         match config.method {
             MethodId::Ntg => {}
             MethodId::Ntp | MethodId::NtpFlat => {}

@@ -754,6 +754,11 @@ impl DomainRuns for Collect {
 
     fn train(&self, flags: &TrainFlags, own: &DomainFlags) -> anyhow::Result<()> {
         let c = &own.collect;
+        if !flags.ablation.is_full() {
+            bail!(
+                "--ablation trains NTG without a part in block stacking and object sorting; object collection trains its models whole"
+            );
+        }
         if !matches!(flags.method, MethodId::Ntg | MethodId::Flat) {
             bail!(
                 "--method {}: object collection trains ntg or flat (NTP's programs are block stacking's)",

@@ -1,5 +1,6 @@
 //! Task domains, one file each, registered in [`DomainId`]: block stacking
-//! ([`blocks`]) and object collection ([`collect`]). (JIGSAWS is a dataset
+//! ([`blocks`]), object collection ([`collect`]) and object sorting
+//! ([`sorting`]). (JIGSAWS is a dataset
 //! scored by NLL, not rolled out: see [`crate::jigsaws`].)
 //!
 //! A domain is a small adapter behind [`Domain`]: its environment and
@@ -30,6 +31,7 @@ use crate::stats::SuccessRate;
 
 pub mod blocks;
 pub mod collect;
+pub mod sorting;
 
 /// What the command line needs of a domain, whatever its types:
 /// `ntg train --domain NAME` and `ntg eval` on its runs.
@@ -96,6 +98,8 @@ domains! {
     Blocks => blocks::Blocks, flags blocks: blocks::BlocksFlags,
     /// Object collection (fig. "thor_all" (b)): NTG or the Flat Policy.
     Collect => collect::Collect, flags collect: collect::CollectFlags,
+    /// Object sorting (fig. "ablation" (b)): NTG on part-sorted scenes.
+    Sorting => sorting::Sorting, flags sorting: sorting::SortingFlags,
 }
 
 impl DomainId {
@@ -124,6 +128,12 @@ pub struct TrainFlags {
     /// ntp-flat, ntp-detector with --obs vid; object collection: flat).
     #[arg(long, value_enum, default_value_t = crate::method::MethodId::Ntg)]
     pub method: crate::method::MethodId,
+    /// Train (and evaluate) NTG without one of its parts, as in the
+    /// paper's ablations (block stacking and object sorting):
+    /// no-demo-interpreter, no-node-localizer, no-edge-classifier or
+    /// no-gcn.
+    #[arg(long, value_enum, default_value_t = Variant::Full)]
+    pub ablation: Variant,
     /// Observation kind.
     #[arg(long, value_enum, default_value_t = ObsKind::State)]
     pub obs: ObsKind,

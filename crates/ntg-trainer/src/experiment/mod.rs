@@ -8,7 +8,9 @@
 //! One module per figure turns its file into runs through the shared
 //! training and evaluation code ([`crate::fit`], [`crate::domain`]) and
 //! draws the result: [`ntp_exp`] (block stacking, success vs training
-//! tasks) and [`thor_all`] (object collection, success vs objects); fig.
+//! tasks), [`ablation`] (block stacking, NTG without each part; runs in
+//! `ntp_exp`'s form) and [`thor_all`] (object collection, success vs
+//! objects); fig.
 //! "jigsaws" reads `jigsaws.toml` through
 //! [`crate::jigsaws::JigsawsConfig::for_profile`].
 
@@ -21,12 +23,15 @@ use serde_json::Value;
 
 use crate::spec::Profile;
 
+pub mod ablation;
 pub mod ntp_exp;
+pub mod qualitative;
 pub mod thor_all;
 
 /// The experiment files compiled in: `(name, contents)`.
-pub const BUILT_IN: [(&str, &str); 3] = [
+pub const BUILT_IN: [(&str, &str); 4] = [
     ("ntp_exp", include_str!("../../experiments/ntp_exp.toml")),
+    ("ablation", include_str!("../../experiments/ablation.toml")),
     ("thor_all", include_str!("../../experiments/thor_all.toml")),
     ("jigsaws", include_str!("../../experiments/jigsaws.toml")),
 ];
@@ -167,6 +172,32 @@ where
     serde_json::from_value(value).with_context(|| format!("applying the overrides of {what}"))
 }
 
+/// `overrides` as `a.b = value` settings separated by commas, in key
+/// order ("none" when empty): how a report names what a figure's
+/// file changes in its recipe.
+pub fn overrides_text(overrides: &toml::Table) -> String {
+    fn flatten(table: &toml::Table, path: &str, out: &mut Vec<String>) {
+        for (key, value) in table {
+            let name = if path.is_empty() {
+                key.clone()
+            } else {
+                format!("{path}.{key}")
+            };
+            match value {
+                toml::Value::Table(inner) => flatten(inner, &name, out),
+                other => out.push(format!("`{name} = {other}`")),
+            }
+        }
+    }
+    let mut out = Vec::new();
+    flatten(overrides, "", &mut out);
+    if out.is_empty() {
+        "none".to_owned()
+    } else {
+        out.join(", ")
+    }
+}
+
 fn merge(base: &mut Value, overrides: &Value, path: &str) -> anyhow::Result<()> {
     let (Value::Object(base), Value::Object(overrides)) = (base, overrides) else {
         bail!("{path} is not a table");
@@ -258,6 +289,18 @@ mod tests {
                 .unwrap()
                 .is_empty()
         );
+    }
+
+    #[test]
+    fn overrides_are_named_as_flat_settings() {
+        let table: toml::Table =
+            toml::from_str("pairwise = true\noptim = { learning_rate = 0.003, epochs = 2 }")
+                .unwrap();
+        assert_eq!(
+            overrides_text(&table),
+            "`optim.epochs = 2`, `optim.learning_rate = 0.003`, `pairwise = true`"
+        );
+        assert_eq!(overrides_text(&toml::Table::new()), "none");
     }
 
     #[test]

@@ -508,18 +508,27 @@ impl TrainStep<NtgModel> for NtgStep<'_> {
                 .edges
                 .weighted_loss(edge_logits, ids_tensor(&e_next, n, device)?, weights)?;
 
-        let mut total = match &interp {
-            Some(i) => i.loss.clone() + loc.loss.clone(),
-            None => loc.loss.clone(),
+        // A model trained without the localizer or the edge classifier
+        // (an ablation) still reports their untrained accuracy, but their
+        // losses train nothing.
+        let loc_loss = ablation.node_localizer.then(|| loc.loss.clone());
+        let edge_loss = ablation.edge_classifier.then(|| edge.loss.clone());
+        let mut total = match (&interp, loc_loss) {
+            (Some(i), Some(l)) => i.loss.clone() + l,
+            (Some(i), None) => i.loss.clone(),
+            (None, Some(l)) => l,
+            (None, None) => edge.loss.clone().mul_scalar(0.0),
         };
         let gcn_value = match &gcn_loss {
             Some(l) => scalar(l.clone())?,
             None => 0.0,
         };
-        match gcn_loss {
-            Some(l) if t.gcn_loss_last => total = total + edge.loss.clone() + l,
-            Some(l) => total = total + l + edge.loss.clone(),
-            None => total = total + edge.loss.clone(),
+        match (gcn_loss, edge_loss) {
+            (Some(l), Some(e)) if t.gcn_loss_last => total = total + e + l,
+            (Some(l), Some(e)) => total = total + l + e,
+            (Some(l), None) => total = total + l,
+            (None, Some(e)) => total = total + e,
+            (None, None) => {}
         }
         Ok(StepReport {
             values: vec![
@@ -610,12 +619,15 @@ pub fn train_with(
     fit(model, &step, optim, run, device, selection, on_epoch)
 }
 
-/// NTG's policy variants for evaluation: the full model and its ablations.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+/// NTG's policy variants: the full model and its ablations, at evaluation
+/// (`ntg eval --variant`) and, for the paper's ablations, in training too
+/// (`ntg train --ablation`, fig. "ablation" (a); see [`Variant::trains`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Variant {
     /// The full NTG model, as trained (its current node from the localizer,
     /// or from the agent's record where the run was configured so).
+    #[default]
     Full,
     /// Uniform ε over successors (no edge classifier).
     NoEdgeClassifier,
@@ -653,11 +665,31 @@ impl Variant {
 
     /// The switches of this variant for a model trained with `trained`:
     /// the variant's own, with the trained model's source of the current
-    /// node unless the variant names one.
+    /// node unless the variant names one. A part the model was trained
+    /// without stays off (a variant never switches on a network that was
+    /// not trained, or feeds the edge classifier embeddings it was not
+    /// trained with).
     pub fn ablation_of(self, trained: &AblationConfig) -> AblationConfig {
         let mut a = self.ablation();
         a.executed_node = a.executed_node.or(trained.executed_node);
+        a.demo_interpreter &= trained.demo_interpreter;
+        a.node_localizer &= trained.node_localizer;
+        a.edge_classifier &= trained.edge_classifier;
+        a.gcn &= trained.gcn;
         a
+    }
+
+    /// Whether a model can be trained as this variant (the paper's
+    /// ablations, fig. "ablation" (a)): the full model or one without a
+    /// part. The others choose where the current node comes from, an
+    /// evaluation setting.
+    pub fn trains(self) -> bool {
+        !matches!(self, Variant::ExecutedNode | Variant::LocalizerNode)
+    }
+
+    /// Whether this is [`Variant::Full`] (for serde's `skip_serializing_if`).
+    pub fn is_full(&self) -> bool {
+        *self == Variant::Full
     }
 
     /// Name used in files and reports.
@@ -743,6 +775,23 @@ mod tests {
         let uniform = Variant::NoNodeLocalizer.ablation_of(&executed);
         assert!(!uniform.node_localizer);
         assert_eq!(uniform.executed_node, Some(false));
+        // A model trained without a part: no variant switches it back on.
+        let trained = AblationConfig::new()
+            .with_gcn(false)
+            .with_edge_classifier(false);
+        for variant in [
+            Variant::Full,
+            Variant::NoDemoInterpreter,
+            Variant::LocalizerNode,
+        ] {
+            let a = variant.ablation_of(&trained);
+            assert!(!a.gcn && !a.edge_classifier, "{variant:?}");
+        }
+        assert!(
+            !Variant::NoDemoInterpreter
+                .ablation_of(&trained)
+                .demo_interpreter
+        );
     }
 
     #[test]

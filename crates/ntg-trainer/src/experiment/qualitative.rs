@@ -1,0 +1,201 @@
+//! The paper's qualitative block-stacking figure: one unseen task executed
+//! by a trained NTG run, step by step, where the executor is at one node of
+//! the task graph twice and takes a different edge each time (the graph
+//! used as a reactive policy, not replayed as a sequence). The task is
+//! found automatically among the run's test rollouts (the rollouts `ntg
+//! eval` scores, replayed by [`crate::trace::trace_task`]); the figure is
+//! the trace's contact sheet, its task graph and a table of its steps.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+
+use crate::run_dir::RunDir;
+use crate::trace::Trace;
+
+/// The trace chosen for the figure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BlocksTraceFigure {
+    /// The run that acted.
+    pub run: PathBuf,
+    /// Test tasks searched, from the first.
+    pub searched: usize,
+    /// The trace (its files are in the figure's folder).
+    pub trace: Trace,
+    /// The node visited twice or more.
+    pub node: String,
+    /// The steps at that node, with the action chosen at each.
+    pub visits: Vec<(usize, String)>,
+}
+
+/// The first node (by first visit) that the executor localised at two or
+/// more steps and left by different actions, with those steps.
+pub fn revisited_node(trace: &Trace) -> Option<(String, Vec<(usize, String)>)> {
+    let mut order: Vec<(String, Vec<(usize, String)>)> = Vec::new();
+    for step in &trace.steps {
+        let Some(node) = step.localized.first() else {
+            continue;
+        };
+        let visit = (step.step, step.chosen.name.clone());
+        match order.iter_mut().find(|(n, _)| *n == node.name) {
+            Some((_, visits)) => visits.push(visit),
+            None => order.push((node.name.clone(), vec![visit])),
+        }
+    }
+    order.into_iter().find(|(_, visits)| {
+        visits.len() >= 2 && visits.iter().any(|(_, action)| *action != visits[0].1)
+    })
+}
+
+/// Replays the first `test_tasks` test tasks of the state-input NTG run
+/// `run` until one succeeds with a revisited node ([`revisited_node`]) and
+/// writes its contact sheet, task graph, demo and step table into `out`
+/// (replacing the figure's earlier files). `None` when no task qualifies
+/// (or the run is not a state-input NTG run, which `ntg trace` cannot
+/// replay). Candidates are traced in `run`'s `qualitative/` folder.
+pub fn blocks_trace(
+    run: &Path,
+    test_tasks: usize,
+    out: &Path,
+) -> anyhow::Result<Option<BlocksTraceFigure>> {
+    let dir = RunDir::open(run)?;
+    let config: crate::blocks::BlocksRunConfig = RunDir::read_json(&dir.config_path())?;
+    let device = crate::spec::device();
+    let crate::blocks::TrainedBlocks::State(model) =
+        crate::blocks::load_trained(&dir, None, &device)?
+    else {
+        return Ok(None);
+    };
+    let scratch = run.join("qualitative");
+    for index in 0..test_tasks {
+        let candidate = scratch.join(format!("task-{index:04}"));
+        if candidate.exists() {
+            std::fs::remove_dir_all(&candidate)
+                .with_context(|| format!("removing {}", candidate.display()))?;
+        }
+        let trace =
+            crate::trace::trace_task(&model, config.obs, config.failures, index, &candidate)?;
+        let found = trace.success.then(|| revisited_node(&trace)).flatten();
+        let Some((node, visits)) = found else {
+            std::fs::remove_dir_all(&candidate)
+                .with_context(|| format!("removing {}", candidate.display()))?;
+            continue;
+        };
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        for file in [
+            "contact-sheet.png",
+            "ctg.svg",
+            "ctg.dot",
+            "demo.txt",
+            "trace.txt",
+        ] {
+            std::fs::copy(candidate.join(file), out.join(file))
+                .with_context(|| format!("copying {file} into {}", out.display()))?;
+        }
+        return Ok(Some(BlocksTraceFigure {
+            run: run.to_path_buf(),
+            searched: index + 1,
+            trace,
+            node,
+            visits,
+        }));
+    }
+    Ok(None)
+}
+
+/// The report section of the qualitative block-stacking figure
+/// (Markdown); `folder` is the figure's folder relative to the report.
+pub fn report_section(figure: Option<&BlocksTraceFigure>, folder: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "## Qualitative: block stacking, one node visited twice, a different edge each time\n"
+    );
+    let Some(f) = figure else {
+        let _ = writeln!(
+            s,
+            "No successful test rollout of the searched run was at one node twice with different actions.\n"
+        );
+        return s;
+    };
+    let run = f
+        .run
+        .file_name()
+        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let _ = writeln!(
+        s,
+        "Run `{run}`, unseen test task {} (test index {}, the first of {} searched in order that qualifies): the executor localised node `{}` at steps {} and chose {} there. Every observation ([contact sheet]({folder}/contact-sheet.png), left to right, top to bottom), the demo's completed task graph ([SVG]({folder}/ctg.svg)) and each step's localised node, chosen edge and the node's other successors ([trace.txt]({folder}/trace.txt); demo and transcription in [demo.txt]({folder}/demo.txt)).\n",
+        f.trace.task,
+        f.trace.index,
+        f.searched,
+        f.node,
+        f.visits
+            .iter()
+            .map(|(step, _)| step.to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
+        f.visits
+            .iter()
+            .map(|(step, action)| format!("`{action}` (step {step})"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let _ = writeln!(s, "![trace]({folder}/contact-sheet.png)\n");
+    let _ = writeln!(s, "```\n{}```\n", crate::trace::trace_table(&f.trace));
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::trace::{Scored, TraceStep};
+
+    fn step(step: usize, node: &str, chosen: &str) -> TraceStep {
+        let scored = |name: &str| Scored {
+            name: name.into(),
+            p: 1.0,
+        };
+        TraceStep {
+            step,
+            localized: vec![scored(node)],
+            edges_from_localized: Vec::new(),
+            chosen: scored(chosen),
+            failure: None,
+            success_after: false,
+        }
+    }
+
+    fn trace(steps: Vec<TraceStep>) -> Trace {
+        Trace {
+            index: 0,
+            task: "t".into(),
+            demo_actions: Vec::new(),
+            transcription: Vec::new(),
+            steps,
+            success: true,
+            truncated: false,
+        }
+    }
+
+    #[test]
+    fn a_node_left_twice_by_the_same_edge_is_not_a_revisit_with_another_edge() {
+        let same = trace(vec![
+            step(0, "a", "b"),
+            step(1, "b", "a"),
+            step(2, "a", "b"),
+        ]);
+        assert_eq!(revisited_node(&same), None);
+        let other = trace(vec![
+            step(0, "a", "b"),
+            step(1, "b", "c"),
+            step(2, "c", "b"),
+            step(3, "b", "d"),
+        ]);
+        assert_eq!(
+            revisited_node(&other),
+            Some(("b".into(), vec![(1, "c".into()), (3, "d".into())]))
+        );
+    }
+}
