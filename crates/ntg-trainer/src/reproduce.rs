@@ -29,10 +29,18 @@ pub struct Results {
     /// written before it: none).
     #[serde(default)]
     pub ablation: Vec<NtpExpPoint>,
+    /// Fig. "ablation" (b): object sorting whole and without parts, on
+    /// scenes that need another order (results written before it: none).
+    #[serde(default)]
+    pub ablation_b: Vec<ablation::SortingPoint>,
     /// The qualitative block-stacking trace (results written before it, or
     /// no qualifying rollout: none).
     #[serde(default)]
     pub trace_blocks: Option<qualitative::BlocksTraceFigure>,
+    /// The qualitative sorting trace (results written before it, or no
+    /// qualifying episode: none).
+    #[serde(default)]
+    pub trace_sorting: Option<qualitative::SortingTraceFigure>,
     /// Fig. "jigsaws": cross-task NLL on Needle Passing (issue 7).
     pub jigsaws: crate::jigsaws::JigsawsResult,
     /// Fig. "thor_all" (b), NTG and the Flat Policy.
@@ -66,6 +74,10 @@ pub fn reproduce(
     ntp_exp_file.run_configs(profile)?;
     let ablation_file = ablation::load(experiments)?;
     ablation_file.run_configs(profile)?;
+    let ablation_b_file = ablation::AblationBExperiment::load(experiments)?;
+    for &variant in &ablation_b_file.ablations {
+        ablation_b_file.run_config(profile, variant)?;
+    }
     let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
     for &method in &thor_all_file.methods {
         thor_all_file.run_config(profile, method)?;
@@ -74,6 +86,13 @@ pub fn reproduce(
     let jigsaws = crate::jigsaws::reproduce(profile, jigsaws_root, runs, out, experiments)?;
     let points = ntp_exp::run(&ntp_exp_file, profile, runs, jobs)?;
     let ablation_points = ntp_exp::run(&ablation_file, profile, runs, jobs)?;
+    let ablation_b = ablation::run_b(&ablation_b_file, profile, runs, jobs)?;
+    let trace_sorting = match ablation_b.iter().find(|p| p.ablation.is_full()) {
+        Some(p) => {
+            qualitative::sorting_trace(&p.run, p.success.trials, &out.join("trace_sorting"))?
+        }
+        None => None,
+    };
     // The qualitative trace: from the state-input NTG run that scored best
     // (the most training tasks among equals).
     let traced = points
@@ -93,6 +112,8 @@ pub fn reproduce(
         profile,
         ntp_exp: points,
         ablation: ablation_points,
+        ablation_b,
+        trace_sorting,
         trace_blocks,
         jigsaws,
         thor_all,
@@ -102,18 +123,22 @@ pub fn reproduce(
         ],
         not_yet: vec![
             (
-                "ablation (b)".into(),
-                "Object Sorting with alternate orders: the sorting tasks and demos exist (ntg blocks sorting), training on them does not yet".into(),
+                "block stacking split by structure".into(),
+                "test tasks whose structures no training task has (issue 17 item 7) are not built yet".into(),
             ),
             (
-                "qualitative: Object Sorting".into(),
-                "the figure of a sorting task finished in another order than the demo's needs NTG trained on sorting (ablation (b))".into(),
+                "seeds".into(),
+                "one seed per point; the paper profile's seeds (issue 17 item 5) are not run".into(),
             ),
         ],
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     ntp_exp::write_figure(&results.ntp_exp, &out.join("ntp_exp"))?;
-    ablation::write_figure(&results.ablation, &out.join("ablation"))?;
+    ablation::write_figure(
+        &results.ablation,
+        &results.ablation_b,
+        &out.join("ablation"),
+    )?;
     thor_all::write_figure(&results.thor_all, &out.join("thor_all"))?;
     RunDir::write_json(&out.join("results.json"), &results)?;
     std::fs::write(
@@ -144,9 +169,14 @@ fn report(results: &Results, seconds: f64) -> String {
         &results.ablation,
         note("ablation"),
     ));
+    s.push_str(&ablation::report_section_b(&results.ablation_b));
     s.push_str(&qualitative::report_section(
         results.trace_blocks.as_ref(),
         "trace_blocks",
+    ));
+    s.push_str(&qualitative::sorting_report_section(
+        results.trace_sorting.as_ref(),
+        "trace_sorting",
     ));
     let _ = writeln!(s, "{}", crate::jigsaws::report_section(&results.jigsaws));
     s.push_str(&thor_all::report_section(&results.thor_all));

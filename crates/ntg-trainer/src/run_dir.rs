@@ -181,7 +181,12 @@ impl RunDir {
         if root.join("config.json").is_file() {
             let run = RunDir::open(root)?;
             let saved: Option<C> = RunDir::read_json(&run.config_path()).ok();
-            if saved.as_ref() != Some(config) {
+            // Compared as written (see `start_or_resume`).
+            let same = match &saved {
+                Some(saved) => serde_json::to_value(saved)? == serde_json::to_value(config)?,
+                None => false,
+            };
+            if !same {
                 bail!(
                     "{} holds a run with another configuration{}; move it away or delete it",
                     root.display(),

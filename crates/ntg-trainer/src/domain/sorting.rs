@@ -40,10 +40,11 @@ pub const TEST_TASKS: usize = 40;
 pub const STEP_LIMIT: usize = 64;
 /// Seed base of training demos (demo `j` of task `t`: `+ 1000 t + j`).
 const TRAIN_SEED_BASE: u64 = 5_000_000;
-/// Seed bases of the evaluation episodes: conditioning demo, rollout
-/// scene, and which objects start sorted; validation and test apart.
-const VALIDATION_SEEDS: [u64; 3] = [6_000_000, 6_500_000, 6_700_000];
-const TEST_SEEDS: [u64; 3] = [7_000_000, 7_500_000, 7_700_000];
+/// Seed bases of the validation episodes: conditioning demo, rollout
+/// scene, and which objects start sorted.
+pub const VALIDATION_SEEDS: [u64; 3] = [6_000_000, 6_500_000, 6_700_000];
+/// Seed bases of the test episodes (as [`VALIDATION_SEEDS`]).
+pub const TEST_SEEDS: [u64; 3] = [7_000_000, 7_500_000, 7_700_000];
 
 /// Everything that defines a sorting run (`config.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -112,6 +113,17 @@ impl SortingDomain {
             env_config,
             vocabulary: env_blocks::vocabulary(true, env_blocks::ActionLevel::Flat),
         }
+    }
+}
+
+impl SortingDomain {
+    /// The same domain with every observation's frame rendered (for
+    /// figures; rendering draws no random numbers, so episodes are
+    /// unchanged).
+    pub fn rendering(failures: bool) -> Self {
+        let mut domain = SortingDomain::new(failures);
+        domain.env_config.render = true;
+        domain
     }
 }
 

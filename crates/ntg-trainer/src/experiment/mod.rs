@@ -29,9 +29,13 @@ pub mod qualitative;
 pub mod thor_all;
 
 /// The experiment files compiled in: `(name, contents)`.
-pub const BUILT_IN: [(&str, &str); 4] = [
+pub const BUILT_IN: [(&str, &str); 5] = [
     ("ntp_exp", include_str!("../../experiments/ntp_exp.toml")),
     ("ablation", include_str!("../../experiments/ablation.toml")),
+    (
+        "ablation_b",
+        include_str!("../../experiments/ablation_b.toml"),
+    ),
     ("thor_all", include_str!("../../experiments/thor_all.toml")),
     ("jigsaws", include_str!("../../experiments/jigsaws.toml")),
 ];

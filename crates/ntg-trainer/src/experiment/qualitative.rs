@@ -1,10 +1,13 @@
-//! The paper's qualitative block-stacking figure: one unseen task executed
-//! by a trained NTG run, step by step, where the executor is at one node of
-//! the task graph twice and takes a different edge each time (the graph
-//! used as a reactive policy, not replayed as a sequence). The task is
-//! found automatically among the run's test rollouts (the rollouts `ntg
-//! eval` scores, replayed by [`crate::trace::trace_task`]); the figure is
-//! the trace's contact sheet, its task graph and a table of its steps.
+//! The paper's qualitative figures, found automatically among a trained
+//! NTG run's test rollouts (the rollouts `ntg eval` scores, replayed):
+//! - block stacking ([`blocks_trace`]): one unseen task executed step by
+//!   step, where the executor is at one node of the task graph twice and
+//!   takes a different edge each time (the graph used as a reactive
+//!   policy, not replayed as a sequence): the trace's contact sheet, its
+//!   task graph and a table of its steps ([`crate::trace::trace_task`]);
+//! - object sorting ([`sorting_trace`]): a part-sorted scene finished in
+//!   another order than the demo's, through transitions the demo never
+//!   made (edges the GCN added).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -105,6 +108,153 @@ pub fn blocks_trace(
     Ok(None)
 }
 
+/// The sorting episode chosen for the figure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SortingTraceFigure {
+    /// The run that acted.
+    pub run: PathBuf,
+    /// The episode (its task names the objects presorted).
+    pub episode: crate::domain::EpisodeRecord,
+    /// Executed transitions `a -> b` that the demo's transcription never
+    /// makes (edges only the completed graph has).
+    pub new_transitions: Vec<(String, String)>,
+}
+
+/// The transitions of `actions` (with `<start>` first) that `path` (with
+/// `<start>` first) does not make, in order, without repeats.
+pub fn transitions_not_in(actions: &[String], path: &[String]) -> Vec<(String, String)> {
+    fn pairs(xs: &[String]) -> Vec<(String, String)> {
+        let start = "<start>".to_owned();
+        std::iter::once(&start)
+            .chain(xs)
+            .zip(xs)
+            .map(|(a, b)| (a.clone(), b.clone()))
+            .collect()
+    }
+    let known = pairs(path);
+    let mut new = Vec::new();
+    for pair in pairs(actions) {
+        if !known.contains(&pair) && !new.contains(&pair) {
+            new.push(pair);
+        }
+    }
+    new
+}
+
+/// Finds, among the first `episodes` test episodes of the sorting run
+/// `run` (the ones its evaluation scores), the first that succeeds through
+/// at least one transition between two different actions that its demo's
+/// transcription never makes (another order than the demo's), replays it
+/// with frames and writes its contact sheet and step table into `out`.
+/// `None` when none qualifies.
+pub fn sorting_trace(
+    run: &Path,
+    episodes: usize,
+    out: &Path,
+) -> anyhow::Result<Option<SortingTraceFigure>> {
+    use crate::domain::sorting;
+    let dir = RunDir::open(run)?;
+    let config: sorting::SortingRunConfig = RunDir::read_json(&dir.config_path())?;
+    let model = sorting::load_model(&dir, &crate::spec::device())?;
+    let (_, _, test) = sorting::split()?;
+    let all = sorting::episodes(&test, episodes, sorting::TEST_SEEDS);
+    let domain = sorting::SortingDomain::rendering(config.failures);
+    let model = crate::method::TrainedPolicy::for_inference(&model);
+    for episode in &all {
+        let mut frames = Vec::new();
+        let record = crate::domain::run_episode_observed(&domain, model.as_ref(), episode, |d| {
+            frames.push(d.observation.frame().cloned());
+            if d.step.is_done() {
+                frames.push(d.step.observation.frame().cloned());
+            }
+            Ok(())
+        })?;
+        // The demo's path ends in `<end>`; a retry (`a -> a`) is a GCN edge
+        // too, but not another order.
+        let mut path = record.transcription.clone();
+        path.push(ctg_graph::Vocabulary::END_NAME.to_owned());
+        let new = transitions_not_in(&record.trace, &path);
+        if !record.success || new.iter().all(|(a, b)| a == b) {
+            continue;
+        }
+        let frames: Vec<image::RgbImage> = frames.into_iter().flatten().collect();
+        let refs: Vec<&image::RgbImage> = frames.iter().collect();
+        std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+        let sheet = env_blocks::sheet::contact_sheet(&refs, 8, 2, 4);
+        let path = out.join("contact-sheet.png");
+        sheet
+            .save(&path)
+            .with_context(|| format!("writing {}", path.display()))?;
+        let mut table = format!(
+            "task {} (test episode {}): success\ndemo (expert):     {}\ntranscribed (NTG): {}\n\nstep  action          transition\n",
+            record.task,
+            record.index,
+            record.demo_actions.join(" "),
+            record.transcription.join(" ")
+        );
+        let mut previous = "<start>".to_owned();
+        for (step, action) in record.trace.iter().enumerate() {
+            let pair = (previous.clone(), action.clone());
+            let note = match new.contains(&pair) {
+                true if pair.0 == pair.1 => "a retry the demo never makes (a GCN edge)",
+                true => "another order than the demo's (a GCN edge)",
+                false => "",
+            };
+            let _ = writeln!(table, "{step:>4}  {action:<15} {note}");
+            previous = action.clone();
+        }
+        let path = out.join("trace.txt");
+        std::fs::write(&path, &table).with_context(|| format!("writing {}", path.display()))?;
+        return Ok(Some(SortingTraceFigure {
+            run: run.to_path_buf(),
+            episode: record,
+            new_transitions: new,
+        }));
+    }
+    Ok(None)
+}
+
+/// The report section of the qualitative sorting figure (Markdown);
+/// `folder` is the figure's folder relative to the report.
+pub fn sorting_report_section(figure: Option<&SortingTraceFigure>, folder: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "## Qualitative: object sorting finished in another order than the demo's\n"
+    );
+    let Some(f) = figure else {
+        let _ = writeln!(
+            s,
+            "No successful test episode of the searched run left its demo's path.\n"
+        );
+        return s;
+    };
+    let e = &f.episode;
+    let _ = writeln!(
+        s,
+        "Run `{}`, test episode {} ({}): the scene starts part-sorted, and NTG, conditioned on a demo of the whole scene, sorts the rest through {} transition(s) the demo's transcription never makes ({}): edges of the completed task graph. Every observation ([contact sheet]({folder}/contact-sheet.png)) and each step ([trace.txt]({folder}/trace.txt)).\n\n![sorting]({folder}/contact-sheet.png)\n",
+        f.run
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+        e.index,
+        e.task,
+        f.new_transitions.len(),
+        f.new_transitions
+            .iter()
+            .map(|(a, b)| format!("`{a} -> {b}`"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let _ = writeln!(
+        s,
+        "```\ndemo (expert):     {}\ntranscribed (NTG): {}\nexecuted:          {}\n```\n",
+        e.demo_actions.join(" "),
+        e.transcription.join(" "),
+        e.trace.join(" ")
+    );
+    s
+}
+
 /// The report section of the qualitative block-stacking figure
 /// (Markdown); `folder` is the figure's folder relative to the report.
 pub fn report_section(figure: Option<&BlocksTraceFigure>, folder: &str) -> String {
@@ -196,6 +346,20 @@ mod tests {
         assert_eq!(
             revisited_node(&other),
             Some(("b".into(), vec![(1, "c".into()), (3, "d".into())]))
+        );
+    }
+
+    #[test]
+    fn transitions_the_demo_never_makes_are_found_once_in_order() {
+        let v = |xs: &[&str]| xs.iter().map(|x| x.to_string()).collect::<Vec<_>>();
+        let demo = v(&["a", "x", "b", "x", "c"]);
+        assert!(transitions_not_in(&v(&["a", "x", "c"]), &demo).is_empty());
+        assert_eq!(
+            transitions_not_in(&v(&["b", "x", "a", "x", "b"]), &demo),
+            vec![
+                ("<start>".to_owned(), "b".to_owned()),
+                ("x".to_owned(), "a".to_owned())
+            ]
         );
     }
 }
