@@ -84,9 +84,9 @@ pub fn reproduce(
     }
     // First, so a wrong --jigsaws-root fails before the long runs.
     let jigsaws = crate::jigsaws::reproduce(profile, jigsaws_root, runs, out, experiments)?;
-    let points = ntp_exp::run(&ntp_exp_file, profile, runs, jobs)?;
-    let ablation_points = ntp_exp::run(&ablation_file, profile, runs, jobs)?;
-    let ablation_b = ablation::run_b(&ablation_b_file, profile, runs, jobs)?;
+    let points = ntp_exp::run(&ntp_exp_file, profile, runs, jobs, None)?;
+    let ablation_points = ntp_exp::run(&ablation_file, profile, runs, jobs, None)?;
+    let ablation_b = ablation::run_b(&ablation_b_file, profile, runs, jobs, None)?;
     let trace_sorting = match ablation_b.iter().find(|p| p.ablation.is_full()) {
         Some(p) => {
             qualitative::sorting_trace(&p.run, p.success.trials, &out.join("trace_sorting"))?
@@ -107,7 +107,7 @@ pub fn reproduce(
         Some(p) => qualitative::blocks_trace(&p.run, p.success.trials, &out.join("trace_blocks"))?,
         None => None,
     };
-    let thor_all = thor_all::run(&thor_all_file, profile, runs, jobs)?;
+    let thor_all = thor_all::run(&thor_all_file, profile, runs, jobs, None)?;
     let results = Results {
         profile,
         ntp_exp: points,
@@ -185,4 +185,226 @@ fn report(results: &Results, seconds: f64) -> String {
         let _ = writeln!(s, "- {what}: {why}");
     }
     s
+}
+
+/// One run's measured result, as `ntg reproduce --only` compares it.
+#[derive(Debug, Clone, PartialEq)]
+struct Outcome {
+    /// The run folder's name.
+    name: String,
+    /// `(label, success, partial progress)`: one per evaluated group (fig.
+    /// thor_all: per number of objects).
+    measures: Vec<(String, crate::stats::SuccessRate, Option<f64>)>,
+}
+
+impl Outcome {
+    fn new(run: &Path, measures: Vec<(String, crate::stats::SuccessRate, Option<f64>)>) -> Self {
+        Outcome {
+            name: run
+                .file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+            measures,
+        }
+    }
+
+    fn text(&self) -> String {
+        self.measures
+            .iter()
+            .map(|(label, s, partial)| {
+                let mut t = format!("{label}{}/{} = {:.3}", s.successes, s.trials, s.rate);
+                if let Some(p) = partial {
+                    t.push_str(&format!(" (partial {p:.3})"));
+                }
+                t
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+
+    /// Same counts, and partial progress equal to 1e-9.
+    fn matches(&self, other: &Outcome) -> bool {
+        self.measures.len() == other.measures.len()
+            && self.measures.iter().zip(&other.measures).all(|(a, b)| {
+                a.0 == b.0
+                    && (a.1.successes, a.1.trials) == (b.1.successes, b.1.trials)
+                    && match (a.2, b.2) {
+                        (Some(x), Some(y)) => (x - y).abs() < 1e-9,
+                        (x, y) => x.is_none() && y.is_none(),
+                    }
+            })
+    }
+}
+
+fn point_outcome(p: &NtpExpPoint) -> Outcome {
+    Outcome::new(
+        &p.run,
+        vec![(String::new(), p.success, Some(p.goal_fraction))],
+    )
+}
+
+fn sorting_outcome(p: &ablation::SortingPoint) -> Outcome {
+    Outcome::new(
+        &p.run,
+        vec![(String::new(), p.success, Some(p.goal_fraction))],
+    )
+}
+
+fn thor_all_outcome(line: &thor_all::ThorAllLine) -> Outcome {
+    Outcome::new(
+        &line.run,
+        line.points
+            .iter()
+            .map(|p| (format!("N = {}: ", p.objects), p.success, None))
+            .collect(),
+    )
+}
+
+/// Every rollout run's outcome in `results`.
+fn outcomes(results: &Results) -> Vec<Outcome> {
+    let mut all: Vec<Outcome> = results.ntp_exp.iter().map(point_outcome).collect();
+    all.extend(results.ablation.iter().map(point_outcome));
+    all.extend(results.ablation_b.iter().map(sorting_outcome));
+    all.extend(results.thor_all.lines.iter().map(thor_all_outcome));
+    all
+}
+
+/// `ntg reproduce --only NAME...`: trains (or reuses) and evaluates only
+/// the named run folders of the rollout figures (ntp_exp, ablation (a) and
+/// (b), thor_all) at `profile`, and says of each whether it matches the
+/// result committed in `out/results.json`. Writes no figure or report.
+/// Returns one line per run.
+pub fn reproduce_only(
+    profile: Profile,
+    runs: &Path,
+    out: &Path,
+    experiments: Source<'_>,
+    jobs: usize,
+    only: &[String],
+) -> anyhow::Result<Vec<String>> {
+    let ntp_exp_file = ntp_exp::NtpExpExperiment::load(experiments)?;
+    let ablation_file = ablation::load(experiments)?;
+    let ablation_b_file = ablation::AblationBExperiment::load(experiments)?;
+    let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
+    let mut known = ntp_exp_file.run_names(profile);
+    known.extend(ablation_file.run_names(profile));
+    known.extend(
+        ablation_b_file
+            .ablations
+            .iter()
+            .map(|&a| ablation::run_name_b(a)),
+    );
+    known.extend(thor_all_file.methods.iter().map(|&m| thor_all::run_name(m)));
+    if let Some(unknown) = only.iter().find(|name| !known.contains(name)) {
+        anyhow::bail!(
+            "--only {unknown}: no run of that name at profile {profile:?}; its runs are {}",
+            known.join(", ")
+        );
+    }
+    let committed_path = out.join("results.json");
+    let committed: Option<Results> = if committed_path.is_file() {
+        Some(RunDir::read_json(&committed_path)?)
+    } else {
+        None
+    };
+    let only = Some(only);
+    let mut measured: Vec<Outcome> = ntp_exp::run(&ntp_exp_file, profile, runs, jobs, only)?
+        .iter()
+        .map(point_outcome)
+        .collect();
+    measured.extend(
+        ntp_exp::run(&ablation_file, profile, runs, jobs, only)?
+            .iter()
+            .map(point_outcome),
+    );
+    measured.extend(
+        ablation::run_b(&ablation_b_file, profile, runs, jobs, only)?
+            .iter()
+            .map(sorting_outcome),
+    );
+    measured.extend(
+        thor_all::run(&thor_all_file, profile, runs, jobs, only)?
+            .lines
+            .iter()
+            .map(thor_all_outcome),
+    );
+    let committed_outcomes = match &committed {
+        Some(results) if results.profile == profile => outcomes(results),
+        _ => Vec::new(),
+    };
+    Ok(measured
+        .iter()
+        .map(|m| {
+            let verdict = match committed_outcomes.iter().find(|c| c.name == m.name) {
+                Some(c) if c.matches(m) => format!("matches {}", committed_path.display()),
+                Some(c) => format!("DIFFERS from {}: {}", committed_path.display(), c.text()),
+                None => format!(
+                    "no result of this run at profile {profile:?} in {}",
+                    committed_path.display()
+                ),
+            };
+            format!("{}: {} -- {verdict}", m.name, m.text())
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The whole smoke profile end to end, then one run again with
+    /// `--only`, compared with the committed results.
+    #[test]
+    fn the_smoke_profile_writes_every_figure_and_only_reruns_one_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let (runs, out) = (dir.path().join("runs"), dir.path().join("out"));
+        let results = reproduce(Profile::Smoke, &runs, &out, None, Source::BuiltIn, 2).unwrap();
+        for file in [
+            "REPORT.md",
+            "results.json",
+            "ntp_exp.png",
+            "ablation.png",
+            "thor_all.png",
+        ] {
+            assert!(out.join(file).is_file(), "{file}");
+        }
+        assert_eq!(results.ablation.len(), 5);
+        assert_eq!(results.ablation_b.len(), 3);
+        let lines = reproduce_only(
+            Profile::Smoke,
+            &runs,
+            &out,
+            Source::BuiltIn,
+            1,
+            &["ablation_b-no-gcn".to_owned()],
+        )
+        .unwrap();
+        assert_eq!(lines.len(), 1);
+        assert!(lines[0].starts_with("ablation_b-no-gcn: "), "{}", lines[0]);
+        assert!(lines[0].contains("-- matches"), "{}", lines[0]);
+        // A rerun in a fresh runs folder trains it again, to the same result.
+        let lines = reproduce_only(
+            Profile::Smoke,
+            &dir.path().join("fresh"),
+            &out,
+            Source::BuiltIn,
+            1,
+            &["ntp_exp-state-ntp-5".to_owned()],
+        )
+        .unwrap();
+        assert!(lines[0].contains("-- matches"), "{}", lines[0]);
+        let err = reproduce_only(
+            Profile::Smoke,
+            &runs,
+            &out,
+            Source::BuiltIn,
+            1,
+            &["nope".to_owned()],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("--only nope") && err.contains("ntp_exp-state-5"),
+            "{err}"
+        );
+    }
 }

@@ -171,7 +171,7 @@ pub fn figure(args: &FigureArgs, out: &mut impl Write) -> anyhow::Result<()> {
     let profile = serde_json::to_value(args.profile)?;
     let runs = args.runs.join(profile.as_str().unwrap_or("profile"));
     let experiment = thor_all::ThorAllExperiment::load(crate::experiment::Source::BuiltIn)?;
-    let result = thor_all::run(&experiment, args.profile, &runs, 2)?;
+    let result = thor_all::run(&experiment, args.profile, &runs, 2, None)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     thor_all::write_figure(&result, &args.out.join("thor_all"))?;

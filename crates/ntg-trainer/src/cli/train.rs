@@ -75,6 +75,12 @@ pub struct ReproduceArgs {
     /// not depend on it.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u16).range(1..))]
     pub jobs: u16,
+    /// Train (or reuse) and evaluate only these run folders of the rollout
+    /// figures (e.g. `ntp_exp-state-1000,ablation_b-no-gcn`), and say of
+    /// each whether it matches the result in `--out`'s results.json;
+    /// writes no figure or report.
+    #[arg(long, value_name = "RUN", value_delimiter = ',')]
+    pub only: Vec<String>,
 }
 
 /// Runs `ntg reproduce`.
@@ -84,15 +90,34 @@ pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
             .as_str()
             .unwrap_or("profile"),
     );
+    let experiments = match &args.experiments {
+        Some(dir) => crate::experiment::Source::Dir(dir),
+        None => crate::experiment::Source::BuiltIn,
+    };
+    if !args.only.is_empty() {
+        if args.jigsaws_root.is_some() {
+            anyhow::bail!(
+                "--only reruns runs of the rollout figures; fig. jigsaws (--jigsaws-root) is not one"
+            );
+        }
+        for line in crate::reproduce::reproduce_only(
+            args.profile,
+            &runs,
+            &args.out,
+            experiments,
+            usize::from(args.jobs),
+            &args.only,
+        )? {
+            println!("{line}");
+        }
+        return Ok(());
+    }
     let results = crate::reproduce::reproduce(
         args.profile,
         &runs,
         &args.out,
         args.jigsaws_root.as_deref(),
-        match &args.experiments {
-            Some(dir) => crate::experiment::Source::Dir(dir),
-            None => crate::experiment::Source::BuiltIn,
-        },
+        experiments,
         usize::from(args.jobs),
     )?;
     println!(

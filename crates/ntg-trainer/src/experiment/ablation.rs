@@ -297,22 +297,24 @@ pub struct SortingPoint {
 }
 
 /// Trains (or reuses) and evaluates every variant of panel (b) at
-/// `profile`, `jobs` at a time, in folders `ablation_b-VARIANT` under
-/// `runs`.
+/// `profile` (or those whose folders `only` names), `jobs` at a time, in
+/// folders `ablation_b-VARIANT` under `runs`.
 pub fn run_b(
     experiment: &AblationBExperiment,
     profile: Profile,
     runs: &Path,
     jobs: usize,
+    only: Option<&[String]>,
 ) -> anyhow::Result<Vec<SortingPoint>> {
     let scale = experiment.profiles.get(profile);
     let wave: Vec<crate::experiment::Job<'_, SortingPoint>> = experiment
         .ablations
         .iter()
+        .filter(|&&ablation| crate::experiment::selected(only, &run_name_b(ablation)))
         .map(|&ablation| {
             Box::new(move || {
                 let config = experiment.run_config(profile, ablation)?;
-                let name = format!("ablation_b-{}", ablation.name());
+                let name = run_name_b(ablation);
                 let dir = runs.join(&name);
                 let run = RunDir::open_or_create(&dir, &config)?;
                 eprintln!(
@@ -362,6 +364,11 @@ pub fn run_b(
         })
         .collect();
     crate::experiment::in_parallel("ablation (b)", jobs, wave)
+}
+
+/// The run folder name of panel (b)'s `ablation` run.
+pub fn run_name_b(ablation: Variant) -> String {
+    format!("ablation_b-{}", ablation.name())
 }
 
 /// Panel (b)'s trend, checked (Markdown lines).
@@ -512,7 +519,7 @@ mod tests {
         panel.test_tasks = 2;
         panel.ablations = Some(vec![Variant::Full, Variant::NoGcn]);
         let runs = dir.path().join("runs");
-        let points = ntp_exp::run(&experiment, Profile::Smoke, &runs, 2).unwrap();
+        let points = ntp_exp::run(&experiment, Profile::Smoke, &runs, 2, None).unwrap();
         assert_eq!(
             points.iter().map(|p| p.ablation).collect::<Vec<_>>(),
             vec![Variant::Full, Variant::NoGcn]
@@ -544,7 +551,7 @@ mod tests {
                 .is_err()
         );
         let runs = dir.path().join("runs");
-        let points = run_b(&experiment, Profile::Smoke, &runs, 2).unwrap();
+        let points = run_b(&experiment, Profile::Smoke, &runs, 2, None).unwrap();
         assert_eq!(
             points.iter().map(|p| p.ablation).collect::<Vec<_>>(),
             experiment.ablations
@@ -553,7 +560,7 @@ mod tests {
         assert!(points[1].run.ends_with("ablation_b-no-gcn"));
         // Reused, not trained again.
         assert_eq!(
-            run_b(&experiment, Profile::Smoke, &runs, 1).unwrap(),
+            run_b(&experiment, Profile::Smoke, &runs, 1, None).unwrap(),
             points
         );
         let report = report_section_b(&points);

@@ -40,6 +40,12 @@ pub const BUILT_IN: [(&str, &str); 5] = [
     ("jigsaws", include_str!("../../experiments/jigsaws.toml")),
 ];
 
+/// Whether the run folder `name` is among `only` (`ntg reproduce --only`;
+/// `None`: every run).
+pub(crate) fn selected(only: Option<&[String]>, name: &str) -> bool {
+    only.is_none_or(|names| names.iter().any(|n| n == name))
+}
+
 /// One run of a figure, to be started by [`in_parallel`].
 pub(crate) type Job<'a, T> = Box<dyn FnOnce() -> anyhow::Result<T> + Send + 'a>;
 

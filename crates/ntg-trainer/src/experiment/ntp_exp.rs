@@ -186,6 +186,19 @@ impl NtpExpExperiment {
         format!("{name}-{train_tasks}")
     }
 
+    /// The run folder names of the figure at `profile`, in order.
+    pub fn run_names(&self, profile: Profile) -> Vec<String> {
+        let mut names = Vec::new();
+        for panel in &self.profiles.get(profile).panels {
+            for run in self.runs_of(panel) {
+                for &n in &panel.train_tasks {
+                    names.push(self.run_name(panel, run, n));
+                }
+            }
+        }
+        names
+    }
+
     /// Every run configuration of the figure at `profile`, checked.
     pub fn run_configs(&self, profile: Profile) -> anyhow::Result<Vec<BlocksRunConfig>> {
         let mut configs = Vec::new();
@@ -313,14 +326,17 @@ fn is_paper_recipe(recipe: &Recipe) -> bool {
 }
 
 /// Trains (or reuses, or resumes) and evaluates every point of the figure
-/// at `profile`, with run folders under `runs`, `jobs` runs at a time, in
-/// the file's order (the results: state input first). The video baselines that reuse NTG's frame encoder (NTP and NTP Flat) start
-/// after every other run has finished, so that encoder is trained once.
+/// at `profile` (or only the run folders named in `only`), with run folders
+/// under `runs`, `jobs` runs at a time, in the file's order (the results:
+/// state input first). The video baselines that reuse NTG's frame encoder
+/// (NTP and NTP Flat) start after every other run has finished, so that
+/// encoder is trained once.
 pub fn run(
     experiment: &NtpExpExperiment,
     profile: Profile,
     runs: &Path,
     jobs: usize,
+    only: Option<&[String]>,
 ) -> anyhow::Result<Vec<NtpExpPoint>> {
     // Each point with its place in the file's order: panel, method,
     // training tasks.
@@ -328,6 +344,9 @@ pub fn run(
     for scale in &experiment.profiles.get(profile).panels {
         for method in experiment.runs_of(scale) {
             for &n in &scale.train_tasks {
+                if !crate::experiment::selected(only, &experiment.run_name(scale, method, n)) {
+                    continue;
+                }
                 let order = first.len() + after.len();
                 let wave = if reuses_stage_a(scale.obs, method.0) {
                     &mut after
@@ -714,7 +733,7 @@ mod tests {
         panel.epochs = 1;
         panel.test_tasks = 2;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &runs, 1).unwrap();
+        let points = run(&experiment, Profile::Smoke, &runs, 1, None).unwrap();
         assert_eq!(points.len(), 1);
         let p = &points[0];
         assert_eq!(
@@ -726,7 +745,10 @@ mod tests {
         let config: BlocksRunConfig = RunDir::read_json(&p.run.join("config.json")).unwrap();
         assert_eq!(config.method, MethodId::Ntp);
         // A second pass reuses the run and its evaluation.
-        assert_eq!(run(&experiment, Profile::Smoke, &runs, 2).unwrap(), points);
+        assert_eq!(
+            run(&experiment, Profile::Smoke, &runs, 2, None).unwrap(),
+            points
+        );
         // Methods the figure has not are refused before anything runs:
         // the Flat Policy, NTP (Detector) on states.
         let state = &experiment.profiles.smoke.panels[0];
@@ -750,11 +772,11 @@ mod tests {
         panel.epochs = 1;
         panel.test_tasks = 2;
         let runs = dir.path().join("runs");
-        let first = run(&experiment, Profile::Smoke, &runs, 1).unwrap();
+        let first = run(&experiment, Profile::Smoke, &runs, 1, None).unwrap();
         std::fs::write(first[0].run.join("marker"), "trained here").unwrap();
         let mut other = experiment.clone();
         other.name = "other".into();
-        let second = run(&other, Profile::Smoke, &runs, 1).unwrap();
+        let second = run(&other, Profile::Smoke, &runs, 1, None).unwrap();
         assert!(second[0].run.ends_with("other-state-2"));
         assert_eq!(
             std::fs::read_to_string(second[0].run.join("marker")).unwrap(),
@@ -765,7 +787,7 @@ mod tests {
         // Another configuration is trained in its own folder.
         other.name = "third".into();
         other.profiles.smoke.panels[0].epochs = 2;
-        let third = run(&other, Profile::Smoke, &runs, 1).unwrap();
+        let third = run(&other, Profile::Smoke, &runs, 1, None).unwrap();
         assert!(!third[0].run.join("marker").exists());
     }
 
@@ -782,7 +804,7 @@ mod tests {
         panel.train_tasks = vec![2];
         panel.test_tasks = 1;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &runs, 2).unwrap();
+        let points = run(&experiment, Profile::Smoke, &runs, 2, None).unwrap();
         assert_eq!(points.len(), 2);
         let stage = |p: &NtpExpPoint| p.run.join(crate::video::STAGE_A_DIR);
         let weights =
@@ -816,7 +838,7 @@ mod tests {
         panel.train_tasks = vec![2];
         panel.test_tasks = 2;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &runs, 1).unwrap();
+        let points = run(&experiment, Profile::Smoke, &runs, 1, None).unwrap();
         let p = &points[0];
         assert_eq!(
             (p.method, p.obs, p.train_tasks, p.success.trials),
@@ -845,7 +867,10 @@ mod tests {
                 .downcast_ref::<crate::method::ntp_detector::NtpOnDetector>()
                 .is_some()
         );
-        assert_eq!(run(&experiment, Profile::Smoke, &runs, 1).unwrap(), points);
+        assert_eq!(
+            run(&experiment, Profile::Smoke, &runs, 1, None).unwrap(),
+            points
+        );
     }
 
     #[test]

@@ -149,20 +149,26 @@ impl ThorAllExperiment {
     }
 }
 
+/// The run folder name of `method`'s run.
+pub fn run_name(method: MethodId) -> String {
+    format!("thor_all-{}", method.name())
+}
+
 /// Runs fig. "thor_all" at `profile`: trains every method of the
-/// experiment (finished runs under `runs` are reused, interrupted ones
-/// resumed), `jobs` at a time, and evaluates them on unseen tasks with
-/// N = 1..5.
+/// experiment (or those whose run folders `only` names; finished runs
+/// under `runs` are reused, interrupted ones resumed), `jobs` at a time,
+/// and evaluates them on unseen tasks with N = 1..5.
 pub fn run(
     experiment: &ThorAllExperiment,
     profile: Profile,
     runs: &Path,
     jobs: usize,
+    only: Option<&[String]>,
 ) -> anyhow::Result<ThorAllResult> {
     let scale = experiment.profiles.get(profile).clone();
     let line = |method: MethodId| -> anyhow::Result<ThorAllLine> {
         let config = experiment.run_config(profile, method)?;
-        let name = format!("thor_all-{}", method.name());
+        let name = run_name(method);
         let dir = runs.join(&name);
         let run = RunDir::open_or_create(&dir, &config)?;
         eprintln!(
@@ -197,6 +203,7 @@ pub fn run(
         experiment
             .methods
             .iter()
+            .filter(|&&method| crate::experiment::selected(only, &run_name(method)))
             .map(|&method| {
                 Box::new(move || line(method)) as crate::experiment::Job<'_, ThorAllLine>
             })
