@@ -155,6 +155,27 @@ impl StackTask {
             .join(" ")
     }
 
+    /// The task's structure: its goals with the cubes renamed in order of
+    /// first appearance, so `B>A C>B` and `E>D F>E` share one (what a task
+    /// is once cube names are ignored). Each pair is `(src, target)`.
+    pub fn structure_key(&self) -> Vec<(usize, usize)> {
+        let mut names: Vec<usize> = Vec::new();
+        let mut rename = |cube: usize| match names.iter().position(|&n| n == cube) {
+            Some(i) => i,
+            None => {
+                names.push(cube);
+                names.len() - 1
+            }
+        };
+        self.goals
+            .iter()
+            .map(|g| {
+                let src = rename(g.src);
+                (src, rename(g.target))
+            })
+            .collect()
+    }
+
     /// A key equal for tasks with the same end configuration (the same
     /// towers, in any order).
     pub fn configuration_key(&self) -> Vec<Vec<usize>> {
@@ -652,9 +673,157 @@ pub fn validation_tasks(count: usize) -> Result<Vec<StackTask>, BlocksError> {
     Ok(tasks)
 }
 
+/// The seed of [`structure_test_tasks`].
+pub const STRUCTURE_SEED: u64 = 20_190_618;
+
+/// The goals of a task with towers of `composition[i]` goals each (at
+/// least one), built tower by tower bottom-up on the cubes in `cubes`'s
+/// order (as the standard set orders its goals).
+fn tower_goals(composition: &[usize], cubes: &[usize]) -> Vec<Goal> {
+    let mut goals = Vec::new();
+    let mut next = 0;
+    for &g in composition {
+        for w in cubes[next..next + g + 1].windows(2) {
+            goals.push(Goal {
+                src: w[1],
+                target: w[0],
+            });
+        }
+        next += g + 1;
+    }
+    goals
+}
+
+/// `count` block-stacking tasks (ids `struct_0`..) whose structures
+/// ([`StackTask::structure_key`]) no task of `seen` has: towers of any
+/// height (one to seven goals each, at most eight cubes in all), goals
+/// ordered tower by tower bottom-up as in the standard set, drawn from
+/// `seed` uniformly over those unseen structures, cubes assigned by a
+/// random permutation, end configurations distinct. A test of
+/// generalisation to new *structures*: the standard set has 23, all with
+/// towers of two to four cubes, and its training pool holds nearly all of
+/// them; against that pool the unseen ones are the 10 with a tower of five
+/// cubes or more.
+pub fn structure_test_tasks(
+    seen: &[StackTask],
+    count: usize,
+    seed: u64,
+) -> Result<Vec<StackTask>, BlocksError> {
+    fn compositions(prefix: &mut Vec<usize>, cubes_left: usize, out: &mut Vec<Vec<usize>>) {
+        if !prefix.is_empty() {
+            out.push(prefix.clone());
+        }
+        for g in 1..cubes_left {
+            prefix.push(g);
+            compositions(prefix, cubes_left - g - 1, out);
+            prefix.pop();
+        }
+    }
+    let seen: HashSet<_> = seen.iter().map(StackTask::structure_key).collect();
+    let identity: Vec<usize> = (0..NUM_OBJECTS).collect();
+    let mut all = Vec::new();
+    compositions(&mut Vec::new(), NUM_OBJECTS, &mut all);
+    let novel: Vec<Vec<usize>> = all
+        .into_iter()
+        .filter(|c| {
+            let task = StackTask {
+                id: String::new(),
+                goals: tower_goals(c, &identity),
+            };
+            !seen.contains(&task.structure_key())
+        })
+        .collect();
+    if novel.is_empty() {
+        return Err(BlocksError::Generator(
+            "every structure of at most eight cubes is among the seen tasks".into(),
+        ));
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut configurations = HashSet::new();
+    let mut tasks = Vec::with_capacity(count);
+    let mut draws = 0usize;
+    while tasks.len() < count {
+        draws += 1;
+        if draws > count.saturating_mul(50) + 1000 {
+            return Err(BlocksError::Generator(format!(
+                "could not find {count} distinct tasks of unseen structures in {draws} draws"
+            )));
+        }
+        let composition = &novel[rng.random_range(0..novel.len())];
+        let mut cubes = identity.clone();
+        for i in 0..cubes.len() {
+            let j = rng.random_range(i..cubes.len());
+            cubes.swap(i, j);
+        }
+        let task = StackTask::new(
+            format!("struct_{}", tasks.len()),
+            tower_goals(composition, &cubes),
+        )
+        .map_err(BlocksError::Generator)?;
+        if configurations.insert(task.configuration_key()) {
+            tasks.push(task);
+        }
+    }
+    Ok(tasks)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn structure_test_tasks_have_structures_no_seen_task_has() {
+        let split = standard_split().unwrap();
+        let pool: HashSet<_> = split
+            .train_pool
+            .iter()
+            .map(StackTask::structure_key)
+            .collect();
+        let standard: HashSet<_> = standard_tasks()
+            .unwrap()
+            .iter()
+            .map(StackTask::structure_key)
+            .collect();
+        assert_eq!(standard.len(), 23, "the measured count of the README");
+        let tasks = structure_test_tasks(&split.train_pool, 200, STRUCTURE_SEED).unwrap();
+        assert_eq!(tasks.len(), 200);
+        assert_eq!(tasks[3].id, "struct_3");
+        let mut keys = HashSet::new();
+        for t in &tasks {
+            assert!(!pool.contains(&t.structure_key()), "{}", t.describe());
+            assert!(keys.insert(t.configuration_key()), "duplicate {}", t.id);
+        }
+        // Of the 33 structures of at most eight cubes (towers built
+        // bottom-up, one after another) the standard set has the 23 whose
+        // towers have one to three goals; the other 10 each have a tower
+        // of five cubes or more, and 200 draws cover them all.
+        let structures: HashSet<_> = tasks.iter().map(StackTask::structure_key).collect();
+        assert_eq!(structures.len(), 10);
+        assert!(
+            tasks
+                .iter()
+                .all(|t| t.towers().iter().any(|tower| tower.len() >= 5))
+        );
+        assert_eq!(
+            tasks,
+            structure_test_tasks(&split.train_pool, 200, STRUCTURE_SEED).unwrap(),
+            "seeded"
+        );
+        // Renaming cubes keeps a structure.
+        let t = &split.test[0];
+        let renamed = StackTask::new(
+            "r",
+            t.goals
+                .iter()
+                .map(|g| Goal {
+                    src: (g.src + 1) % NUM_OBJECTS,
+                    target: (g.target + 1) % NUM_OBJECTS,
+                })
+                .collect(),
+        )
+        .unwrap();
+        assert_eq!(renamed.structure_key(), t.structure_key());
+    }
 
     #[test]
     fn validation_tasks_are_disjoint_from_the_standard_set() {

@@ -96,6 +96,19 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
     let (code, _, err) = seen("3");
     assert_ne!(code, 0);
     assert!(err.contains("trained on 2 tasks"), "{err}");
+    // Tasks of structures the training pool lacks (a tall tower).
+    let (code, _, err) = ntg(&[
+        "eval",
+        "--run",
+        s(&run),
+        "--split",
+        "structure",
+        "--test-tasks",
+        "2",
+    ]);
+    assert_eq!(code, 0, "{method}: {err}");
+    let structure = json(&run.join(format!("eval/structure-{method}-2.json")));
+    assert_eq!(structure["tasks"][1]["task"], "struct_1", "{structure}");
 
     let out = tmp.path().join("trace");
     let (code, stdout, err) = ntg(&["trace", "--run", s(&run), "--task", "1", "--out", s(&out)]);

@@ -1171,6 +1171,11 @@ impl Seeds {
         demo: SEEN_DEMO_SEED_BASE,
         rollout: SEEN_ROLLOUT_SEED_BASE,
     };
+    /// The structure split's seeds (`ntg eval --split structure`).
+    pub const STRUCTURE: Seeds = Seeds {
+        demo: 80_000_000,
+        rollout: 90_000_000,
+    };
 }
 
 /// The result of evaluating a model on test tasks.
@@ -1734,6 +1739,15 @@ fn eval_split(
                 Seeds::SEEN,
             )
         }
+        crate::domain::EvalSplit::Structure => (
+            "structure-",
+            env_blocks::structure_test_tasks(
+                &env_blocks::standard_split()?.train_pool,
+                flags.test_tasks,
+                env_blocks::STRUCTURE_SEED,
+            )?,
+            Seeds::STRUCTURE,
+        ),
     })
 }
 

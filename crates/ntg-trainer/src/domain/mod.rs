@@ -295,6 +295,11 @@ pub enum EvalSplit {
     /// scenes it never trained on: whether a method does what it was
     /// trained on.
     Seen,
+    /// Block-stacking tasks whose structures (the task once cube names
+    /// are ignored) no task of the standard training pool has: the 10
+    /// structures with a tower of five or more cubes
+    /// (`env_blocks::structure_test_tasks`). Not in the paper.
+    Structure,
 }
 
 /// What the shared loops need to know of a domain.

@@ -390,7 +390,12 @@ impl DomainRuns for Sorting {
 
     fn evaluate(&self, run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()> {
         let config: SortingRunConfig = RunDir::read_json(&run.config_path())?;
-        if flags.edge_threshold.is_some() || flags.split == crate::domain::EvalSplit::Seen {
+        if flags.edge_threshold.is_some()
+            || matches!(
+                flags.split,
+                crate::domain::EvalSplit::Seen | crate::domain::EvalSplit::Structure
+            )
+        {
             bail!("object sorting evaluates --split test or validation, without --edge-threshold");
         }
         let model = load_model(run, &crate::spec::device())?;
