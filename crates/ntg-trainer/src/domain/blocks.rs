@@ -1692,21 +1692,39 @@ impl DomainRuns for Blocks {
     }
 
     fn evaluate(&self, run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()> {
-        let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
-        let device = crate::spec::device();
-        if config.method.is_ntp() {
-            return evaluate_ntp_run(run, &config, flags, &device);
-        }
-        let model = load_trained(run, flags.edge_threshold, &device)?;
-        let mut name = format!("{}-{}", flags.variant.name(), flags.test_tasks);
-        if let Some(t) = flags.edge_threshold {
-            name.push_str(&format!("-threshold{t}"));
-        }
-        let (prefix, tasks, seeds) = eval_split(flags, &config)?;
-        name.insert_str(0, prefix);
-        let result = model.evaluate_tasks(config.failures, &tasks, seeds, flags.variant)?;
+        let (name, result) = evaluate_run(run, flags)?;
         write_eval(run, &name, &result)
     }
+}
+
+/// Evaluates the block-stacking run `run` (NTG or an NTP baseline) as
+/// `ntg eval` with `flags` does, without writing: its result and the name
+/// of its file under `eval/` (without `.json`).
+pub fn evaluate_run(run: &RunDir, flags: &EvalFlags) -> anyhow::Result<(String, EvalResult)> {
+    let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+    let device = crate::spec::device();
+    let (prefix, tasks, seeds) = eval_split(flags, &config)?;
+    if config.method.is_ntp() {
+        if flags.variant != Variant::Full || flags.edge_threshold.is_some() {
+            bail!(
+                "--variant and --edge-threshold choose NTG's policy; {} is a {} run",
+                run.root().display(),
+                config.method.legend()
+            );
+        }
+        let model = load_baseline(run, &config, &device)?;
+        let name = format!("{prefix}{}-{}", config.method.name(), flags.test_tasks);
+        let result =
+            evaluate_ntp_tasks(model.as_ref(), config.obs, config.failures, &tasks, seeds)?;
+        return Ok((name, result));
+    }
+    let model = load_trained(run, flags.edge_threshold, &device)?;
+    let mut name = format!("{prefix}{}-{}", flags.variant.name(), flags.test_tasks);
+    if let Some(t) = flags.edge_threshold {
+        name.push_str(&format!("-threshold{t}"));
+    }
+    let result = model.evaluate_tasks(config.failures, &tasks, seeds, flags.variant)?;
+    Ok((name, result))
 }
 
 /// The tasks and seeds `ntg eval --split` asks for (the first
@@ -1769,28 +1787,6 @@ fn write_eval(run: &RunDir, name: &str, result: &EvalResult) -> anyhow::Result<(
         path.display()
     );
     Ok(())
-}
-
-/// `ntg eval` on an NTP baseline's run: the epoch selected on validation
-/// tasks (else the last checkpoint), on test or validation tasks.
-fn evaluate_ntp_run(
-    run: &RunDir,
-    config: &BlocksRunConfig,
-    flags: &EvalFlags,
-    device: &Device,
-) -> anyhow::Result<()> {
-    if flags.variant != Variant::Full || flags.edge_threshold.is_some() {
-        bail!(
-            "--variant and --edge-threshold choose NTG's policy; {} is a {} run",
-            run.root().display(),
-            config.method.legend()
-        );
-    }
-    let model = load_baseline(run, config, device)?;
-    let (prefix, tasks, seeds) = eval_split(flags, config)?;
-    let name = format!("{prefix}{}-{}", config.method.name(), flags.test_tasks);
-    let result = evaluate_ntp_tasks(model.as_ref(), config.obs, config.failures, &tasks, seeds)?;
-    write_eval(run, &name, &result)
 }
 
 /// Loads the trained model of an NTP baseline's `run` (configuration

@@ -26,6 +26,7 @@ use crate::spec::Profile;
 pub mod ablation;
 pub mod ntp_exp;
 pub mod qualitative;
+pub mod structure;
 pub mod thor_all;
 
 /// The experiment files compiled in: `(name, contents)`.
