@@ -38,7 +38,8 @@ pub fn write_figure(
     sorting: &[SortingPoint],
     stem: &Path,
 ) -> anyhow::Result<()> {
-    let panel = |title: &str, rows: Vec<(Variant, SuccessRate, f64)>, partial: &str| {
+    // (variant, success point at x = 0, partial progress)
+    let panel = |title: &str, rows: Vec<(Variant, Point, f64)>, partial: &str| {
         let x = |i: usize| (i + 1) as f64;
         let legend: Vec<String> = rows
             .iter()
@@ -58,7 +59,7 @@ pub fn write_figure(
                     points: rows
                         .iter()
                         .enumerate()
-                        .map(|(i, r)| Point::success(x(i), &r.1))
+                        .map(|(i, r)| Point { x: x(i), ..r.1 })
                         .collect(),
                 },
                 Series {
@@ -72,13 +73,24 @@ pub fn write_figure(
             ],
         }
     };
-    let a = points
-        .iter()
-        .map(|p| (p.ablation, p.success, p.goal_fraction))
+    // Panel (a): one point per variant, the mean over its seeds.
+    let mut variants: Vec<Variant> = Vec::new();
+    for p in points {
+        if !variants.contains(&p.ablation) {
+            variants.push(p.ablation);
+        }
+    }
+    let a = variants
+        .into_iter()
+        .flat_map(|v| {
+            ntp_exp::by_point(points.iter().filter(move |p| p.ablation == v))
+                .into_iter()
+                .map(move |g| (v, g.success_point(), g.mean(|p| p.goal_fraction)))
+        })
         .collect();
     let b = sorting
         .iter()
-        .map(|p| (p.ablation, p.success, p.goal_fraction))
+        .map(|p| (p.ablation, Point::success(0.0, &p.success), p.goal_fraction))
         .collect();
     crate::figure::write_figure(
         &[
@@ -180,7 +192,7 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
         let _ = writeln!(
             s,
             "| {} | {} | {} |",
-            ntp_exp::curve_name(p.method, p.recipe, p.ablation),
+            ntp_exp::row_name(p),
             ntp_exp::scale_cells(p),
             ntp_exp::outcome_cells(p)
         );

@@ -100,6 +100,12 @@ pub struct PanelScale {
     /// trained whole.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ablations: Option<Vec<Variant>>,
+    /// The seed of this panel's runs (weights and shuffling; default: the
+    /// experiment's `seed`). More seeds of a point are more panels, one
+    /// per seed, whose runs go to `...-seedS` folders and which the figure
+    /// and report combine.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
 }
 
 impl PanelScale {
@@ -157,6 +163,11 @@ impl NtpExpExperiment {
         )
     }
 
+    /// The seed of `panel`'s runs.
+    pub fn seed_of(&self, panel: &PanelScale) -> u64 {
+        panel.seed.unwrap_or(self.seed)
+    }
+
     /// The recipe of `panel`'s runs.
     pub fn recipe_of(&self, panel: &PanelScale) -> Recipe {
         panel.recipe.unwrap_or(self.recipe)
@@ -182,6 +193,10 @@ impl NtpExpExperiment {
         let recipe = self.recipe_of(panel);
         if recipe != self.recipe {
             name = format!("{name}-{}", recipe.name());
+        }
+        let seed = self.seed_of(panel);
+        if seed != self.seed {
+            return format!("{name}-{train_tasks}-seed{seed}");
         }
         format!("{name}-{train_tasks}")
     }
@@ -250,7 +265,13 @@ impl NtpExpExperiment {
             method.name()
         );
         let recipe = self.recipe_of(panel);
-        let base = recipe.config(panel.obs, train_tasks, panel.demos_per_task, 1, self.seed);
+        let base = recipe.config(
+            panel.obs,
+            train_tasks,
+            panel.demos_per_task,
+            1,
+            self.seed_of(panel),
+        );
         let what = self.origin.as_str();
         let config = crate::experiment::with_overrides(&base, &self.overrides, what)?;
         let config = crate::experiment::with_overrides(
@@ -292,6 +313,10 @@ pub struct NtpExpPoint {
     pub recipe: Recipe,
     /// Observation kind of the panel.
     pub obs: ObsKind,
+    /// Seed of the run's weights and shuffling (results written before
+    /// seeds per panel: 0).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub seed: u64,
     /// Training tasks.
     pub train_tasks: usize,
     /// Demonstrations per task.
@@ -315,6 +340,10 @@ pub struct NtpExpPoint {
     pub train_seconds: f64,
     /// Run folder.
     pub run: PathBuf,
+}
+
+fn is_zero(seed: &u64) -> bool {
+    *seed == 0
 }
 
 fn paper_recipe() -> Recipe {
@@ -467,6 +496,7 @@ fn run_point(
         ablation,
         recipe,
         obs,
+        seed: experiment.seed_of(scale),
         train_tasks: n,
         demos_per_task: scale.demos_per_task,
         epochs,
@@ -570,23 +600,21 @@ pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
                     p.obs == obs && (p.method, p.recipe, p.ablation) == (method, recipe, ablation)
                 };
                 let name = curve_name(method, recipe, ablation);
+                let groups = by_point(points.iter().filter(of));
                 [
                     Series {
                         name: format!("{name}: success"),
-                        points: points
-                            .iter()
-                            .filter(of)
-                            .map(|p| Point::success(p.train_tasks as f64, &p.success))
-                            .collect(),
+                        points: groups.iter().map(|g| g.success_point()).collect(),
                     },
                     // Partial progress, so that reduced profiles, where whole
                     // tasks rarely succeed, still show what a model learned.
                     Series {
                         name: format!("{name}: goals met"),
-                        points: points
+                        points: groups
                             .iter()
-                            .filter(of)
-                            .map(|p| Point::exact(p.train_tasks as f64, p.goal_fraction))
+                            .map(|g| {
+                                Point::exact(g.train_tasks as f64, g.mean(|p| p.goal_fraction))
+                            })
                             .collect(),
                     },
                 ]
@@ -601,6 +629,97 @@ pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
         ],
         stem,
     )
+}
+
+/// The seeds of one point of one curve.
+pub(crate) struct SeedGroup<'a> {
+    /// Training tasks of the point.
+    pub train_tasks: usize,
+    /// One point per seed, in the order given.
+    pub seeds: Vec<&'a NtpExpPoint>,
+}
+
+impl SeedGroup<'_> {
+    /// The mean of `value` over the seeds.
+    pub fn mean(&self, value: impl Fn(&NtpExpPoint) -> f64) -> f64 {
+        self.seeds.iter().map(|p| value(p)).sum::<f64>() / self.seeds.len().max(1) as f64
+    }
+
+    /// The figure's success point: one seed's rate with its Wilson
+    /// interval, or the mean over seeds with a bar from the lowest seed's
+    /// interval end to the highest's.
+    pub fn success_point(&self) -> Point {
+        match self.seeds.as_slice() {
+            [one] => Point::success(self.train_tasks as f64, &one.success),
+            many => Point {
+                x: self.train_tasks as f64,
+                y: self.mean(|p| p.success.rate),
+                lo: many.iter().map(|p| p.success.ci_low).fold(1.0, f64::min),
+                hi: many.iter().map(|p| p.success.ci_high).fold(0.0, f64::max),
+            },
+        }
+    }
+}
+
+/// `points` (of one curve) grouped by training tasks, in order of first
+/// appearance.
+pub(crate) fn by_point<'a>(points: impl Iterator<Item = &'a NtpExpPoint>) -> Vec<SeedGroup<'a>> {
+    let mut groups: Vec<SeedGroup<'a>> = Vec::new();
+    for p in points {
+        match groups.iter_mut().find(|g| g.train_tasks == p.train_tasks) {
+            Some(g) => g.seeds.push(p),
+            None => groups.push(SeedGroup {
+                train_tasks: p.train_tasks,
+                seeds: vec![p],
+            }),
+        }
+    }
+    groups
+}
+
+/// The report's lines on points trained with more than one seed: mean and
+/// range of success over the seeds (each seed's row, with its Wilson
+/// interval, is in the table).
+pub(crate) fn seed_spread(points: &[NtpExpPoint]) -> Vec<String> {
+    let mut curves: Vec<(MethodId, Recipe, Variant, ObsKind)> = Vec::new();
+    for p in points {
+        let c = (p.method, p.recipe, p.ablation, p.obs);
+        if !curves.contains(&c) {
+            curves.push(c);
+        }
+    }
+    let mut lines = Vec::new();
+    for (method, recipe, ablation, obs) in curves {
+        let of = points
+            .iter()
+            .filter(|p| (p.method, p.recipe, p.ablation, p.obs) == (method, recipe, ablation, obs));
+        for g in by_point(of).iter().filter(|g| g.seeds.len() > 1) {
+            let rates: Vec<f64> = g.seeds.iter().map(|p| p.success.rate).collect();
+            lines.push(format!(
+                "{} ({obs:?}, {} tasks): success {:.3} on average over seeds {} (from {:.3} to {:.3})",
+                curve_name(method, recipe, ablation),
+                g.train_tasks,
+                g.mean(|p| p.success.rate),
+                g.seeds
+                    .iter()
+                    .map(|p| p.seed.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                rates.iter().copied().fold(1.0, f64::min),
+                rates.iter().copied().fold(0.0, f64::max)
+            ));
+        }
+    }
+    lines
+}
+
+/// A point's name in the report: its curve's, and its seed if not 0.
+pub(crate) fn row_name(p: &NtpExpPoint) -> String {
+    let name = curve_name(p.method, p.recipe, p.ablation);
+    match p.seed {
+        0 => name,
+        seed => format!("{name}, seed {seed}"),
+    }
 }
 
 /// The legend of `method` trained with `recipe` (and without a part, for
@@ -672,7 +791,7 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
         let _ = writeln!(
             s,
             "| {} | {} | {} | {} | {paper} |",
-            curve_name(p.method, p.recipe, p.ablation),
+            row_name(p),
             scale_cells(p),
             if p.permute_objects { "yes" } else { "no" },
             outcome_cells(p)
@@ -683,6 +802,17 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
         "\nThe paper trains with 100 demos per task; the reduced profiles use far fewer demos and optimisation steps, so lower values are expected there. Every point gets at least the profile's minimum number of steps (small training sets get more epochs). \"Goals met\" is the mean fraction of a task's `on_top` constraints that hold at the end: partial progress where whole tasks rarely succeed.\n\n**Model selection (not in the paper).** Each run is scored on held-out validation tasks (end configurations in neither the training pool nor the test set) several times during training, and the best-scoring epoch (\"selected\", counted from 1) is the one evaluated on the test tasks. **The recommended recipe.** Rows marked \"recommended recipe\" are NTG trained with it (item 4b of the figure's issue: on video at the quick profile, the cheapest protocol found that shows NTG learning from frames, see `experiments/ntp_exp.toml`); every other row is the paper's recipe (see below for the settings the figure's file changes in it). `ntg train` by default (`--recipe recommended`) adds five things to the paper's method: cube renaming (every training demo shown with its cubes renamed by a fresh random permutation: state columns, actions and task graph together; never into a held-out task), a fusion layer in the edge classifier, the GCN reading another demo of the task than the one the edge classifier imitates, the edge loss kept out of the GCN, and soft edges. At 1000 tasks x 20 demos x 20 epochs it reaches 0.960 (seed 0) on 200 unseen tasks (README). Its curve over training tasks does not rise either, for the opposite reason: renaming makes each task stand for all its renamings, so 50 tasks are already enough. With 10 demos per task and the same number of steps per point (first 100 test tasks, seed 0, measured outside this profile and before renamings onto held-out tasks were excluded; README), it scored 0.22 / 0.11 / 0.07 / 0.23 at 50 / 100 / 500 / 1000 tasks with about 1250 steps (undertrained, small sets fitting first) and 0.91 / 0.88 / 0.92 / 0.80 with about 3750 steps (882 s of training epochs for the four points on 2 cores shared with other jobs, more than this profile's whole budget). So the figure's curves over training tasks keep the paper's recipe, whose demo interpreter memorises the training sequences at 50 and 100 tasks.\n\n**Recipe.** {recipe_note} The paper's recipe alone (`--recipe paper`) has one hidden layer in the state encoders, no pairwise cube differences, and learning rate {}.\n",
         crate::fit::PAPER_LEARNING_RATE
     );
+    let spread = seed_spread(points);
+    if !spread.is_empty() {
+        let _ = writeln!(
+            s,
+            "**Over seeds.** Points trained with several seeds (the figure shows their mean, with a bar from the lowest seed's interval end to the highest's):\n"
+        );
+        for line in spread {
+            let _ = writeln!(s, "- {line}");
+        }
+        let _ = writeln!(s);
+    }
     s
 }
 
@@ -704,6 +834,7 @@ mod tests {
             recipe: None,
             detector: toml::Table::new(),
             ablations: None,
+            seed: None,
         };
         // 500 demos = 16 steps per epoch -> 63 epochs to reach 1000 steps.
         assert_eq!(scale.epochs_for(50, 32), 63);
@@ -758,6 +889,83 @@ mod tests {
                 .unwrap_err();
             assert!(format!("{err:#}").contains("ntp_exp trains"), "{err:#}");
         }
+    }
+
+    #[test]
+    fn the_paper_profile_has_three_seeds_on_state_and_two_on_video_at_1000_tasks() {
+        let experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let names = experiment.run_names(Profile::Paper);
+        for method in ["", "ntp-", "ntp-flat-"] {
+            for seed in ["", "-seed1", "-seed2"] {
+                let name = format!("ntp_exp-state-{method}1000{seed}");
+                assert!(names.contains(&name), "{name}");
+            }
+        }
+        for method in ["", "ntp-", "ntp-flat-", "ntp-detector-"] {
+            for seed in ["", "-seed1"] {
+                let name = format!("ntp_exp-vid-{method}1000{seed}");
+                assert!(names.contains(&name), "{name}");
+            }
+        }
+        let paper = &experiment.profiles.paper.panels;
+        let seeded = paper.iter().find(|p| p.seed == Some(2)).unwrap();
+        let c = experiment
+            .run_config(Profile::Paper, seeded, (MethodId::Ntp, Variant::Full), 1000)
+            .unwrap();
+        assert_eq!((c.model_seed, c.optim.seed), (2, 2));
+        let ablation =
+            crate::experiment::ablation::load(crate::experiment::Source::BuiltIn).unwrap();
+        assert_eq!(
+            ablation
+                .run_names(Profile::Paper)
+                .iter()
+                .filter(|n| n.contains("no-gcn"))
+                .count(),
+            3
+        );
+    }
+
+    #[test]
+    fn seeds_of_a_point_are_combined_in_the_figure_and_the_report() {
+        let point = |seed: u64, successes: usize| NtpExpPoint {
+            method: MethodId::Ntg,
+            ablation: Variant::Full,
+            recipe: Recipe::Paper,
+            obs: ObsKind::State,
+            seed,
+            train_tasks: 1000,
+            demos_per_task: 10,
+            epochs: 6,
+            selected_epoch: None,
+            permute_objects: false,
+            success: SuccessRate::from_outcomes((0..100).map(|i| i < successes)),
+            goal_fraction: 0.5,
+            train_seconds: 1.0,
+            run: PathBuf::from(format!("run{seed}")),
+        };
+        let points = vec![point(0, 20), point(1, 40), point(2, 30)];
+        let groups = by_point(points.iter());
+        assert_eq!(groups.len(), 1);
+        let p = groups[0].success_point();
+        assert!((p.y - 0.3).abs() < 1e-12);
+        assert_eq!(
+            (p.lo, p.hi),
+            (points[0].success.ci_low, points[1].success.ci_high)
+        );
+        let spread = seed_spread(&points);
+        assert_eq!(
+            spread,
+            vec!["NTG (ours) (State, 1000 tasks): success 0.300 on average over seeds 0, 1, 2 (from 0.200 to 0.400)".to_owned()]
+        );
+        let report = report_section(&points, "");
+        assert!(report.contains("| NTG (ours), seed 1 |"), "{report}");
+        assert!(report.contains("**Over seeds.**"), "{report}");
+        // One seed: its own interval.
+        let one = by_point(points[..1].iter());
+        assert_eq!(
+            one[0].success_point(),
+            Point::success(1000.0, &points[0].success)
+        );
     }
 
     #[test]
