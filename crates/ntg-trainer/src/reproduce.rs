@@ -79,12 +79,16 @@ pub fn reproduce(
     let ablation_file = ablation::load(experiments)?;
     ablation_file.run_configs(profile)?;
     let ablation_b_file = ablation::AblationBExperiment::load(experiments)?;
-    for &variant in &ablation_b_file.ablations {
-        ablation_b_file.run_config(profile, variant)?;
+    for seed in ablation_b_file.seeds(profile) {
+        for &variant in &ablation_b_file.ablations {
+            ablation_b_file.run_config(profile, variant, seed)?;
+        }
     }
     let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
-    for &method in &thor_all_file.methods {
-        thor_all_file.run_config(profile, method)?;
+    for seed in thor_all_file.seeds(profile) {
+        for &method in &thor_all_file.methods {
+            thor_all_file.run_config(profile, method, seed)?;
+        }
     }
     // First, so a wrong --jigsaws-root fails before the long runs.
     let jigsaws = crate::jigsaws::reproduce(profile, jigsaws_root, runs, out, experiments)?;
@@ -290,13 +294,22 @@ pub fn reproduce_only(
     let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
     let mut known = ntp_exp_file.run_names(profile);
     known.extend(ablation_file.run_names(profile));
-    known.extend(
-        ablation_b_file
-            .ablations
-            .iter()
-            .map(|&a| ablation::run_name_b(a)),
-    );
-    known.extend(thor_all_file.methods.iter().map(|&m| thor_all::run_name(m)));
+    for seed in ablation_b_file.seeds(profile) {
+        known.extend(
+            ablation_b_file
+                .ablations
+                .iter()
+                .map(|&a| ablation_b_file.run_name(a, seed)),
+        );
+    }
+    for seed in thor_all_file.seeds(profile) {
+        known.extend(
+            thor_all_file
+                .methods
+                .iter()
+                .map(|&m| thor_all_file.run_name(m, seed)),
+        );
+    }
     if let Some(unknown) = only.iter().find(|name| !known.contains(name)) {
         anyhow::bail!(
             "--only {unknown}: no run of that name at profile {profile:?}; its runs are {}",

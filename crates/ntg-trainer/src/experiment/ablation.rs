@@ -88,9 +88,34 @@ pub fn write_figure(
                 .map(move |g| (v, g.success_point(), g.mean(|p| p.goal_fraction)))
         })
         .collect();
-    let b = sorting
-        .iter()
-        .map(|p| (p.ablation, Point::success(0.0, &p.success), p.goal_fraction))
+    // Panel (b): one point per variant, the mean over its seeds with a bar
+    // over their intervals (one seed: its interval).
+    let mut sorted: Vec<Variant> = Vec::new();
+    for p in sorting {
+        if !sorted.contains(&p.ablation) {
+            sorted.push(p.ablation);
+        }
+    }
+    let b = sorted
+        .into_iter()
+        .map(|v| {
+            let seeds: Vec<&SortingPoint> = sorting.iter().filter(|p| p.ablation == v).collect();
+            let n = seeds.len() as f64;
+            let point = match seeds.as_slice() {
+                [one] => Point::success(0.0, &one.success),
+                many => Point {
+                    x: 0.0,
+                    y: many.iter().map(|p| p.success.rate).sum::<f64>() / n,
+                    lo: many.iter().map(|p| p.success.ci_low).fold(1.0, f64::min),
+                    hi: many.iter().map(|p| p.success.ci_high).fold(0.0, f64::max),
+                },
+            };
+            (
+                v,
+                point,
+                seeds.iter().map(|p| p.goal_fraction).sum::<f64>() / n,
+            )
+        })
         .collect();
     crate::figure::write_figure(
         &[
@@ -239,6 +264,10 @@ pub struct AblationBScale {
     pub validation_episodes: usize,
     /// Test episodes (presorted scenes of the unseen test maps).
     pub test_episodes: usize,
+    /// Seeds trained besides the experiment's `seed` (each variant once
+    /// per seed, in folders `ablation_b-VARIANT-seedS`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub extra_seeds: Vec<u64>,
 }
 
 impl AblationBExperiment {
@@ -250,11 +279,29 @@ impl AblationBExperiment {
         Ok(experiment)
     }
 
-    /// The run configuration of `ablation` at `profile`, checked.
+    /// The seeds of `profile`'s runs: the experiment's, then the extra.
+    pub fn seeds(&self, profile: Profile) -> Vec<u64> {
+        let mut seeds = vec![self.seed];
+        seeds.extend(&self.profiles.get(profile).extra_seeds);
+        seeds
+    }
+
+    /// The run folder name of `ablation` with `seed`.
+    pub fn run_name(&self, ablation: Variant, seed: u64) -> String {
+        if seed == self.seed {
+            format!("ablation_b-{}", ablation.name())
+        } else {
+            format!("ablation_b-{}-seed{seed}", ablation.name())
+        }
+    }
+
+    /// The run configuration of `ablation` with `seed` at `profile`,
+    /// checked.
     pub fn run_config(
         &self,
         profile: Profile,
         ablation: Variant,
+        seed: u64,
     ) -> anyhow::Result<SortingRunConfig> {
         anyhow::ensure!(
             self.domain == DomainId::Sorting,
@@ -267,7 +314,7 @@ impl AblationBExperiment {
             train_tasks: scale.train_tasks,
             demos_per_task: scale.demos_per_task,
             failures: true,
-            model_seed: self.seed,
+            model_seed: seed,
             state_hidden_layers: 3,
             pairwise: true,
             validation_episodes: scale.validation_episodes,
@@ -275,7 +322,7 @@ impl AblationBExperiment {
             ablation,
             optim: crate::fit::OptimConfig {
                 cosine_decay: false,
-                ..crate::fit::OptimConfig::stage(scale.epochs, 32, 3e-3, self.seed, 1)
+                ..crate::fit::OptimConfig::stage(scale.epochs, 32, 3e-3, seed, 1)
             },
         };
         config
@@ -290,6 +337,10 @@ impl AblationBExperiment {
 pub struct SortingPoint {
     /// The part NTG was trained without (`full`: none).
     pub ablation: Variant,
+    /// Seed of the run's weights and shuffling (results written before
+    /// seeds: 0).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub seed: u64,
     /// Training maps, demos per map, epochs.
     pub train_tasks: usize,
     /// Demonstrations per map.
@@ -320,13 +371,16 @@ pub fn run_b(
 ) -> anyhow::Result<Vec<SortingPoint>> {
     let scale = experiment.profiles.get(profile);
     let wave: Vec<crate::experiment::Job<'_, SortingPoint>> = experiment
-        .ablations
-        .iter()
-        .filter(|&&ablation| crate::experiment::selected(only, &run_name_b(ablation)))
-        .map(|&ablation| {
+        .seeds(profile)
+        .into_iter()
+        .flat_map(|seed| experiment.ablations.iter().map(move |&a| (a, seed)))
+        .filter(|&(ablation, seed)| {
+            crate::experiment::selected(only, &experiment.run_name(ablation, seed))
+        })
+        .map(|(ablation, seed)| {
             Box::new(move || {
-                let config = experiment.run_config(profile, ablation)?;
-                let name = run_name_b(ablation);
+                let config = experiment.run_config(profile, ablation, seed)?;
+                let name = experiment.run_name(ablation, seed);
                 let dir = runs.join(&name);
                 let run = RunDir::open_or_create(&dir, &config)?;
                 eprintln!(
@@ -363,6 +417,7 @@ pub fn run_b(
                 );
                 Ok(SortingPoint {
                     ablation,
+                    seed,
                     train_tasks: config.train_tasks,
                     demos_per_task: config.demos_per_task,
                     epochs: config.optim.epochs,
@@ -378,14 +433,14 @@ pub fn run_b(
     crate::experiment::in_parallel("ablation (b)", jobs, wave)
 }
 
-/// The run folder name of panel (b)'s `ablation` run.
-pub fn run_name_b(ablation: Variant) -> String {
-    format!("ablation_b-{}", ablation.name())
+fn is_zero(seed: &u64) -> bool {
+    *seed == 0
 }
 
-/// Panel (b)'s trend, checked (Markdown lines).
+/// Panel (b)'s trend, checked on the first seed's runs (Markdown lines).
 pub fn trend_checks_b(points: &[SortingPoint]) -> Vec<String> {
-    let of = |v: Variant| points.iter().find(|p| p.ablation == v);
+    let first = points.first().map_or(0, |p| p.seed);
+    let of = |v: Variant| points.iter().find(|p| p.ablation == v && p.seed == first);
     let rate = |p: &SortingPoint| {
         format!(
             "{:.3} ({:.3}–{:.3})",
@@ -438,11 +493,17 @@ pub fn report_section_b(points: &[SortingPoint]) -> String {
         let _ = writeln!(
             s,
             "| {} | {} | {} | {} ({}) | {:.0} s | {} | {:.3} ({:.3}–{:.3}) | {:.3} |",
-            ntp_exp::curve_name(
-                crate::method::MethodId::Ntg,
-                crate::blocks::Recipe::Paper,
-                p.ablation
-            ),
+            {
+                let name = ntp_exp::curve_name(
+                    crate::method::MethodId::Ntg,
+                    crate::blocks::Recipe::Paper,
+                    p.ablation,
+                );
+                match p.seed {
+                    0 => name,
+                    seed => format!("{name}, seed {seed}"),
+                }
+            },
             p.train_tasks,
             p.demos_per_task,
             p.epochs,
@@ -554,12 +615,22 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let experiment = AblationBExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
         let quick = experiment
-            .run_config(Profile::Quick, Variant::NoGcn)
+            .run_config(Profile::Quick, Variant::NoGcn, 0)
             .unwrap();
         assert_eq!((quick.train_tasks, quick.optim.epochs), (150, 20));
+        assert_eq!(experiment.seeds(Profile::Quick), vec![0]);
+        assert_eq!(experiment.seeds(Profile::Paper), vec![0, 1, 2]);
+        assert_eq!(
+            experiment.run_name(Variant::NoGcn, 1),
+            "ablation_b-no-gcn-seed1"
+        );
+        let seeded = experiment
+            .run_config(Profile::Paper, Variant::NoGcn, 1)
+            .unwrap();
+        assert_eq!((seeded.model_seed, seeded.optim.seed), (1, 1));
         assert!(
             experiment
-                .run_config(Profile::Quick, Variant::ExecutedNode)
+                .run_config(Profile::Quick, Variant::ExecutedNode, 0)
                 .is_err()
         );
         let runs = dir.path().join("runs");

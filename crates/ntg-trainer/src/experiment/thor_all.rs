@@ -71,6 +71,10 @@ pub struct ThorAllScale {
     pub learning_rate: f64,
     /// Test episodes per N.
     pub test_episodes: usize,
+    /// Seeds trained besides the experiment's `seed` (each method once
+    /// per seed, in folders `thor_all-METHOD-seedS`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub extra_seeds: Vec<u64>,
 }
 
 /// One method's line of fig. "thor_all".
@@ -78,6 +82,10 @@ pub struct ThorAllScale {
 pub struct ThorAllLine {
     /// Which method.
     pub method: MethodId,
+    /// Seed of the run's weights and shuffling (results written before
+    /// seeds: 0).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub seed: u64,
     /// Success per N on unseen tasks.
     pub points: Vec<NPoint>,
     /// Seconds spent in training epochs (summed from the run's
@@ -85,6 +93,10 @@ pub struct ThorAllLine {
     pub train_seconds: f64,
     /// Run folder.
     pub run: PathBuf,
+}
+
+fn is_zero(seed: &u64) -> bool {
+    *seed == 0
 }
 
 /// Fig. "thor_all" (b) as measured (`results.json`).
@@ -106,11 +118,28 @@ impl ThorAllExperiment {
         Ok(experiment)
     }
 
-    /// The run configuration of `method` at `profile`.
+    /// The seeds of `profile`'s runs: the experiment's, then the extra.
+    pub fn seeds(&self, profile: Profile) -> Vec<u64> {
+        let mut seeds = vec![self.seed];
+        seeds.extend(&self.profiles.get(profile).extra_seeds);
+        seeds
+    }
+
+    /// The run folder name of `method` with `seed`.
+    pub fn run_name(&self, method: MethodId, seed: u64) -> String {
+        if seed == self.seed {
+            format!("thor_all-{}", method.name())
+        } else {
+            format!("thor_all-{}-seed{seed}", method.name())
+        }
+    }
+
+    /// The run configuration of `method` with `seed` at `profile`.
     pub fn run_config(
         &self,
         profile: Profile,
         method: MethodId,
+        seed: u64,
     ) -> anyhow::Result<CollectRunConfig> {
         ensure!(
             self.domain == DomainId::Collect,
@@ -134,7 +163,7 @@ impl ThorAllExperiment {
             scale.tasks_per_n,
             scale.demos_per_task,
             epochs,
-            self.seed,
+            seed,
         );
         config.learn_end = scale.learn_end;
         config.memory = scale.memory;
@@ -149,11 +178,6 @@ impl ThorAllExperiment {
     }
 }
 
-/// The run folder name of `method`'s run.
-pub fn run_name(method: MethodId) -> String {
-    format!("thor_all-{}", method.name())
-}
-
 /// Runs fig. "thor_all" at `profile`: trains every method of the
 /// experiment (or those whose run folders `only` names; finished runs
 /// under `runs` are reused, interrupted ones resumed), `jobs` at a time,
@@ -166,9 +190,9 @@ pub fn run(
     only: Option<&[String]>,
 ) -> anyhow::Result<ThorAllResult> {
     let scale = experiment.profiles.get(profile).clone();
-    let line = |method: MethodId| -> anyhow::Result<ThorAllLine> {
-        let config = experiment.run_config(profile, method)?;
-        let name = run_name(method);
+    let line = |method: MethodId, seed: u64| -> anyhow::Result<ThorAllLine> {
+        let config = experiment.run_config(profile, method, seed)?;
+        let name = experiment.run_name(method, seed);
         let dir = runs.join(&name);
         let run = RunDir::open_or_create(&dir, &config)?;
         eprintln!(
@@ -191,6 +215,7 @@ pub fn run(
         }
         Ok(ThorAllLine {
             method,
+            seed,
             points: eval.points,
             train_seconds: run.epoch_seconds()?,
             run: dir,
@@ -201,11 +226,14 @@ pub fn run(
         "thor_all",
         jobs,
         experiment
-            .methods
-            .iter()
-            .filter(|&&method| crate::experiment::selected(only, &run_name(method)))
-            .map(|&method| {
-                Box::new(move || line(method)) as crate::experiment::Job<'_, ThorAllLine>
+            .seeds(profile)
+            .into_iter()
+            .flat_map(|seed| experiment.methods.iter().map(move |&m| (m, seed)))
+            .filter(|&(method, seed)| {
+                crate::experiment::selected(only, &experiment.run_name(method, seed))
+            })
+            .map(|(method, seed)| {
+                Box::new(move || line(method, seed)) as crate::experiment::Job<'_, ThorAllLine>
             })
             .collect(),
     )?;
@@ -233,7 +261,7 @@ pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
             .lines
             .iter()
             .map(|l| Series {
-                name: l.method.legend().into(),
+                name: line_name(l),
                 points: l
                     .points
                     .iter()
@@ -309,12 +337,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
     let _ = writeln!(s);
     let _ = writeln!(s, "|---|---|{}", "---|".repeat(EVAL_OBJECTS.len()));
     for line in &result.lines {
-        let _ = write!(
-            s,
-            "| {} | {:.0} s |",
-            line.method.legend(),
-            line.train_seconds
-        );
+        let _ = write!(s, "| {} | {:.0} s |", line_name(line), line.train_seconds);
         for p in &line.points {
             let _ = write!(
                 s,
@@ -343,11 +366,26 @@ pub fn report_section(result: &ThorAllResult) -> String {
     s
 }
 
+/// A line's legend: the method's, with its seed if not 0.
+fn line_name(line: &ThorAllLine) -> String {
+    match line.seed {
+        0 => line.method.legend().to_owned(),
+        seed => format!("{}, seed {seed}", line.method.legend()),
+    }
+}
+
 /// How NTG's success compares with the Flat Policy's at each N, read off
-/// the measured points: above with disjoint 95% intervals, above within
-/// overlapping intervals, tied, or below. `None` when a method is missing.
+/// the measured points of the first seed: above with disjoint 95%
+/// intervals, above within overlapping intervals, tied, or below. `None`
+/// when a method is missing.
 pub fn comparison_sentence(result: &ThorAllResult) -> Option<String> {
-    let line = |m: MethodId| result.lines.iter().find(|l| l.method == m);
+    let first = result.lines.first()?.seed;
+    let line = |m: MethodId| {
+        result
+            .lines
+            .iter()
+            .find(|l| l.method == m && l.seed == first)
+    };
     let (ntg, flat) = (line(MethodId::Ntg)?, line(MethodId::Flat)?);
     let mut groups: [(&str, Vec<usize>); 4] = [
         ("above, with disjoint 95% intervals", Vec::new()),
@@ -390,6 +428,7 @@ mod tests {
     fn line(method: MethodId, successes: &[usize], trials: usize) -> ThorAllLine {
         ThorAllLine {
             method,
+            seed: 0,
             points: successes
                 .iter()
                 .enumerate()
@@ -402,6 +441,22 @@ mod tests {
             train_seconds: 0.0,
             run: PathBuf::new(),
         }
+    }
+
+    #[test]
+    fn the_paper_profile_trains_each_method_with_three_seeds() {
+        let experiment = ThorAllExperiment::load(Default::default()).unwrap();
+        assert_eq!(experiment.seeds(Profile::Quick), vec![0]);
+        assert_eq!(experiment.seeds(Profile::Paper), vec![0, 1, 2]);
+        assert_eq!(experiment.run_name(MethodId::Ntg, 0), "thor_all-ntg");
+        assert_eq!(
+            experiment.run_name(MethodId::Flat, 2),
+            "thor_all-flat-seed2"
+        );
+        let c = experiment
+            .run_config(Profile::Paper, MethodId::Ntg, 2)
+            .unwrap();
+        assert_eq!((c.model_seed, c.optim.seed), (2, 2));
     }
 
     #[test]
@@ -462,12 +517,12 @@ mod tests {
                 video: None,
             };
             assert_eq!(
-                experiment.run_config(Profile::Quick, method).unwrap(),
+                experiment.run_config(Profile::Quick, method, 0).unwrap(),
                 expected
             );
         }
         let paper = experiment
-            .run_config(Profile::Paper, MethodId::Flat)
+            .run_config(Profile::Paper, MethodId::Flat, 0)
             .unwrap();
         assert_eq!((paper.obs, paper.tasks_per_n), (ObsKind::Vid, 400));
     }
