@@ -281,18 +281,15 @@ impl AblationBExperiment {
 
     /// The seeds of `profile`'s runs: the experiment's, then the extra.
     pub fn seeds(&self, profile: Profile) -> Vec<u64> {
-        let mut seeds = vec![self.seed];
-        seeds.extend(&self.profiles.get(profile).extra_seeds);
-        seeds
+        std::iter::once(self.seed)
+            .chain(self.profiles.get(profile).extra_seeds.iter().copied())
+            .collect()
     }
 
     /// The run folder name of `ablation` with `seed`.
     pub fn run_name(&self, ablation: Variant, seed: u64) -> String {
-        if seed == self.seed {
-            format!("ablation_b-{}", ablation.name())
-        } else {
-            format!("ablation_b-{}-seed{seed}", ablation.name())
-        }
+        let base = format!("ablation_b-{}", ablation.name());
+        crate::experiment::seeded_name(base, seed, self.seed)
     }
 
     /// The run configuration of `ablation` with `seed` at `profile`,

@@ -47,6 +47,16 @@ pub(crate) fn selected(only: Option<&[String]>, name: &str) -> bool {
     only.is_none_or(|names| names.iter().any(|n| n == name))
 }
 
+/// A run folder's name: `base`, with `-seedS` unless `seed` is the
+/// figure's `default` seed (so single-seed folders keep their names).
+pub(crate) fn seeded_name(base: String, seed: u64, default: u64) -> String {
+    if seed == default {
+        base
+    } else {
+        format!("{base}-seed{seed}")
+    }
+}
+
 /// One run of a figure, to be started by [`in_parallel`].
 pub(crate) type Job<'a, T> = Box<dyn FnOnce() -> anyhow::Result<T> + Send + 'a>;
 

@@ -194,11 +194,11 @@ impl NtpExpExperiment {
         if recipe != self.recipe {
             name = format!("{name}-{}", recipe.name());
         }
-        let seed = self.seed_of(panel);
-        if seed != self.seed {
-            return format!("{name}-{train_tasks}-seed{seed}");
-        }
-        format!("{name}-{train_tasks}")
+        crate::experiment::seeded_name(
+            format!("{name}-{train_tasks}"),
+            self.seed_of(panel),
+            self.seed,
+        )
     }
 
     /// The run folder names of the figure at `profile`, in order.

@@ -121,17 +121,14 @@ impl ThorAllExperiment {
     /// The seeds of `profile`'s runs: the experiment's, then the extra.
     pub fn seeds(&self, profile: Profile) -> Vec<u64> {
         let mut seeds = vec![self.seed];
-        seeds.extend(&self.profiles.get(profile).extra_seeds);
+        seeds.extend_from_slice(&self.profiles.get(profile).extra_seeds);
         seeds
     }
 
     /// The run folder name of `method` with `seed`.
     pub fn run_name(&self, method: MethodId, seed: u64) -> String {
-        if seed == self.seed {
-            format!("thor_all-{}", method.name())
-        } else {
-            format!("thor_all-{}-seed{seed}", method.name())
-        }
+        let base = format!("thor_all-{}", method.name());
+        crate::experiment::seeded_name(base, seed, self.seed)
     }
 
     /// The run configuration of `method` with `seed` at `profile`.
