@@ -34,10 +34,17 @@ pub const TRAIN_POOL: usize = 200;
 pub const VALIDATION_TASKS: usize = 16;
 /// Unseen test sorting tasks (the last of the standard list).
 pub const TEST_TASKS: usize = 40;
-/// Step limit of an episode: 16 actions sort the eight objects; grasp
-/// slips and missed drops add retries (block stacking's limit of 40 cut
-/// some expert demos short).
-pub const STEP_LIMIT: usize = 64;
+/// Step limit of an episode in new runs: 16 actions sort the eight
+/// objects; grasp slips and missed drops add retries. Block stacking's
+/// limit of 40 cut expert demos short at 1500 demos, 64 at 20,000 (a map
+/// that sends all eight objects to one bin stacks them two high, and drops
+/// onto the second layer miss more often).
+pub const STEP_LIMIT: usize = 128;
+
+/// The step limit of runs saved before it was in their configuration.
+fn first_step_limit() -> usize {
+    64
+}
 /// Seed base of training demos (demo `j` of task `t`: `+ 1000 t + j`).
 const TRAIN_SEED_BASE: u64 = 5_000_000;
 /// Seed bases of the validation episodes: conditioning demo, rollout
@@ -72,6 +79,10 @@ pub struct SortingRunConfig {
     /// The part of NTG trained and evaluated without (`full` = none).
     #[serde(default, skip_serializing_if = "Variant::is_full")]
     pub ablation: Variant,
+    /// Step limit of every demo and rollout ([`STEP_LIMIT`] in new runs;
+    /// runs saved before it: 64).
+    #[serde(default = "first_step_limit")]
+    pub step_limit: usize,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -105,10 +116,11 @@ pub struct SortingDomain {
 }
 
 impl SortingDomain {
-    /// Sorting, with stochastic failures on or off.
-    pub fn new(failures: bool) -> Self {
+    /// Sorting, with stochastic failures on or off, episodes cut at
+    /// `step_limit` actions.
+    pub fn new(failures: bool, step_limit: usize) -> Self {
         let mut env_config = crate::blocks::env_config(ObsKind::State, failures);
-        env_config.max_steps = Some(STEP_LIMIT);
+        env_config.max_steps = Some(step_limit);
         SortingDomain {
             env_config,
             vocabulary: env_blocks::vocabulary(true, env_blocks::ActionLevel::Flat),
@@ -120,8 +132,8 @@ impl SortingDomain {
     /// The same domain with every observation's frame rendered (for
     /// figures; rendering draws no random numbers, so episodes are
     /// unchanged).
-    pub fn rendering(failures: bool) -> Self {
-        let mut domain = SortingDomain::new(failures);
+    pub fn rendering(failures: bool, step_limit: usize) -> Self {
+        let mut domain = SortingDomain::new(failures, step_limit);
         domain.env_config.render = true;
         domain
     }
@@ -232,7 +244,11 @@ pub fn evaluate(
 ) -> anyhow::Result<SortingResult> {
     let mut model = model.clone();
     model.config.ablation = variant.ablation_of(&model.config.ablation);
-    let records = crate::domain::evaluate(&SortingDomain::new(config.failures), &model, episodes)?;
+    let records = crate::domain::evaluate(
+        &SortingDomain::new(config.failures, config.step_limit),
+        &model,
+        episodes,
+    )?;
     Ok(SortingResult {
         variant: variant.name().to_owned(),
         success: crate::domain::success_rate(&records),
@@ -265,7 +281,7 @@ pub fn train_run(
     config.validate()?;
     let (pool, validation, _) = split()?;
     let tasks = &pool[..config.train_tasks];
-    let domain = SortingDomain::new(config.failures);
+    let domain = SortingDomain::new(config.failures, config.step_limit);
     let dataset = crate::dataset::DemoDataset::load_or_build(&run.dataset_dir(), || {
         crate::domain::record_demos(&domain, tasks, config.demos_per_task, TRAIN_SEED_BASE)
     })?;
@@ -349,6 +365,7 @@ impl DomainRuns for Sorting {
             validation_episodes: own.validation_episodes,
             validate_every: 1,
             ablation: flags.ablation,
+            step_limit: STEP_LIMIT,
             optim: OptimConfig {
                 epochs: flags.epochs,
                 batch_size: flags.batch_size,
@@ -471,7 +488,7 @@ mod tests {
         // What the test episodes ask: the demo (a whole scene) and the
         // expert's own rollout of the presorted scene differ, and the
         // expert completes the latter.
-        let domain = SortingDomain::new(false);
+        let domain = SortingDomain::new(false, STEP_LIMIT);
         let (_, _, test) = split().unwrap();
         let episode = &episodes(&test, 1, TEST_SEEDS)[0];
         let mut env = domain.env(&episode.task).unwrap();
@@ -520,6 +537,7 @@ mod tests {
             validation_episodes: 2,
             validate_every: 1,
             ablation: Variant::NoGcn,
+            step_limit: STEP_LIMIT,
             optim: OptimConfig::stage(2, 4, 3e-3, 0, 1),
         };
         let run = RunDir::create(&dir.path().join("run")).unwrap();

@@ -317,6 +317,7 @@ impl AblationBExperiment {
             validation_episodes: scale.validation_episodes,
             validate_every: 1,
             ablation,
+            step_limit: sorting::STEP_LIMIT,
             optim: crate::fit::OptimConfig {
                 cosine_decay: false,
                 ..crate::fit::OptimConfig::stage(scale.epochs, 32, 3e-3, seed, 1)

@@ -158,7 +158,7 @@ pub fn sorting_trace(
     let model = sorting::load_model(&dir, &crate::spec::device())?;
     let (_, _, test) = sorting::split()?;
     let all = sorting::episodes(&test, episodes, sorting::TEST_SEEDS);
-    let domain = sorting::SortingDomain::rendering(config.failures);
+    let domain = sorting::SortingDomain::rendering(config.failures, config.step_limit);
     let model = crate::method::TrainedPolicy::for_inference(&model);
     for episode in &all {
         let mut frames = Vec::new();
