@@ -39,9 +39,9 @@ pub const TEST_TASKS: usize = 40;
 /// limit of 40 cut expert demos short). Known open defect: among the paper
 /// profile's 20,000 training demos, `sort_31` with seed 5031029 never
 /// finishes, at any limit: after an off-centre drop leaves a cube resting
-/// across two slots of a bin's second layer, the bin slot the expert aims
-/// at looks free to `World::move_point` (a point query at the slot's
-/// centre) while the dropped cube lands on the overhanging one and
+/// near the middle of a bin's second layer, its footprint overlaps all four
+/// slots, so `World::move_point` sees them all equally high and takes the
+/// first; the dropped cube lands on the overhanging one off-centre and
 /// topples off, every time.
 pub const STEP_LIMIT: usize = 128;
 
