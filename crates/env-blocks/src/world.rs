@@ -447,14 +447,50 @@ impl World {
             Target::Object(i) => self.objects.get(i).map(|p| p.truncate()),
             Target::Bin(b) => {
                 let bin = self.bins.get(b)?;
+                // The first slot among the lowest columns. A cube resting
+                // across slots can overlap all four, so that a cube dropped
+                // at any of them lands on its overhang and topples off,
+                // every time: then the lowest place, a slot or the centre of
+                // a cube in the bin, where the held cube would rest without
+                // toppling.
+                let mut slots: Vec<(Vec2, f32)> = bin
+                    .slots()
+                    .into_iter()
+                    .map(|slot| (slot, self.column_top(slot)))
+                    .collect();
                 let mut best: Option<(Vec2, f32)> = None;
-                for slot in bin.slots() {
-                    let h = self.column_top(slot);
+                for &(slot, h) in &slots {
                     if best.is_none_or(|(_, bh)| h < bh - LEVEL_EPS) {
                         best = Some((slot, h));
                     }
                 }
-                best.map(|(s, _)| s)
+                let (first, _) = best?;
+                let Some(held) = self.held else {
+                    return Some(first);
+                };
+                if !self.fall(held, first).2 {
+                    return Some(first);
+                }
+                // Then the cubes resting in the bin: a cube dropped centred
+                // on one rests on it.
+                let centre = bin.centre;
+                slots.extend(
+                    self.objects
+                        .iter()
+                        .enumerate()
+                        .filter(|&(j, q)| {
+                            j != held && footprints_overlap(q.truncate(), centre, BIN_HALF)
+                        })
+                        .map(|(_, q)| (q.truncate(), q.z + CUBE_HALF)),
+                );
+                slots.sort_by(|a, b| a.1.total_cmp(&b.1));
+                Some(
+                    slots
+                        .into_iter()
+                        .map(|(slot, _)| slot)
+                        .find(|&slot| !self.fall(held, slot).2)
+                        .unwrap_or(first),
+                )
             }
         }
     }

@@ -334,3 +334,22 @@ fn the_expert_builds_every_unseen_structure_tall_towers_included() {
     }
     assert_eq!(seen.len(), 10);
 }
+
+#[test]
+fn the_sorting_expert_does_not_livelock_on_a_cube_resting_across_slots() {
+    // sort_31 with seed 5031029: an off-centre drop leaves a cube near the
+    // middle of bin 0's second layer, overlapping all four slots. Aiming
+    // every later drop at the first slot made the cube topple off each
+    // time; the expert now finishes.
+    let task = env_blocks::standard_sort_tasks().unwrap()[31].clone();
+    let mut config = EnvConfig::state_only();
+    config.max_steps = Some(64);
+    let mut env = BlocksEnv::sorting(task, config).unwrap();
+    let demo = record_demonstration(&mut env, &mut BlocksExpert::new(), 5_031_029).unwrap();
+    assert!(env.is_success());
+    assert!(
+        demo.actions().len() <= 40,
+        "{} actions",
+        demo.actions().len()
+    );
+}

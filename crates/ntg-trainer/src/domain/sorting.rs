@@ -36,13 +36,9 @@ pub const VALIDATION_TASKS: usize = 16;
 pub const TEST_TASKS: usize = 40;
 /// Step limit of an episode in new runs: 16 actions sort the eight
 /// objects; grasp slips and missed drops add retries (block stacking's
-/// limit of 40 cut expert demos short). Known open defect: among the paper
-/// profile's 20,000 training demos, `sort_31` with seed 5031029 never
-/// finishes, at any limit: after an off-centre drop leaves a cube resting
-/// near the middle of a bin's second layer, its footprint overlaps all four
-/// slots, so `World::move_point` sees them all equally high and takes the
-/// first; the dropped cube lands on the overhanging one off-centre and
-/// topples off, every time.
+/// limit of 40 cut expert demos short; 64 cut one of the paper profile's
+/// 20,000, which turned out to be a livelock of the bins, since fixed in
+/// env-blocks' `World::move_point`).
 pub const STEP_LIMIT: usize = 128;
 
 /// The step limit of runs saved before it was in their configuration.
