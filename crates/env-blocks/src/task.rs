@@ -526,6 +526,17 @@ pub fn goal_tower_joint() -> Vec<((usize, usize), f64)> {
     cells.into_iter().map(|(c, _)| c).zip(p).collect()
 }
 
+/// The cubes in a random order (a Fisher-Yates shuffle drawn from `rng`):
+/// how task generators assign cubes to the places of a structure.
+fn random_cube_order(rng: &mut ChaCha8Rng) -> Vec<usize> {
+    let mut cubes: Vec<usize> = (0..NUM_OBJECTS).collect();
+    for i in 0..cubes.len() {
+        let j = rng.random_range(i..cubes.len());
+        cubes.swap(i, j);
+    }
+    cubes
+}
+
 /// Generates `count` block-stacking tasks with distinct end configurations,
 /// ids `stack_0`.., from `seed`.
 ///
@@ -559,11 +570,7 @@ pub fn generate_stack_tasks(seed: u64, count: usize) -> Result<Vec<StackTask>, B
         }
         let comps = &cells[cell].1;
         let comp = &comps[rng.random_range(0..comps.len())];
-        let mut cubes: Vec<usize> = (0..NUM_OBJECTS).collect();
-        for i in 0..cubes.len() {
-            let j = rng.random_range(i..cubes.len());
-            cubes.swap(i, j);
-        }
+        let cubes = random_cube_order(&mut rng);
         let mut goals = Vec::new();
         let mut next = 0;
         for &g in comp {
@@ -750,11 +757,7 @@ pub fn structure_test_tasks(
             )));
         }
         let composition = &novel[rng.random_range(0..novel.len())];
-        let mut cubes = identity.clone();
-        for i in 0..cubes.len() {
-            let j = rng.random_range(i..cubes.len());
-            cubes.swap(i, j);
-        }
+        let cubes = random_cube_order(&mut rng);
         let task = StackTask::new(
             format!("struct_{}", tasks.len()),
             tower_goals(composition, &cubes),
