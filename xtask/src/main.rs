@@ -3,7 +3,8 @@
 //! - `reproduce-figures [--profile smoke|quick|paper] [--jigsaws-root DIR]`: regenerates the
 //!   paper's figures by running `ntg reproduce` (crate `ntg-trainer`, release
 //!   build); run folders go to `runs/figures/<profile>/` (finished runs are
-//!   reused), figures, `results.json` and `REPORT.md` to `docs/figures/`.
+//!   reused), figures, `results.json` and `REPORT.md` to `docs/figures/<profile>/`
+//!   (the paper profile's to `docs/figures/`, with its run records).
 //! - `ci`: runs exactly what CI runs (`.ci/run`).
 //! - `soak [--kills N]`: SIGKILLs a small training run N times, resumes it
 //!   to the end and checks it ends exactly as an uninterrupted run
@@ -42,7 +43,7 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Task {
     /// Regenerate the paper's figures, their numbers (results.json) and the
-    /// report under docs/figures/.
+    /// report under docs/figures/<profile>/ (paper: docs/figures/).
     ReproduceFigures {
         /// How much compute to spend.
         #[arg(long, value_enum, default_value_t = Profile::Quick)]
@@ -144,7 +145,7 @@ fn reproduce_figures(profile: Profile, jigsaws_root: Option<PathBuf>) -> anyhow:
             "--",
         ])
         .args(["reproduce", "--profile", profile])
-        .args(["--runs", "runs/figures", "--out", "docs/figures"])
+        .args(["--runs", "runs/figures"])
         .args(&extra)
         .current_dir(&root)
         .status()
@@ -152,7 +153,12 @@ fn reproduce_figures(profile: Profile, jigsaws_root: Option<PathBuf>) -> anyhow:
     if !status.success() {
         bail!("ntg reproduce failed ({status})");
     }
-    println!("figures, results.json and REPORT.md are in docs/figures/");
+    let out = if profile == "paper" {
+        "docs/figures/".to_owned()
+    } else {
+        format!("docs/figures/{profile}/")
+    };
+    println!("figures, results.json and REPORT.md are in {out}");
     Ok(())
 }
 

@@ -328,6 +328,9 @@ where
     }
     drop_lines_from_epoch(&run.metrics_path(), start)?;
     drop_lines_from_epoch(&run.validation_path(), start)?;
+    if start < optim.epochs {
+        crate::record::note_session(run, start)?;
+    }
     let steps_per_epoch = num_examples.div_ceil(optim.batch_size);
     let total_steps = steps_per_epoch * optim.epochs;
     for epoch in start..optim.epochs {

@@ -35,6 +35,7 @@ pub mod figure;
 pub mod fit;
 pub mod jigsaws;
 pub mod method;
+pub mod record;
 pub mod reproduce;
 pub mod run_dir;
 pub mod spec;

@@ -10,9 +10,9 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
-use crate::experiment::Source;
 use crate::experiment::ntp_exp::{self, NtpExpPoint};
 use crate::experiment::thor_all::{self, ThorAllResult};
+use crate::experiment::{Plan, Source};
 use crate::experiment::{ablation, qualitative};
 use crate::run_dir::RunDir;
 
@@ -58,18 +58,20 @@ pub struct Results {
 }
 
 /// Runs every figure this build can make at `profile`, keeping run folders
-/// under `runs` (finished runs are reused, interrupted ones resumed) and
-/// writing figures, `results.json` and `REPORT.md` into `out`. The figures'
-/// runs come from their experiment files in `experiments`. Fig. "jigsaws"
-/// runs on the synthetic stand-in unless `jigsaws_root` names a JIGSAWS
-/// copy. Up to `jobs` runs train at once (each on one thread).
+/// under `plan.runs` (finished runs are reused, interrupted ones resumed,
+/// recorded ones restored: [`Plan`]) and writing figures, `results.json`
+/// and `REPORT.md` into `out`. The figures' runs come from their experiment
+/// files in `experiments`. Fig. "jigsaws" runs on the synthetic stand-in
+/// unless `jigsaws_root` names a JIGSAWS copy; with `plan.train` off it is
+/// read from `out/jigsaws.json`. The report shows each run beside the
+/// same run in `paper` (the committed paper-profile results), if given.
 pub fn reproduce(
     profile: Profile,
-    runs: &Path,
+    plan: &Plan<'_>,
     out: &Path,
     jigsaws_root: Option<&Path>,
     experiments: Source<'_>,
-    jobs: usize,
+    paper: Option<&Results>,
 ) -> anyhow::Result<Results> {
     let started = Instant::now();
     // Read and check every experiment file first, so a bad edit fails
@@ -91,12 +93,32 @@ pub fn reproduce(
         }
     }
     // First, so a wrong --jigsaws-root fails before the long runs.
-    let jigsaws = crate::jigsaws::reproduce(profile, jigsaws_root, runs, out, experiments)?;
-    let points = ntp_exp::run(&ntp_exp_file, profile, runs, jobs, None)?;
-    let ablation_points = ntp_exp::run(&ablation_file, profile, runs, jobs, None)?;
-    let ablation_b = ablation::run_b(&ablation_b_file, profile, runs, jobs, None)?;
-    let structure = crate::experiment::structure::run(&points)?;
+    let jigsaws_saved = out.join("jigsaws.json");
+    let jigsaws = if plan.train {
+        crate::jigsaws::reproduce(profile, jigsaws_root, plan.runs, out, experiments)?
+    } else {
+        RunDir::read_json(&jigsaws_saved).context(
+            "fig. jigsaws is read from its saved result when nothing is trained (--no-train)",
+        )?
+    };
+    // What needs a run's weights, of a run restored from its record, is
+    // taken from the results written before (if of the same run).
+    let before: Option<Results> = RunDir::read_json(&out.join("results.json"))
+        .ok()
+        .filter(|r: &Results| r.profile == profile);
+    let mut not_yet = Vec::new();
+    let points = ntp_exp::run(&ntp_exp_file, profile, plan)?;
+    let ablation_points = ntp_exp::run(&ablation_file, profile, plan)?;
+    let ablation_b = ablation::run_b(&ablation_b_file, profile, plan)?;
+    let structure = crate::experiment::structure::run(&points, plan)?;
     let trace_sorting = match ablation_b.iter().find(|p| p.ablation.is_full()) {
+        Some(p) if crate::record::is_restored(&p.run) => {
+            let kept = before.as_ref().and_then(|b| b.trace_sorting.clone());
+            if kept.is_none() {
+                not_yet.push(weights_needed("trace_sorting", &p.run));
+            }
+            kept
+        }
         Some(p) => {
             qualitative::sorting_trace(&p.run, p.success.trials, &out.join("trace_sorting"))?
         }
@@ -113,10 +135,37 @@ pub fn reproduce(
                 .unwrap_or(std::cmp::Ordering::Equal)
         });
     let trace_blocks = match traced {
+        Some(p) if crate::record::is_restored(&p.run) => {
+            let kept = before.as_ref().and_then(|b| b.trace_blocks.clone());
+            if kept.is_none() {
+                not_yet.push(weights_needed("trace_blocks", &p.run));
+            }
+            kept
+        }
         Some(p) => qualitative::blocks_trace(&p.run, p.success.trials, &out.join("trace_blocks"))?,
         None => None,
     };
-    let thor_all = thor_all::run(&thor_all_file, profile, runs, jobs, None)?;
+    let thor_all = thor_all::run(&thor_all_file, profile, plan)?;
+    let missing = plan
+        .missing
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .clone();
+    if !missing.is_empty() {
+        not_yet.push((
+            format!("{} runs not trained yet", missing.len()),
+            format!(
+                "left out of the figures and tables above: {}",
+                missing.join(", ")
+            ),
+        ));
+    }
+    if profile != Profile::Paper {
+        not_yet.push((
+            "seeds".into(),
+            "one seed per point at this profile; the paper profile has 3 at 1000 tasks, for the ablations and for thor_all (2 on video)".into(),
+        ));
+    }
     let results = Results {
         profile,
         ntp_exp: points,
@@ -131,10 +180,7 @@ pub fn reproduce(
             ("ntp_exp".into(), ntp_exp_file.recipe_note(profile)),
             ("ablation".into(), ablation_file.recipe_note(profile)),
         ],
-        not_yet: vec![(
-            "seeds".into(),
-            "one seed per point; the paper profile's seeds (issue 17 item 5) are not run".into(),
-        )],
+        not_yet,
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     ntp_exp::write_figure(&results.ntp_exp, &out.join("ntp_exp"))?;
@@ -147,13 +193,46 @@ pub fn reproduce(
     RunDir::write_json(&out.join("results.json"), &results)?;
     std::fs::write(
         out.join("REPORT.md"),
-        report(&results, started.elapsed().as_secs_f64()),
+        report(&results, paper, started.elapsed().as_secs_f64()),
     )
     .with_context(|| format!("writing {}", out.join("REPORT.md").display()))?;
     Ok(results)
 }
 
-fn report(results: &Results, seconds: f64) -> String {
+/// A `not_yet` line: `what` needs the weights of `run`, which was restored
+/// from its record.
+fn weights_needed(what: &str, run: &Path) -> (String, String) {
+    (
+        what.into(),
+        format!(
+            "needs the weights of {}, restored from its record; retrain it (`--only`) to draw it",
+            run.display()
+        ),
+    )
+}
+
+/// The report section that puts each run's outcome beside the same run's
+/// at the paper profile (the committed `docs/figures/results.json`).
+fn beside_paper(results: &Results, paper: &Results) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "## Beside the paper profile\n\nEach run of this report beside the run of the same name in the committed paper-profile results (`docs/figures/REPORT.md`), where it has been trained: success (partial progress) on unseen tasks. The paper profile trains on 100 demos per task for 30 epochs and tests on 1000 tasks.\n"
+    );
+    let _ = writeln!(s, "| run | {:?} | paper |\n|---|---|---|", results.profile);
+    let committed = outcomes(paper);
+    for outcome in outcomes(results) {
+        let there = committed
+            .iter()
+            .find(|c| c.name == outcome.name)
+            .map_or_else(|| "not trained yet".to_owned(), Outcome::text);
+        let _ = writeln!(s, "| {} | {} | {there} |", outcome.name, outcome.text());
+    }
+    s.push('\n');
+    s
+}
+
+fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# Reproduced figures\n");
     let _ = writeln!(
@@ -187,6 +266,9 @@ fn report(results: &Results, seconds: f64) -> String {
     ));
     let _ = writeln!(s, "{}", crate::jigsaws::report_section(&results.jigsaws));
     s.push_str(&thor_all::report_section(&results.thor_all));
+    if let Some(paper) = paper {
+        s.push_str(&beside_paper(results, paper));
+    }
     let _ = writeln!(s, "## Not reproduced yet\n");
     for (what, why) in &results.not_yet {
         let _ = writeln!(s, "- {what}: {why}");
@@ -276,18 +358,19 @@ fn outcomes(results: &Results) -> Vec<Outcome> {
 }
 
 /// `ntg reproduce --only NAME...`: trains (or reuses) and evaluates only
-/// the named run folders of the rollout figures (ntp_exp, ablation (a) and
-/// (b), thor_all) at `profile`, and says of each whether it matches the
-/// result committed in `out/results.json`. Writes no figure or report.
-/// Returns one line per run.
+/// the run folders `plan.only` names of the rollout figures (ntp_exp,
+/// ablation (a) and (b), thor_all) at `profile`, and says of each whether
+/// it matches what is committed: its run record where `plan.records` is
+/// set (every episode's outcome; a record is written where none was), else
+/// its result in `out/results.json` (success and partial progress). Writes
+/// no figure or report. Returns one line per run.
 pub fn reproduce_only(
     profile: Profile,
-    runs: &Path,
+    plan: &Plan<'_>,
     out: &Path,
     experiments: Source<'_>,
-    jobs: usize,
-    only: &[String],
 ) -> anyhow::Result<Vec<String>> {
+    let only = plan.only.unwrap_or_default();
     let ntp_exp_file = ntp_exp::NtpExpExperiment::load(experiments)?;
     let ablation_file = ablation::load(experiments)?;
     let ablation_b_file = ablation::AblationBExperiment::load(experiments)?;
@@ -316,29 +399,38 @@ pub fn reproduce_only(
             known.join(", ")
         );
     }
+    // The committed records, read before a run writes its own.
+    let mut recorded = std::collections::BTreeMap::new();
+    if let Some(records) = plan.records {
+        for name in only {
+            let path = crate::record::path(records, name);
+            if path.is_file() {
+                recorded.insert(name.clone(), crate::record::RunRecord::read(&path)?);
+            }
+        }
+    }
     let committed_path = out.join("results.json");
     let committed: Option<Results> = if committed_path.is_file() {
         Some(RunDir::read_json(&committed_path)?)
     } else {
         None
     };
-    let only = Some(only);
-    let mut measured: Vec<Outcome> = ntp_exp::run(&ntp_exp_file, profile, runs, jobs, only)?
+    let mut measured: Vec<Outcome> = ntp_exp::run(&ntp_exp_file, profile, plan)?
         .iter()
         .map(point_outcome)
         .collect();
     measured.extend(
-        ntp_exp::run(&ablation_file, profile, runs, jobs, only)?
+        ntp_exp::run(&ablation_file, profile, plan)?
             .iter()
             .map(point_outcome),
     );
     measured.extend(
-        ablation::run_b(&ablation_b_file, profile, runs, jobs, only)?
+        ablation::run_b(&ablation_b_file, profile, plan)?
             .iter()
             .map(sorting_outcome),
     );
     measured.extend(
-        thor_all::run(&thor_all_file, profile, runs, jobs, only)?
+        thor_all::run(&thor_all_file, profile, plan)?
             .lines
             .iter()
             .map(thor_all_outcome),
@@ -347,20 +439,44 @@ pub fn reproduce_only(
         Some(results) if results.profile == profile => outcomes(results),
         _ => Vec::new(),
     };
-    Ok(measured
+    measured
         .iter()
         .map(|m| {
-            let verdict = match committed_outcomes.iter().find(|c| c.name == m.name) {
-                Some(c) if c.matches(m) => format!("matches {}", committed_path.display()),
-                Some(c) => format!("DIFFERS from {}: {}", committed_path.display(), c.text()),
-                None => format!(
-                    "no result of this run at profile {profile:?} in {}",
-                    committed_path.display()
-                ),
+            let verdict = match plan.records {
+                Some(records) => {
+                    let path = crate::record::path(records, &m.name);
+                    let dir = plan.runs.join(&m.name);
+                    match recorded.get(&m.name) {
+                        Some(_) if crate::record::is_restored(&dir) => format!(
+                            "restored from {} earlier, not retrained: move {} away to retrain it",
+                            path.display(),
+                            dir.display()
+                        ),
+                        Some(record) => {
+                            let now = crate::record::RunRecord::of_run(&dir)?;
+                            if record.same_outcomes(&now) {
+                                format!("matches {} (every episode)", path.display())
+                            } else {
+                                format!("DIFFERS from {}: {}", path.display(), record.summary())
+                            }
+                        }
+                        None => format!("no record before: written to {}", path.display()),
+                    }
+                }
+                None => match committed_outcomes.iter().find(|c| c.name == m.name) {
+                    Some(c) if c.matches(m) => format!("matches {}", committed_path.display()),
+                    Some(c) => {
+                        format!("DIFFERS from {}: {}", committed_path.display(), c.text())
+                    }
+                    None => format!(
+                        "no result of this run at profile {profile:?} in {}",
+                        committed_path.display()
+                    ),
+                },
             };
-            format!("{}: {} -- {verdict}", m.name, m.text())
+            Ok(format!("{}: {} -- {verdict}", m.name, m.text()))
         })
-        .collect())
+        .collect()
 }
 
 #[cfg(test)]
@@ -373,7 +489,13 @@ mod tests {
     fn the_smoke_profile_writes_every_figure_and_only_reruns_one_run() {
         let dir = tempfile::tempdir().unwrap();
         let (runs, out) = (dir.path().join("runs"), dir.path().join("out"));
-        let results = reproduce(Profile::Smoke, &runs, &out, None, Source::BuiltIn, 2).unwrap();
+        let records = dir.path().join("records");
+        let plan = Plan {
+            records: Some(&records),
+            restore: true,
+            ..Plan::train_all(&runs, 2)
+        };
+        let results = reproduce(Profile::Smoke, &plan, &out, None, Source::BuiltIn, None).unwrap();
         for file in [
             "REPORT.md",
             "results.json",
@@ -394,36 +516,111 @@ mod tests {
                 .unwrap()
                 .contains("split by structure")
         );
+        // One record per rollout run.
+        let outcomes = outcomes(&results);
+        assert_eq!(std::fs::read_dir(&records).unwrap().count(), outcomes.len());
+
+        // From the records alone, training nothing, in a fresh folder: the
+        // same outcomes, the structure split and the traces included.
+        let fresh = dir.path().join("from-records");
+        let again = Plan {
+            records: Some(&records),
+            restore: true,
+            train: false,
+            ..Plan::train_all(&fresh, 2)
+        };
+        let restored =
+            reproduce(Profile::Smoke, &again, &out, None, Source::BuiltIn, None).unwrap();
+        assert!(
+            again.missing.lock().unwrap().is_empty(),
+            "{:?}",
+            again.missing
+        );
+        let restored_outcomes = super::outcomes(&restored);
+        assert_eq!(restored_outcomes.len(), outcomes.len());
+        for (a, b) in outcomes.iter().zip(&restored_outcomes) {
+            assert!(a.matches(b), "{} / {}", a.text(), b.text());
+        }
+        assert_eq!(restored.structure.len(), 7);
+        assert_eq!(restored.trace_blocks, results.trace_blocks);
+        // Nothing finished and nothing recorded: every run is listed as
+        // missing, and nothing is trained.
+        let empty_runs = dir.path().join("empty");
+        let none = Plan {
+            train: false,
+            ..Plan::train_all(&empty_runs, 2)
+        };
+        let out_empty = dir.path().join("out-empty");
+        std::fs::create_dir_all(&out_empty).unwrap();
+        std::fs::copy(out.join("jigsaws.json"), out_empty.join("jigsaws.json")).unwrap();
+        let empty = reproduce(
+            Profile::Smoke,
+            &none,
+            &out_empty,
+            None,
+            Source::BuiltIn,
+            Some(&results),
+        )
+        .unwrap();
+        assert!(empty.ntp_exp.is_empty() && empty.thor_all.lines.is_empty());
+        assert_eq!(none.missing.lock().unwrap().len(), outcomes.len());
+        assert!(
+            empty.not_yet[0].0.contains("runs not trained yet"),
+            "{:?}",
+            empty.not_yet
+        );
+        let report = std::fs::read_to_string(out_empty.join("REPORT.md")).unwrap();
+        assert!(report.contains("## Beside the paper profile"), "{report}");
+
+        let only = ["ablation_b-no-gcn".to_owned()];
         let lines = reproduce_only(
             Profile::Smoke,
-            &runs,
+            &Plan {
+                only: Some(&only),
+                ..Plan::train_all(&runs, 1)
+            },
             &out,
             Source::BuiltIn,
-            1,
-            &["ablation_b-no-gcn".to_owned()],
         )
         .unwrap();
         assert_eq!(lines.len(), 1);
         assert!(lines[0].starts_with("ablation_b-no-gcn: "), "{}", lines[0]);
         assert!(lines[0].contains("-- matches"), "{}", lines[0]);
-        // A rerun in a fresh runs folder trains it again, to the same result.
+        // A rerun in a fresh runs folder trains it again, to the same result
+        // (the committed results.json; then its record, episode by episode).
+        let only = ["ntp_exp-state-ntp-5".to_owned()];
         let lines = reproduce_only(
             Profile::Smoke,
-            &dir.path().join("fresh"),
+            &Plan {
+                only: Some(&only),
+                ..Plan::train_all(&dir.path().join("fresh"), 1)
+            },
             &out,
             Source::BuiltIn,
-            1,
-            &["ntp_exp-state-ntp-5".to_owned()],
         )
         .unwrap();
         assert!(lines[0].contains("-- matches"), "{}", lines[0]);
-        let err = reproduce_only(
+        let lines = reproduce_only(
             Profile::Smoke,
-            &runs,
+            &Plan {
+                only: Some(&only),
+                records: Some(&records),
+                ..Plan::train_all(&dir.path().join("fresh-2"), 1)
+            },
             &out,
             Source::BuiltIn,
-            1,
-            &["nope".to_owned()],
+        )
+        .unwrap();
+        assert!(lines[0].contains("(every episode)"), "{}", lines[0]);
+        let only = ["nope".to_owned()];
+        let err = reproduce_only(
+            Profile::Smoke,
+            &Plan {
+                only: Some(&only),
+                ..Plan::train_all(&runs, 1)
+            },
+            &out,
+            Source::BuiltIn,
         )
         .unwrap_err()
         .to_string();

@@ -282,6 +282,24 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         (s(&["train"]), "--out".into()),
         (s(&["eval"]), "--run".into()),
         (s(&["fly"]), "fly".into()),
+        (
+            s(&["reproduce", "--no-train", "--only", "ntp_exp-state-5"]),
+            "--no-train".into(),
+        ),
+        // Nothing to train from and no saved fig. jigsaws.
+        (
+            s(&[
+                "reproduce",
+                "--profile",
+                "smoke",
+                "--no-train",
+                "--runs",
+                &p("no-runs"),
+                "--out",
+                &p("nonempty"),
+            ]),
+            "jigsaws.json".into(),
+        ),
         // Run folders that are not there, or not runs, or damaged.
         (s(&["eval", "--run", &p("missing")]), p("missing")),
         (s(&["eval", "--run", &p("norun")]), "config.json".into()),

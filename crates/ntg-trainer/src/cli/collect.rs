@@ -171,7 +171,11 @@ pub fn figure(args: &FigureArgs, out: &mut impl Write) -> anyhow::Result<()> {
     let profile = serde_json::to_value(args.profile)?;
     let runs = args.runs.join(profile.as_str().unwrap_or("profile"));
     let experiment = thor_all::ThorAllExperiment::load(crate::experiment::Source::BuiltIn)?;
-    let result = thor_all::run(&experiment, args.profile, &runs, 2, None)?;
+    let result = thor_all::run(
+        &experiment,
+        args.profile,
+        &crate::experiment::Plan::train_all(&runs, 2),
+    )?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     thor_all::write_figure(&result, &args.out.join("thor_all"))?;

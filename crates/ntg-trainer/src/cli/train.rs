@@ -58,9 +58,11 @@ pub struct ReproduceArgs {
     /// Where run folders go (finished runs are reused).
     #[arg(long, default_value = "runs/figures")]
     pub runs: PathBuf,
-    /// Where figures, results.json and REPORT.md go.
-    #[arg(long, default_value = "docs/figures")]
-    pub out: PathBuf,
+    /// Where figures, results.json and REPORT.md go (and, at the paper
+    /// profile, the run records under `records/`). Default: `docs/figures`
+    /// for the paper profile, `docs/figures/PROFILE` for the others.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
     /// Run fig. "jigsaws" on this JIGSAWS copy instead of the synthetic
     /// stand-in.
     #[arg(long, value_name = "DIR")]
@@ -81,15 +83,39 @@ pub struct ReproduceArgs {
     /// writes no figure or report.
     #[arg(long, value_name = "RUN", value_delimiter = ',')]
     pub only: Vec<String>,
+    /// Train nothing: draw the figures and write the report from the
+    /// finished runs and (paper profile) the committed run records, and
+    /// list the other runs as not trained yet.
+    #[arg(long, conflicts_with = "only")]
+    pub no_train: bool,
 }
 
 /// Runs `ntg reproduce`.
 pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
-    let runs = args.runs.join(
-        serde_json::to_value(args.profile)?
-            .as_str()
-            .unwrap_or("profile"),
-    );
+    let profile_name = serde_json::to_value(args.profile)?
+        .as_str()
+        .unwrap_or("profile")
+        .to_owned();
+    let runs = args.runs.join(&profile_name);
+    let out = args.out.clone().unwrap_or_else(|| {
+        let figures = PathBuf::from("docs/figures");
+        if args.profile == crate::spec::Profile::Paper {
+            figures
+        } else {
+            figures.join(&profile_name)
+        }
+    });
+    // The paper profile's runs take hours: each finished one is recorded
+    // (committed with the figures), so the profile can be completed over
+    // several sittings, from a fresh clone too.
+    let records = out.join("records");
+    let plan = crate::experiment::Plan {
+        only: (!args.only.is_empty()).then_some(args.only.as_slice()),
+        records: (args.profile == crate::spec::Profile::Paper).then_some(records.as_path()),
+        restore: args.only.is_empty(),
+        train: !args.no_train,
+        ..crate::experiment::Plan::train_all(&runs, usize::from(args.jobs))
+    };
     let experiments = match &args.experiments {
         Some(dir) => crate::experiment::Source::Dir(dir),
         None => crate::experiment::Source::BuiltIn,
@@ -100,29 +126,33 @@ pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
                 "--only reruns runs of the rollout figures; fig. jigsaws (--jigsaws-root) is not one"
             );
         }
-        for line in crate::reproduce::reproduce_only(
-            args.profile,
-            &runs,
-            &args.out,
-            experiments,
-            usize::from(args.jobs),
-            &args.only,
-        )? {
+        for line in crate::reproduce::reproduce_only(args.profile, &plan, &out, experiments)? {
             println!("{line}");
         }
         return Ok(());
     }
+    // The paper profile's committed results, shown beside another
+    // profile's.
+    let paper_results = PathBuf::from("docs/figures/results.json");
+    let paper: Option<crate::reproduce::Results> =
+        if args.profile != crate::spec::Profile::Paper && paper_results.is_file() {
+            Some(crate::run_dir::RunDir::read_json(&paper_results)?)
+        } else {
+            None
+        };
     let results = crate::reproduce::reproduce(
         args.profile,
-        &runs,
-        &args.out,
+        &plan,
+        &out,
         args.jigsaws_root.as_deref(),
         experiments,
-        usize::from(args.jobs),
+        paper
+            .as_ref()
+            .filter(|p| p.profile == crate::spec::Profile::Paper),
     )?;
     println!(
         "wrote {} (figure ntp_exp: {} points)",
-        args.out.display(),
+        out.display(),
         results.ntp_exp.len()
     );
     for (what, why) in &results.not_yet {

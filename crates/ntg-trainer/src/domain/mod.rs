@@ -395,11 +395,15 @@ pub struct EpisodeRecord {
     /// Goals of the task.
     #[serde(default)]
     pub goals: usize,
-    /// The executed actions, by name.
+    /// The executed actions, by name (empty in committed run records:
+    /// [`crate::record`]).
+    #[serde(default)]
     pub trace: Vec<String>,
     /// NTG only: the demo interpreter's transcription of the demo.
+    #[serde(default)]
     pub transcription: Vec<String>,
     /// The expert's actual actions in the conditioning demo.
+    #[serde(default)]
     pub demo_actions: Vec<String>,
 }
 

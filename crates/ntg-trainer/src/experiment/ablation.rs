@@ -363,23 +363,22 @@ pub struct SortingPoint {
 pub fn run_b(
     experiment: &AblationBExperiment,
     profile: Profile,
-    runs: &Path,
-    jobs: usize,
-    only: Option<&[String]>,
+    plan: &crate::experiment::Plan<'_>,
 ) -> anyhow::Result<Vec<SortingPoint>> {
     let scale = experiment.profiles.get(profile);
-    let wave: Vec<crate::experiment::Job<'_, SortingPoint>> = experiment
+    let wave: Vec<crate::experiment::Job<'_, Option<SortingPoint>>> = experiment
         .seeds(profile)
         .into_iter()
         .flat_map(|seed| experiment.ablations.iter().map(move |&a| (a, seed)))
-        .filter(|&(ablation, seed)| {
-            crate::experiment::selected(only, &experiment.run_name(ablation, seed))
-        })
+        .filter(|&(ablation, seed)| plan.selected(&experiment.run_name(ablation, seed)))
         .map(|(ablation, seed)| {
             Box::new(move || {
                 let config = experiment.run_config(profile, ablation, seed)?;
                 let name = experiment.run_name(ablation, seed);
-                let dir = runs.join(&name);
+                let eval_file = format!("full-{}.json", scale.test_episodes);
+                let Some(dir) = plan.prepare(&name, &config, &eval_file)? else {
+                    return Ok(None);
+                };
                 let run = RunDir::open_or_create(&dir, &config)?;
                 eprintln!(
                     "ablation (b) ({}, {} maps x {} demos, {} epochs): training -> {}",
@@ -390,14 +389,14 @@ pub fn run_b(
                     dir.display()
                 );
                 let device = crate::spec::device().autodiff();
-                let model = sorting::train_run(&run, &config, &device, |m| {
-                    eprintln!(
-                        "  [{name}] epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
-                        m.epoch, m.loss, m.token_accuracy, m.step_accuracy
-                    )
-                })?;
-                let (_, _, test) = sorting::split()?;
-                let result = run.cached_eval(&format!("full-{}.json", scale.test_episodes), || {
+                let result = run.cached_eval(&eval_file, || {
+                    let model = sorting::train_run(&run, &config, &device, |m| {
+                        eprintln!(
+                            "  [{name}] epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
+                            m.epoch, m.loss, m.token_accuracy, m.step_accuracy
+                        )
+                    })?;
+                    let (_, _, test) = sorting::split()?;
                     sorting::evaluate(
                         &model,
                         &config,
@@ -405,6 +404,7 @@ pub fn run_b(
                         Variant::Full,
                     )
                 })?;
+                plan.finish(&dir)?;
                 eprintln!(
                     "  [{name}] success on {} part-sorted test scenes: {:.3} ({:.3}-{:.3}); objects sorted {:.3}",
                     result.success.trials,
@@ -413,7 +413,7 @@ pub fn run_b(
                     result.success.ci_high,
                     result.goal_fraction
                 );
-                Ok(SortingPoint {
+                Ok(Some(SortingPoint {
                     ablation,
                     seed,
                     train_tasks: config.train_tasks,
@@ -424,11 +424,16 @@ pub fn run_b(
                     goal_fraction: result.goal_fraction,
                     train_seconds: run.epoch_seconds()?,
                     run: dir,
-                })
+                }))
             }) as crate::experiment::Job<'_, _>
         })
         .collect();
-    crate::experiment::in_parallel("ablation (b)", jobs, wave)
+    Ok(
+        crate::experiment::in_parallel("ablation (b)", plan.jobs, wave)?
+            .into_iter()
+            .flatten()
+            .collect(),
+    )
 }
 
 fn is_zero(seed: &u64) -> bool {
@@ -533,6 +538,7 @@ pub fn report_section_b(points: &[SortingPoint]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::experiment::Plan;
     use crate::spec::Profile;
 
     #[test]
@@ -590,7 +596,7 @@ mod tests {
         panel.test_tasks = 2;
         panel.ablations = Some(vec![Variant::Full, Variant::NoGcn]);
         let runs = dir.path().join("runs");
-        let points = ntp_exp::run(&experiment, Profile::Smoke, &runs, 2, None).unwrap();
+        let points = ntp_exp::run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 2)).unwrap();
         assert_eq!(
             points.iter().map(|p| p.ablation).collect::<Vec<_>>(),
             vec![Variant::Full, Variant::NoGcn]
@@ -632,7 +638,7 @@ mod tests {
                 .is_err()
         );
         let runs = dir.path().join("runs");
-        let points = run_b(&experiment, Profile::Smoke, &runs, 2, None).unwrap();
+        let points = run_b(&experiment, Profile::Smoke, &Plan::train_all(&runs, 2)).unwrap();
         assert_eq!(
             points.iter().map(|p| p.ablation).collect::<Vec<_>>(),
             experiment.ablations
@@ -641,7 +647,7 @@ mod tests {
         assert!(points[1].run.ends_with("ablation_b-no-gcn"));
         // Reused, not trained again.
         assert_eq!(
-            run_b(&experiment, Profile::Smoke, &runs, 1, None).unwrap(),
+            run_b(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap(),
             points
         );
         let report = report_section_b(&points);

@@ -41,10 +41,130 @@ pub const BUILT_IN: [(&str, &str); 5] = [
     ("jigsaws", include_str!("../../experiments/jigsaws.toml")),
 ];
 
-/// Whether the run folder `name` is among `only` (`ntg reproduce --only`;
-/// `None`: every run).
-pub(crate) fn selected(only: Option<&[String]>, name: &str) -> bool {
-    only.is_none_or(|names| names.iter().any(|n| n == name))
+/// How `ntg reproduce` treats the runs of a figure: where their folders
+/// are, how many train at once, which ones, and the committed run records
+/// ([`crate::record`]) it restores and writes.
+#[derive(Debug)]
+pub struct Plan<'a> {
+    /// The folder of the run folders.
+    pub runs: &'a Path,
+    /// Runs trained at once (each on one thread).
+    pub jobs: usize,
+    /// Only these run folders (`--only`); `None`: every run.
+    pub only: Option<&'a [String]>,
+    /// Where run records are kept: a finished run's record is written there
+    /// if none is; with `restore`, a missing run folder whose record is
+    /// there (of the same configuration) is restored from it instead of
+    /// trained.
+    pub records: Option<&'a Path>,
+    /// See `records`.
+    pub restore: bool,
+    /// Whether runs neither finished nor recorded are trained (`false`:
+    /// they are left out and listed in `missing`).
+    pub train: bool,
+    /// The runs left out (neither finished nor recorded, and `train` off).
+    pub missing: std::sync::Mutex<Vec<String>>,
+}
+
+impl<'a> Plan<'a> {
+    /// Every run in `runs`, trained where needed, `jobs` at a time; no
+    /// records.
+    pub fn train_all(runs: &'a Path, jobs: usize) -> Self {
+        Plan {
+            runs,
+            jobs,
+            only: None,
+            records: None,
+            restore: false,
+            train: true,
+            missing: Default::default(),
+        }
+    }
+
+    /// Whether the run folder `name` is among `only`.
+    pub(crate) fn selected(&self, name: &str) -> bool {
+        self.only
+            .is_none_or(|names| names.iter().any(|n| n == name))
+    }
+
+    /// Gets the run folder `name` (of `config`) ready for its figure: if
+    /// it is missing and a record of the same configuration is kept,
+    /// restores it from there. Returns the folder, or `None` (the run noted
+    /// in `missing`) when training is off and the run has no evaluation
+    /// `eval/<eval_file>`.
+    pub(crate) fn prepare(
+        &self,
+        name: &str,
+        config: &impl Serialize,
+        eval_file: &str,
+    ) -> anyhow::Result<Option<std::path::PathBuf>> {
+        let dir = self.runs.join(name);
+        if let (Some(records), true, false) = (self.records, self.restore, dir.exists()) {
+            let path = crate::record::path(records, name);
+            if path.is_file() {
+                let record = crate::record::RunRecord::read(&path)?;
+                // As written to config.json: through text, so that an f32
+                // reads back as the record's number.
+                let written: Value = serde_json::from_str(&serde_json::to_string(config)?)?;
+                if record.config() == Some(&written) {
+                    eprintln!(
+                        "  [{name}] finished earlier: restored from {}",
+                        path.display()
+                    );
+                    record.restore(&dir, &path)?;
+                } else {
+                    eprintln!(
+                        "  [{name}] {} records another configuration: not used",
+                        path.display()
+                    );
+                }
+            }
+        }
+        if !self.train && !dir.join("eval").join(eval_file).is_file() {
+            self.missing
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .push(name.to_owned());
+            return Ok(None);
+        }
+        Ok(Some(dir))
+    }
+
+    /// After a run's evaluations: writes its record where records are kept,
+    /// unless the run was restored from one. A record already there is
+    /// replaced only by one that adds evaluations to the same outcomes;
+    /// one that differs is kept, and a line says so.
+    pub(crate) fn finish(&self, dir: &Path) -> anyhow::Result<()> {
+        let Some(records) = self.records else {
+            return Ok(());
+        };
+        if crate::record::is_restored(dir) {
+            return Ok(());
+        }
+        let record = crate::record::RunRecord::of_run(dir)?;
+        let path = crate::record::path(records, &record.run);
+        if path.is_file() {
+            let kept = crate::record::RunRecord::read(&path)?;
+            let extends = kept
+                .files
+                .iter()
+                .filter(|(p, _)| p.starts_with("eval/") || p.as_str() == "config.json")
+                .all(|(p, v)| record.files.get(p) == Some(v));
+            if !extends {
+                eprintln!(
+                    "  [{}] differs from its record {} (kept; delete it to replace it): {}",
+                    record.run,
+                    path.display(),
+                    record.summary()
+                );
+                return Ok(());
+            }
+            if kept.files.len() >= record.files.len() {
+                return Ok(());
+            }
+        }
+        record.write(&path)
+    }
 }
 
 /// A run folder's name: `base`, with `-seedS` unless `seed` is the

@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::blocks::{self, BlocksRunConfig, Recipe, Variant};
 use crate::domain::DomainId;
+use crate::experiment::Plan;
 use crate::figure::{Panel, Point, Series};
 use crate::method::MethodId;
 use crate::run_dir::RunDir;
@@ -363,9 +364,7 @@ fn is_paper_recipe(recipe: &Recipe) -> bool {
 pub fn run(
     experiment: &NtpExpExperiment,
     profile: Profile,
-    runs: &Path,
-    jobs: usize,
-    only: Option<&[String]>,
+    plan: &Plan<'_>,
 ) -> anyhow::Result<Vec<NtpExpPoint>> {
     // Each point with its place in the file's order: panel, method,
     // training tasks.
@@ -373,7 +372,7 @@ pub fn run(
     for scale in &experiment.profiles.get(profile).panels {
         for method in experiment.runs_of(scale) {
             for &n in &scale.train_tasks {
-                if !crate::experiment::selected(only, &experiment.run_name(scale, method, n)) {
+                if !plan.selected(&experiment.run_name(scale, method, n)) {
                     continue;
                 }
                 let order = first.len() + after.len();
@@ -388,20 +387,20 @@ pub fn run(
     }
     let mut points = Vec::new();
     for wave in [first, after] {
-        let wave: Vec<crate::experiment::Job<'_, (usize, NtpExpPoint)>> = wave
+        let wave: Vec<crate::experiment::Job<'_, Option<(usize, NtpExpPoint)>>> = wave
             .into_iter()
             .map(|(order, scale, method, n)| {
                 Box::new(move || {
-                    run_point(experiment, profile, scale, method, n, runs)
-                        .map(|point| (order, point))
+                    run_point(experiment, profile, scale, method, n, plan)
+                        .map(|point| point.map(|point| (order, point)))
                 }) as crate::experiment::Job<'_, _>
             })
             .collect();
-        points.extend(crate::experiment::in_parallel(
-            &experiment.name,
-            jobs,
-            wave,
-        )?);
+        points.extend(
+            crate::experiment::in_parallel(&experiment.name, plan.jobs, wave)?
+                .into_iter()
+                .flatten(),
+        );
     }
     // State input first, then each input in the file's order (a long run
     // may be listed first so that it starts first).
@@ -421,13 +420,14 @@ fn run_point(
     scale: &PanelScale,
     (method, ablation): (MethodId, Variant),
     n: usize,
-    runs: &Path,
-) -> anyhow::Result<NtpExpPoint> {
+    plan: &Plan<'_>,
+) -> anyhow::Result<Option<NtpExpPoint>> {
     let config = experiment.run_config(profile, scale, (method, ablation), n)?;
     let obs = scale.obs;
     let epochs = config.optim.epochs;
     let recipe = experiment.recipe_of(scale);
     let name = experiment.run_name(scale, (method, ablation), n);
+    let runs = plan.runs;
     let dir = runs.join(&name);
     if !dir.exists()
         && let Some(twin) = finished_twin(runs, &config)?
@@ -438,6 +438,14 @@ fn run_point(
         );
         crate::run_dir::link_or_copy_tree(&twin, &dir)?;
     }
+    let eval_file = if method.is_ntg() {
+        format!("full-{}.json", scale.test_tasks)
+    } else {
+        format!("{}-{}.json", method.name(), scale.test_tasks)
+    };
+    let Some(dir) = plan.prepare(&name, &config, &eval_file)? else {
+        return Ok(None);
+    };
     let run = RunDir::open_or_create(&dir, &config)?;
     if reuses_stage_a(obs, method) {
         share_stage_a(
@@ -460,28 +468,28 @@ fn run_point(
         dir.display()
     );
     let device = crate::spec::device().autodiff();
-    let result = if method.is_ntg() {
-        let model = blocks::train_run(&run, &config, &device, |m| {
-            eprintln!(
-                "  [{name}] epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
-                m.epoch, m.loss, m.token_accuracy, m.step_accuracy
-            )
-        })?;
-        run.cached_eval(&format!("full-{}.json", scale.test_tasks), || {
+    // Trained (or its finished training loaded) only when the evaluation
+    // is not saved yet.
+    let result = run.cached_eval(&eval_file, || {
+        if method.is_ntg() {
+            let model = blocks::train_run(&run, &config, &device, |m| {
+                eprintln!(
+                    "  [{name}] epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
+                    m.epoch, m.loss, m.token_accuracy, m.step_accuracy
+                )
+            })?;
             model.evaluate(config.failures, scale.test_tasks, Variant::Full)
-        })?
-    } else {
-        let model = blocks::train_ntp_run(&run, &config, &device, |m| {
-            eprintln!(
-                "  [{name}] epoch {:>3}: loss {:.3}, programs {:.3}, arguments {:.3}",
-                m.epoch, m.loss, m.program_accuracy, m.argument_accuracy
-            )
-        })?;
-        run.cached_eval(
-            &format!("{}-{}.json", method.name(), scale.test_tasks),
-            || blocks::evaluate_ntp(model.as_ref(), obs, config.failures, scale.test_tasks),
-        )?
-    };
+        } else {
+            let model = blocks::train_ntp_run(&run, &config, &device, |m| {
+                eprintln!(
+                    "  [{name}] epoch {:>3}: loss {:.3}, programs {:.3}, arguments {:.3}",
+                    m.epoch, m.loss, m.program_accuracy, m.argument_accuracy
+                )
+            })?;
+            blocks::evaluate_ntp(model.as_ref(), obs, config.failures, scale.test_tasks)
+        }
+    })?;
+    plan.finish(&dir)?;
     let train_seconds = run.epoch_seconds()?;
     eprintln!(
         "  [{name}] success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}",
@@ -491,7 +499,7 @@ fn run_point(
         result.success.ci_high,
         result.mean_goal_fraction
     );
-    Ok(NtpExpPoint {
+    Ok(Some(NtpExpPoint {
         method,
         ablation,
         recipe,
@@ -506,7 +514,7 @@ fn run_point(
         goal_fraction: result.mean_goal_fraction,
         train_seconds,
         run: dir,
-    })
+    }))
 }
 
 /// A finished run folder under `runs` with exactly `config` (another
@@ -864,7 +872,7 @@ mod tests {
         panel.epochs = 1;
         panel.test_tasks = 2;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &runs, 1, None).unwrap();
+        let points = run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
         assert_eq!(points.len(), 1);
         let p = &points[0];
         assert_eq!(
@@ -877,7 +885,7 @@ mod tests {
         assert_eq!(config.method, MethodId::Ntp);
         // A second pass reuses the run and its evaluation.
         assert_eq!(
-            run(&experiment, Profile::Smoke, &runs, 2, None).unwrap(),
+            run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 2)).unwrap(),
             points
         );
         // Methods the figure has not are refused before anything runs:
@@ -980,11 +988,11 @@ mod tests {
         panel.epochs = 1;
         panel.test_tasks = 2;
         let runs = dir.path().join("runs");
-        let first = run(&experiment, Profile::Smoke, &runs, 1, None).unwrap();
+        let first = run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
         std::fs::write(first[0].run.join("marker"), "trained here").unwrap();
         let mut other = experiment.clone();
         other.name = "other".into();
-        let second = run(&other, Profile::Smoke, &runs, 1, None).unwrap();
+        let second = run(&other, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
         assert!(second[0].run.ends_with("other-state-2"));
         assert_eq!(
             std::fs::read_to_string(second[0].run.join("marker")).unwrap(),
@@ -995,7 +1003,7 @@ mod tests {
         // Another configuration is trained in its own folder.
         other.name = "third".into();
         other.profiles.smoke.panels[0].epochs = 2;
-        let third = run(&other, Profile::Smoke, &runs, 1, None).unwrap();
+        let third = run(&other, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
         assert!(!third[0].run.join("marker").exists());
     }
 
@@ -1012,7 +1020,7 @@ mod tests {
         panel.train_tasks = vec![2];
         panel.test_tasks = 1;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &runs, 2, None).unwrap();
+        let points = run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 2)).unwrap();
         assert_eq!(points.len(), 2);
         let stage = |p: &NtpExpPoint| p.run.join(crate::video::STAGE_A_DIR);
         let weights =
@@ -1046,7 +1054,7 @@ mod tests {
         panel.train_tasks = vec![2];
         panel.test_tasks = 2;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &runs, 1, None).unwrap();
+        let points = run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
         let p = &points[0];
         assert_eq!(
             (p.method, p.obs, p.train_tasks, p.success.trials),
@@ -1076,7 +1084,7 @@ mod tests {
                 .is_some()
         );
         assert_eq!(
-            run(&experiment, Profile::Smoke, &runs, 1, None).unwrap(),
+            run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap(),
             points
         );
     }

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::blocks::{EvalResult, Recipe};
 use crate::domain::{EvalFlags, EvalSplit};
+use crate::experiment::Plan;
 use crate::experiment::ntp_exp::{NtpExpPoint, curve_name};
 use crate::method::MethodId;
 use crate::run_dir::RunDir;
@@ -42,7 +43,11 @@ pub struct StructurePoint {
 /// with the most training tasks on as many structure-split tasks as it
 /// had test tasks (cached in the run's `eval/structure-*.json`, the file
 /// `ntg eval --split structure` writes).
-pub fn run(points: &[NtpExpPoint]) -> anyhow::Result<Vec<StructurePoint>> {
+///
+/// A run restored from its record (no weights) is scored only if its
+/// record holds that evaluation; the evaluations made here are added to
+/// the runs' records (`plan`).
+pub fn run(points: &[NtpExpPoint], plan: &Plan<'_>) -> anyhow::Result<Vec<StructurePoint>> {
     let mut largest: Vec<&NtpExpPoint> = Vec::new();
     for p in points.iter().filter(|p| p.ablation.is_full()) {
         let same = |q: &&NtpExpPoint| (q.method, q.recipe, q.obs) == (p.method, p.recipe, p.obs);
@@ -52,47 +57,55 @@ pub fn run(points: &[NtpExpPoint]) -> anyhow::Result<Vec<StructurePoint>> {
             None => largest.push(p),
         }
     }
-    largest
-        .into_iter()
-        .map(|p| {
-            let run = RunDir::open(&p.run)?;
-            let n = p.success.trials;
-            let flags = EvalFlags {
-                device: crate::spec::DeviceKind::Cpu,
-                run: p.run.clone(),
-                test_tasks: n,
-                variant: crate::method::ntg::Variant::Full,
-                edge_threshold: None,
-                split: EvalSplit::Structure,
-            };
-            let who = if p.method.is_ntg() {
-                "full"
-            } else {
-                p.method.name()
-            };
-            let result: EvalResult = run.cached_eval(&format!("structure-{who}-{n}.json"), || {
-                crate::blocks::evaluate_run(&run, &flags).map(|(_, result)| result)
-            })?;
+    let mut scored = Vec::new();
+    for p in largest {
+        let run = RunDir::open(&p.run)?;
+        let n = p.success.trials;
+        let flags = EvalFlags {
+            device: crate::spec::DeviceKind::Cpu,
+            run: p.run.clone(),
+            test_tasks: n,
+            variant: crate::method::ntg::Variant::Full,
+            edge_threshold: None,
+            split: EvalSplit::Structure,
+        };
+        let who = if p.method.is_ntg() {
+            "full"
+        } else {
+            p.method.name()
+        };
+        let file = format!("structure-{who}-{n}.json");
+        if crate::record::is_restored(&p.run) && !run.eval_dir().join(&file).is_file() {
             eprintln!(
-                "structure split [{}]: success {:.3} ({:.3}-{:.3}) on {n} tasks (standard test tasks: {:.3})",
-                p.run.display(),
-                result.success.rate,
-                result.success.ci_low,
-                result.success.ci_high,
-                p.success.rate
+                "structure split [{}]: not in its record, and it has no weights: left out",
+                p.run.display()
             );
-            Ok(StructurePoint {
-                method: p.method,
-                recipe: p.recipe,
-                obs: p.obs,
-                train_tasks: p.train_tasks,
-                standard: p.success,
-                success: result.success,
-                goal_fraction: result.mean_goal_fraction,
-                run: p.run.clone(),
-            })
-        })
-        .collect()
+            continue;
+        }
+        let result: EvalResult = run.cached_eval(&file, || {
+            crate::blocks::evaluate_run(&run, &flags).map(|(_, result)| result)
+        })?;
+        plan.finish(&p.run)?;
+        eprintln!(
+            "structure split [{}]: success {:.3} ({:.3}-{:.3}) on {n} tasks (standard test tasks: {:.3})",
+            p.run.display(),
+            result.success.rate,
+            result.success.ci_low,
+            result.success.ci_high,
+            p.success.rate
+        );
+        scored.push(StructurePoint {
+            method: p.method,
+            recipe: p.recipe,
+            obs: p.obs,
+            train_tasks: p.train_tasks,
+            standard: p.success,
+            success: result.success,
+            goal_fraction: result.mean_goal_fraction,
+            run: p.run.clone(),
+        });
+    }
+    Ok(scored)
 }
 
 /// The report section (Markdown).

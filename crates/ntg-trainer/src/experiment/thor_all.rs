@@ -182,15 +182,16 @@ impl ThorAllExperiment {
 pub fn run(
     experiment: &ThorAllExperiment,
     profile: Profile,
-    runs: &Path,
-    jobs: usize,
-    only: Option<&[String]>,
+    plan: &crate::experiment::Plan<'_>,
 ) -> anyhow::Result<ThorAllResult> {
     let scale = experiment.profiles.get(profile).clone();
-    let line = |method: MethodId, seed: u64| -> anyhow::Result<ThorAllLine> {
+    let line = |method: MethodId, seed: u64| -> anyhow::Result<Option<ThorAllLine>> {
         let config = experiment.run_config(profile, method, seed)?;
         let name = experiment.run_name(method, seed);
-        let dir = runs.join(&name);
+        let eval_file = format!("collect-{}.json", scale.test_episodes);
+        let Some(dir) = plan.prepare(&name, &config, &eval_file)? else {
+            return Ok(None);
+        };
         let run = RunDir::open_or_create(&dir, &config)?;
         eprintln!(
             "thor_all ({}): training -> {}",
@@ -198,42 +199,45 @@ pub fn run(
             dir.display()
         );
         let device = crate::spec::device().autodiff();
-        let model = train_run(&run, &config, &device, |line| {
-            eprintln!("  [{name}] {line}")
-        })?;
-        let eval = run.cached_eval(&format!("collect-{}.json", scale.test_episodes), || {
+        let eval = run.cached_eval(&eval_file, || {
+            let model = train_run(&run, &config, &device, |line| {
+                eprintln!("  [{name}] {line}")
+            })?;
             evaluate(model.as_ref(), &config, &EVAL_OBJECTS, scale.test_episodes)
         })?;
+        plan.finish(&dir)?;
         for p in &eval.points {
             eprintln!(
                 "  [{name}] N = {}: success {:.3} ({:.3}-{:.3})",
                 p.objects, p.success.rate, p.success.ci_low, p.success.ci_high
             );
         }
-        Ok(ThorAllLine {
+        Ok(Some(ThorAllLine {
             method,
             seed,
             points: eval.points,
             train_seconds: run.epoch_seconds()?,
             run: dir,
-        })
+        }))
     };
     let line = &line;
     let lines = crate::experiment::in_parallel(
         "thor_all",
-        jobs,
+        plan.jobs,
         experiment
             .seeds(profile)
             .into_iter()
             .flat_map(|seed| experiment.methods.iter().map(move |&m| (m, seed)))
-            .filter(|&(method, seed)| {
-                crate::experiment::selected(only, &experiment.run_name(method, seed))
-            })
+            .filter(|&(method, seed)| plan.selected(&experiment.run_name(method, seed)))
             .map(|(method, seed)| {
-                Box::new(move || line(method, seed)) as crate::experiment::Job<'_, ThorAllLine>
+                Box::new(move || line(method, seed))
+                    as crate::experiment::Job<'_, Option<ThorAllLine>>
             })
             .collect(),
-    )?;
+    )?
+    .into_iter()
+    .flatten()
+    .collect();
     Ok(ThorAllResult {
         scale,
         train_objects: experiment.train_objects.clone(),

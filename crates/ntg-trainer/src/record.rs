@@ -1,0 +1,404 @@
+//! Run records: what `ntg reproduce --profile paper` commits of each
+//! finished run, so that a profile of many hours can be completed across
+//! sittings and checked point by point from a fresh clone.
+//!
+//! A record is one small JSON file, `<out>/records/<run>.json`: the run
+//! folder's configuration, training metrics (with each epoch's seconds),
+//! validation scores, model selection and evaluations (each episode's
+//! outcome, without the per-step traces), plus the commit and machine that
+//! produced it. It holds no weights and no dataset. Restored into a run
+//! folder it makes that run count as finished and evaluated: the figures
+//! and the report read it as they read a run trained here; only what needs
+//! the weights (a qualitative trace, an evaluation not recorded) is
+//! skipped, and says so.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use crate::run_dir::RunDir;
+
+/// The record format written by this build.
+pub const FORMAT: u32 = 1;
+
+/// The file a restored run folder holds instead of weights: the record's
+/// path.
+pub const RESTORED_MARKER: &str = "restored-from-record.txt";
+
+/// Folders of a run whose files are not recorded (regenerated from seeds,
+/// or figures).
+const SKIPPED_DIRS: [&str; 3] = ["dataset", "embeddings", "qualitative"];
+
+/// Per-episode fields dropped from recorded evaluations (long; the
+/// qualitative figures, which need them, need the weights too).
+const DROPPED_FIELDS: [&str; 3] = ["trace", "transcription", "demo_actions"];
+
+/// One finished run, as committed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunRecord {
+    /// [`FORMAT`] when written.
+    pub format: u32,
+    /// The run folder's name.
+    pub run: String,
+    /// The commit of the checkout that wrote the record (`-dirty` with
+    /// changes to tracked files; `unknown` outside a git checkout). Where
+    /// and with what each stretch of training ran is the run's
+    /// `sessions.jsonl` ([`note_session`]).
+    pub commit: String,
+    /// The CPU and thread count of the machine that wrote it.
+    pub machine: String,
+    /// The run folder's small files by relative path (`/`-separated):
+    /// `.json` files as JSON, `.jsonl` files as arrays of their lines.
+    pub files: BTreeMap<String, Value>,
+}
+
+impl RunRecord {
+    /// The record of the run folder `dir`.
+    pub fn of_run(dir: &Path) -> anyhow::Result<Self> {
+        let mut files = BTreeMap::new();
+        collect(dir, dir, &mut files)?;
+        if !files.contains_key("config.json") {
+            bail!("{} is not a run folder: no config.json", dir.display());
+        }
+        Ok(RunRecord {
+            format: FORMAT,
+            run: dir
+                .file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+            commit: commit(),
+            machine: machine(),
+            files,
+        })
+    }
+
+    /// Reads a record, checking its format.
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let record: RunRecord = RunDir::read_json(path)?;
+        if record.format != FORMAT {
+            bail!(
+                "{}: record format {} (this build reads {FORMAT})",
+                path.display(),
+                record.format
+            );
+        }
+        Ok(record)
+    }
+
+    /// Writes it compactly (records of 1000 episodes stay near 100 kB).
+    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent)
+                .with_context(|| format!("creating {}", parent.display()))?;
+        }
+        let text = serde_json::to_string(self)?;
+        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))
+    }
+
+    /// The run configuration it was trained with.
+    pub fn config(&self) -> Option<&Value> {
+        self.files.get("config.json")
+    }
+
+    /// Writes its files into the new folder `dir` (which must not exist),
+    /// checkpoint progress before evaluations so that these count as
+    /// belonging to the final weights, and marks it restored.
+    pub fn restore(&self, dir: &Path, from: &Path) -> anyhow::Result<()> {
+        if dir.exists() {
+            bail!(
+                "{} exists: a record is only restored into a new folder",
+                dir.display()
+            );
+        }
+        let mut paths: Vec<&String> = self.files.keys().collect();
+        paths.sort_by_key(|p| (p.starts_with("eval/"), p.as_str()));
+        for relative in paths {
+            if relative
+                .split('/')
+                .any(|part| part == ".." || part.is_empty())
+            {
+                bail!("{}: bad file name {relative:?}", from.display());
+            }
+            let path = dir.join(relative);
+            if let Some(parent) = path.parent() {
+                std::fs::create_dir_all(parent)
+                    .with_context(|| format!("creating {}", parent.display()))?;
+            }
+            let value = &self.files[relative];
+            let text = if relative.ends_with(".jsonl") {
+                let lines = value.as_array().with_context(|| {
+                    format!("{}: {relative} is not an array of lines", from.display())
+                })?;
+                lines.iter().map(|l| l.to_string() + "\n").collect()
+            } else {
+                serde_json::to_string_pretty(value)?
+            };
+            std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
+        }
+        std::fs::write(dir.join(RESTORED_MARKER), from.display().to_string())
+            .with_context(|| format!("writing {}", dir.join(RESTORED_MARKER).display()))
+    }
+
+    /// Whether `other` records the same run with the same outcomes: the same
+    /// configuration and evaluations (every episode), whatever the commit,
+    /// machine or timings.
+    pub fn same_outcomes(&self, other: &RunRecord) -> bool {
+        let evals = |r: &RunRecord| -> Vec<(String, Value)> {
+            r.files
+                .iter()
+                .filter(|(p, _)| p.starts_with("eval/") || p.as_str() == "config.json")
+                .map(|(p, v)| (p.clone(), v.clone()))
+                .collect()
+        };
+        evals(self) == evals(other)
+    }
+
+    /// A short summary of its evaluations ("eval/full-1000.json: 921/1000").
+    pub fn summary(&self) -> String {
+        self.files
+            .iter()
+            .filter(|(p, _)| p.starts_with("eval/"))
+            .map(|(p, v)| {
+                let mut rates = Vec::new();
+                successes(v, &mut rates);
+                format!("{p}: {}", rates.join(", "))
+            })
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+}
+
+/// One stretch of training of a run (a line of its `sessions.jsonl`):
+/// results are deterministic per machine, not across CPUs (README), so a
+/// record says where each epoch was trained.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Session {
+    /// The first epoch (from 0) trained in it.
+    pub from_epoch: usize,
+    /// The checkout's commit (see [`RunRecord::commit`]).
+    pub commit: String,
+    /// The CPU and thread count.
+    pub machine: String,
+}
+
+/// Notes in `run`'s `sessions.jsonl` that training starts (or resumes) at
+/// epoch `from_epoch` here.
+pub fn note_session(run: &RunDir, from_epoch: usize) -> anyhow::Result<()> {
+    RunDir::append_jsonl(
+        &run.root().join("sessions.jsonl"),
+        &Session {
+            from_epoch,
+            commit: commit(),
+            machine: machine(),
+        },
+    )
+}
+
+/// Whether the run folder `dir` was restored from a record (it has no
+/// weights).
+pub fn is_restored(dir: &Path) -> bool {
+    dir.join(RESTORED_MARKER).is_file()
+}
+
+/// The record file of run `name` in `records`.
+pub fn path(records: &Path, name: &str) -> PathBuf {
+    records.join(format!("{name}.json"))
+}
+
+fn successes(value: &Value, out: &mut Vec<String>) {
+    match value {
+        Value::Object(map) => {
+            if let Some(s) = map.get("success")
+                && let (Some(k), Some(n)) = (s["successes"].as_u64(), s["trials"].as_u64())
+            {
+                out.push(format!("{k}/{n}"));
+                return;
+            }
+            for (key, v) in map {
+                if key != "tasks" && key != "episodes" {
+                    successes(v, out);
+                }
+            }
+        }
+        Value::Array(items) => items.iter().for_each(|v| successes(v, out)),
+        _ => {}
+    }
+}
+
+fn collect(root: &Path, dir: &Path, files: &mut BTreeMap<String, Value>) -> anyhow::Result<()> {
+    let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("reading {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .collect();
+    entries.sort();
+    for path in entries {
+        let name = path.file_name().unwrap_or_default().to_string_lossy();
+        if path.is_dir() {
+            if !SKIPPED_DIRS.contains(&name.as_ref()) {
+                collect(root, &path, files)?;
+            }
+            continue;
+        }
+        let relative = path
+            .strip_prefix(root)
+            .unwrap_or(&path)
+            .components()
+            .map(|c| c.as_os_str().to_string_lossy().into_owned())
+            .collect::<Vec<_>>()
+            .join("/");
+        let value = if name.ends_with(".jsonl") {
+            Value::Array(crate::run_dir::read_jsonl(&path)?)
+        } else if name.ends_with(".json") {
+            let mut value: Value = RunDir::read_json(&path)?;
+            if relative.starts_with("eval/") {
+                drop_fields(&mut value);
+            }
+            value
+        } else {
+            continue;
+        };
+        files.insert(relative, value);
+    }
+    Ok(())
+}
+
+fn drop_fields(value: &mut Value) {
+    match value {
+        Value::Object(map) => {
+            for field in DROPPED_FIELDS {
+                if map.get(field).is_some_and(Value::is_array) {
+                    map.remove(field);
+                }
+            }
+            map.values_mut().for_each(drop_fields);
+        }
+        Value::Array(items) => items.iter_mut().for_each(drop_fields),
+        _ => {}
+    }
+}
+
+/// The commit of the git checkout in the working folder, `-dirty` if it
+/// has changes to tracked files; `unknown` where git cannot tell.
+fn commit() -> String {
+    let git = |args: &[&str]| {
+        std::process::Command::new("git")
+            .args(args)
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_owned())
+    };
+    match git(&["rev-parse", "--short=12", "HEAD"]) {
+        Some(head) => match git(&["status", "--porcelain", "--untracked-files=no"]) {
+            Some(changes) if !changes.is_empty() => format!("{head}-dirty"),
+            _ => head,
+        },
+        None => "unknown".into(),
+    }
+}
+
+fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|info| {
+            info.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_owned())
+        })
+        .unwrap_or_else(|| std::env::consts::ARCH.to_owned());
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    format!("{cpu}, {threads} threads")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_record_restores_the_small_files_and_drops_traces() {
+        let tmp = tempfile::tempdir().unwrap();
+        let run = tmp.path().join("ntp_exp-state-5");
+        let write = |p: &str, text: &str| {
+            let path = run.join(p);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(path, text).unwrap();
+        };
+        write("config.json", r#"{"train_tasks": 5}"#);
+        write(
+            "metrics.jsonl",
+            "{\"epoch\":0,\"seconds\":1.5}\n{\"epoch\":1,\"seconds\":2.0}\n",
+        );
+        write("checkpoint/progress.json", r#"{"epochs_done": 2}"#);
+        write("checkpoint/model.bpk", "weights");
+        write("dataset/index.json", "{}");
+        write(
+            "eval/full-2.json",
+            r#"{"success": {"successes": 1, "trials": 2}, "tasks": [{"task": "a", "success": true, "trace": ["pick(A)"]}, {"task": "b", "success": false, "trace": []}]}"#,
+        );
+        let record = RunRecord::of_run(&run).unwrap();
+        assert_eq!(record.run, "ntp_exp-state-5");
+        assert_eq!(
+            record.files.keys().cloned().collect::<Vec<_>>(),
+            [
+                "checkpoint/progress.json",
+                "config.json",
+                "eval/full-2.json",
+                "metrics.jsonl"
+            ]
+        );
+        assert!(
+            record.files["eval/full-2.json"]["tasks"][0]
+                .get("trace")
+                .is_none()
+        );
+        assert_eq!(record.summary(), "eval/full-2.json: 1/2");
+        let file = tmp.path().join("records").join("r.json");
+        record.write(&file).unwrap();
+        let back = RunRecord::read(&file).unwrap();
+        assert_eq!(back, record);
+        let restored = tmp.path().join("again");
+        back.restore(&restored, &file).unwrap();
+        assert!(is_restored(&restored));
+        let run_dir = RunDir::open(&restored).unwrap();
+        assert_eq!(run_dir.epoch_seconds().unwrap(), 3.5);
+        // The evaluation counts as made after the last checkpoint.
+        let eval: Value = run_dir
+            .cached_eval("full-2.json", || bail!("re-evaluated"))
+            .unwrap();
+        assert_eq!(eval["success"]["successes"], 1);
+        assert!(back.same_outcomes(&RunRecord::of_run(&restored).unwrap()));
+        assert!(back.restore(&restored, &file).is_err());
+        let mut other = back.clone();
+        other.files.get_mut("eval/full-2.json").unwrap()["tasks"][1]["success"] = true.into();
+        assert!(!back.same_outcomes(&other));
+    }
+
+    #[test]
+    fn bad_records_are_errors_that_name_the_file() {
+        let tmp = tempfile::tempdir().unwrap();
+        let file = tmp.path().join("x.json");
+        std::fs::write(&file, "{ not json").unwrap();
+        let err = format!("{:#}", RunRecord::read(&file).unwrap_err());
+        assert!(err.contains("x.json"), "{err}");
+        std::fs::write(
+            &file,
+            r#"{"format": 99, "run": "x", "commit": "", "machine": "", "files": {}}"#,
+        )
+        .unwrap();
+        let err = format!("{:#}", RunRecord::read(&file).unwrap_err());
+        assert!(err.contains("format 99"), "{err}");
+        let mut record = RunRecord::read(&file).unwrap_or_else(|_| RunRecord {
+            format: FORMAT,
+            run: "x".into(),
+            commit: String::new(),
+            machine: String::new(),
+            files: BTreeMap::from([("../escape.json".to_owned(), Value::Null)]),
+        });
+        record.format = FORMAT;
+        let err = record.restore(&tmp.path().join("r"), &file).unwrap_err();
+        assert!(err.to_string().contains("bad file name"), "{err}");
+    }
+}
