@@ -44,9 +44,9 @@ pub use ntp::{NtpCall, NtpDemo, NtpProgram, record_ntp_demo};
 pub use render::{FRAME_SIZE, Renderer};
 pub use sorting::{SortTask, generate_sort_tasks, standard_sort_tasks};
 pub use task::{
-    Goal, STRUCTURE_SEED, StackTask, StandardSplit, TaskStats, cube_letter, generate_stack_tasks,
-    parse_ntp_tasks, read_ntp_tasks, standard_split, standard_tasks, structure_test_tasks,
-    validation_tasks, write_ntp_tasks,
+    Goal, STRUCTURE_SEED, StackTask, StandardSplit, TRAIN_POOL, TaskStats, cube_letter,
+    generate_stack_tasks, parse_ntp_tasks, read_ntp_tasks, standard_split, standard_tasks,
+    structure_test_tasks, validation_tasks, validation_tasks_avoiding, write_ntp_tasks,
 };
 pub use video::{
     FrameRange, VideoConfig, generate_video_demos, record_video_demo, video_segment_lengths,

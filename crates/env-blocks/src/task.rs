@@ -652,15 +652,22 @@ pub const MAX_VALIDATION_TASKS: usize = 10_000;
 /// select among checkpoints on them without touching training or test
 /// tasks.
 pub fn validation_tasks(count: usize) -> Result<Vec<StackTask>, BlocksError> {
+    validation_tasks_avoiding(count, &standard_tasks()?)
+}
+
+/// `count` validation tasks drawn as [`validation_tasks`] draws them, but
+/// outside the end configurations of `avoid` (another task set, such as
+/// NTP's own `stack_2000.json`) instead of the standard set's.
+pub fn validation_tasks_avoiding(
+    count: usize,
+    avoid: &[StackTask],
+) -> Result<Vec<StackTask>, BlocksError> {
     if count > MAX_VALIDATION_TASKS {
         return Err(BlocksError::Generator(format!(
             "asked for {count} validation tasks; there are at most {MAX_VALIDATION_TASKS}"
         )));
     }
-    let standard: HashSet<_> = standard_tasks()?
-        .iter()
-        .map(StackTask::configuration_key)
-        .collect();
+    let standard: HashSet<_> = avoid.iter().map(StackTask::configuration_key).collect();
     // Distinct configurations are plentiful (8 cubes), so a few extra draws
     // cover the ones the standard set already holds.
     let drawn = generate_stack_tasks(VALIDATION_SEED, 2 * count + 64)?;
@@ -673,7 +680,7 @@ pub fn validation_tasks(count: usize) -> Result<Vec<StackTask>, BlocksError> {
         .collect::<Result<_, _>>()?;
     if tasks.len() < count {
         return Err(BlocksError::Generator(format!(
-            "found only {} validation tasks outside the standard set, asked for {count}",
+            "found only {} validation tasks outside the task set, asked for {count}",
             tasks.len()
         )));
     }

@@ -87,10 +87,8 @@ pub fn reproduce(
         }
     }
     let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
-    for seed in thor_all_file.seeds(profile) {
-        for &method in &thor_all_file.methods {
-            thor_all_file.run_config(profile, method, seed)?;
-        }
+    for run in thor_all_file.runs(profile) {
+        thor_all_file.run_config(profile, run)?;
     }
     // First, so a wrong --jigsaws-root fails before the long runs.
     let jigsaws_saved = out.join("jigsaws.json");
@@ -211,6 +209,23 @@ fn weights_needed(what: &str, run: &Path) -> (String, String) {
     )
 }
 
+/// `(runs, core-hours)` of training epochs of the rollout figures' runs,
+/// each run once (a run linked into two figures has the same epoch times).
+fn training_compute(results: &Results) -> (usize, f64) {
+    let seconds = results
+        .ntp_exp
+        .iter()
+        .chain(&results.ablation)
+        .map(|p| p.train_seconds)
+        .chain(results.ablation_b.iter().map(|p| p.train_seconds))
+        .chain(results.thor_all.lines.iter().map(|l| l.train_seconds));
+    let mut unique: Vec<u64> = seconds.map(f64::to_bits).collect();
+    unique.sort_unstable();
+    unique.dedup();
+    let total: f64 = unique.iter().map(|&b| f64::from_bits(b)).sum();
+    (unique.len(), total / 3600.0)
+}
+
 /// The report section that puts each run's outcome beside the same run's
 /// at the paper profile (the committed `docs/figures/results.json`).
 fn beside_paper(results: &Results, paper: &Results) -> String {
@@ -237,8 +252,19 @@ fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
     let _ = writeln!(s, "# Reproduced figures\n");
     let _ = writeln!(
         s,
-        "Profile `{:?}`, {:.0} s in the invocation that wrote this report (finished runs and their evaluations are reused; the training time column is each run's own). Measured on 2 CPU cores shared with other jobs. Seeds: model 0, shuffling 0, demos and rollouts as documented in `ntg_trainer::blocks`. Intervals are 95% Wilson intervals over test tasks (one seed per point).\n",
-        results.profile, seconds
+        "Profile `{:?}`, {:.0} s in the invocation that wrote this report (finished runs and their evaluations are reused; the training time column is each run's own). {} Seeds: model 0, shuffling 0 unless a row names another seed; demos and rollouts as documented in `ntg_trainer::blocks`. Intervals are 95% Wilson intervals over test tasks.\n",
+        results.profile,
+        seconds,
+        if results.profile == Profile::Paper {
+            "Each run trains on one thread; where each stretch of its training ran (commit, CPU, threads of the machine) is in its record, `records/RUN.json` (`sessions.jsonl`)."
+        } else {
+            "Measured on 2 CPU cores shared with other jobs."
+        }
+    );
+    let (runs, hours) = training_compute(results);
+    let _ = writeln!(
+        s,
+        "**Compute.** The rollout figures' {runs} runs took {hours:.1} core-hours of training epochs (each run's own epoch times, summed; a run shared by two figures counted once; evaluation and fig. jigsaws not included).\n"
     );
     let note = |figure: &str| {
         results
@@ -385,14 +411,12 @@ pub fn reproduce_only(
                 .map(|&a| ablation_b_file.run_name(a, seed)),
         );
     }
-    for seed in thor_all_file.seeds(profile) {
-        known.extend(
-            thor_all_file
-                .methods
-                .iter()
-                .map(|&m| thor_all_file.run_name(m, seed)),
-        );
-    }
+    known.extend(
+        thor_all_file
+            .runs(profile)
+            .into_iter()
+            .map(|run| thor_all_file.run_name(run)),
+    );
     if let Some(unknown) = only.iter().find(|name| !known.contains(name)) {
         anyhow::bail!(
             "--only {unknown}: no run of that name at profile {profile:?}; its runs are {}",

@@ -95,9 +95,10 @@ fn top(probabilities: &[f32], vocab: &Vocabulary, k: usize) -> Vec<Scored> {
 }
 
 /// Resolves `task` (a test-set index or a task id such as `stack_1003`) to
-/// its index in the standard test set.
-pub fn resolve_test_task(task: &str) -> anyhow::Result<usize> {
-    let split = env_blocks::standard_split()?;
+/// its index in the test set of the task set `tasks`
+/// ([`crate::blocks::task_split`]; `None`: the standard one).
+pub fn resolve_test_task(tasks: Option<&Path>, task: &str) -> anyhow::Result<usize> {
+    let split = crate::blocks::task_split(tasks)?;
     if let Ok(i) = task.parse::<usize>() {
         if i < split.test.len() {
             return Ok(i);
@@ -124,13 +125,14 @@ pub fn resolve_test_task(task: &str) -> anyhow::Result<usize> {
 /// (created; it must not exist or be empty, so nothing is overwritten).
 pub fn trace_task(
     model: &NtgModel,
+    tasks: Option<&Path>,
     obs: ObsKind,
     failures: bool,
     index: usize,
     out: &Path,
 ) -> anyhow::Result<Trace> {
     prepare_out(out)?;
-    let split = env_blocks::standard_split()?;
+    let split = crate::blocks::task_split(tasks)?;
     let task = split
         .test
         .get(index)
@@ -270,13 +272,14 @@ pub struct BaselineTrace {
 pub fn trace_baseline(
     model: &dyn crate::method::TrainedPolicy,
     method: crate::method::MethodId,
+    tasks: Option<&Path>,
     obs: ObsKind,
     failures: bool,
     index: usize,
     out: &Path,
 ) -> anyhow::Result<BaselineTrace> {
     prepare_out(out)?;
-    let split = env_blocks::standard_split()?;
+    let split = crate::blocks::task_split(tasks)?;
     let task = split
         .test
         .get(index)

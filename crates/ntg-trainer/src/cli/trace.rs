@@ -41,10 +41,11 @@ pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
             );
         }
         let model = crate::blocks::load_baseline(&run, &config, &device)?;
-        let index = crate::trace::resolve_test_task(&args.task)?;
+        let index = crate::trace::resolve_test_task(config.tasks.as_deref(), &args.task)?;
         let trace = crate::trace::trace_baseline(
             model.as_ref(),
             config.method,
+            config.tasks.as_deref(),
             config.obs,
             config.failures,
             index,
@@ -62,8 +63,10 @@ pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
             run.root().display()
         );
     };
-    let index = crate::trace::resolve_test_task(&args.task)?;
-    let trace = crate::trace::trace_task(&model, config.obs, config.failures, index, &args.out)?;
+    let tasks = config.tasks.as_deref();
+    let index = crate::trace::resolve_test_task(tasks, &args.task)?;
+    let trace =
+        crate::trace::trace_task(&model, tasks, config.obs, config.failures, index, &args.out)?;
     print!("{}", crate::trace::trace_table(&trace));
     println!("trace written to {}", args.out.display());
     Ok(())

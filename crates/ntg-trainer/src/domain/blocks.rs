@@ -8,6 +8,8 @@
 //! (see `env_blocks::validation_tasks`) uses `VALIDATION_DEMO_SEED_BASE + i`
 //! and `VALIDATION_ROLLOUT_SEED_BASE + i` in the same way.
 
+use std::path::{Path, PathBuf};
+
 use anyhow::{Context, bail};
 use burn::tensor::Device;
 use clap::ValueEnum;
@@ -191,8 +193,75 @@ pub struct BlocksRunConfig {
     /// run's `detector_stage/` folder). `None` for every other method.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detector: Option<DetectorSettings>,
+    /// The task set (`--tasks FILE`): an NTP task file, such as NTP's own
+    /// `stack_2000.json`, split by the standard rule ([`task_split`]);
+    /// `None`: the generated stand-in set (`datasets/blocks/stack_2000.json`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tasks: Option<PathBuf>,
     /// Optimisation.
     pub optim: OptimConfig,
+}
+
+/// The task split of a run whose task set is `file` (see
+/// [`BlocksRunConfig::tasks`]): the standard stand-in split, or the file's
+/// tasks split by the same rule: its first [`env_blocks::TRAIN_POOL`] tasks
+/// are the training pool (`n` training tasks are its first `n`), the rest
+/// the test tasks. Read once per process.
+pub fn task_split(
+    file: Option<&Path>,
+) -> anyhow::Result<std::sync::Arc<env_blocks::StandardSplit>> {
+    use std::collections::BTreeMap;
+    use std::sync::{Arc, Mutex};
+    static SPLITS: Mutex<BTreeMap<Option<PathBuf>, Arc<env_blocks::StandardSplit>>> =
+        Mutex::new(BTreeMap::new());
+    let key = file.map(Path::to_path_buf);
+    if let Some(split) = SPLITS.lock().unwrap_or_else(|e| e.into_inner()).get(&key) {
+        return Ok(split.clone());
+    }
+    let split = match file {
+        None => env_blocks::standard_split()?,
+        Some(path) => {
+            let mut tasks = env_blocks::read_ntp_tasks(path)?;
+            if tasks.len() <= env_blocks::TRAIN_POOL {
+                bail!(
+                    "{}: {} tasks; the split takes the first {} as the training pool and the rest as test tasks, so it needs more",
+                    path.display(),
+                    tasks.len(),
+                    env_blocks::TRAIN_POOL
+                );
+            }
+            let test = tasks.split_off(env_blocks::TRAIN_POOL);
+            env_blocks::StandardSplit {
+                train_pool: tasks,
+                test,
+            }
+        }
+    };
+    let split = Arc::new(split);
+    SPLITS
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .insert(key, split.clone());
+    Ok(split)
+}
+
+/// `count` validation tasks of a run whose task set is `file`: drawn as
+/// `env_blocks::validation_tasks` draws them, outside every end
+/// configuration of that set.
+pub fn validation_tasks_of(file: Option<&Path>, count: usize) -> anyhow::Result<Vec<StackTask>> {
+    Ok(match file {
+        None => env_blocks::validation_tasks(count)?,
+        Some(_) => {
+            let split = task_split(file)?;
+            let all: Vec<StackTask> = split
+                .train_pool
+                .iter()
+                .chain(&split.test)
+                .cloned()
+                .collect();
+            env_blocks::validation_tasks_avoiding(count, &all)?
+        }
+    })
 }
 
 /// How a block-stacking video run records its demos and trains its encoder.
@@ -345,6 +414,7 @@ impl Recipe {
             video: (obs == ObsKind::Vid).then(|| BlocksVideo::new(recommended)),
             method: MethodId::Ntg,
             detector: None,
+            tasks: None,
             optim: OptimConfig {
                 epochs,
                 batch_size: 32,
@@ -462,14 +532,22 @@ impl TrainedBlocks {
         }
     }
 
-    /// Evaluates the model on the first `test_tasks` unseen tasks.
+    /// Evaluates the model on the first `test_tasks` unseen tasks of the
+    /// task set `tasks` ([`task_split`]).
     pub fn evaluate(
         &self,
+        tasks: Option<&Path>,
         failures: bool,
         test_tasks: usize,
         variant: Variant,
     ) -> anyhow::Result<EvalResult> {
-        self.evaluate_tasks(failures, test_tasks_of(test_tasks)?, Seeds::TEST, variant)
+        let split = task_split(tasks)?;
+        self.evaluate_tasks(
+            failures,
+            test_tasks_of(&split, test_tasks)?,
+            Seeds::TEST,
+            variant,
+        )
     }
 
     /// The NTG networks.
@@ -604,7 +682,7 @@ pub struct VideoPlan {
 impl VideoPlan {
     /// The plan of `config` (a video run).
     pub fn new(config: &BlocksRunConfig, video: &BlocksVideo) -> anyhow::Result<Self> {
-        let split = env_blocks::standard_split()?;
+        let split = task_split(config.tasks.as_deref())?;
         let tasks = split.train(config.train_tasks)?.to_vec();
         let groups = match video.demos_per_renaming {
             0 => 1,
@@ -614,7 +692,7 @@ impl VideoPlan {
             tasks,
             groups,
             demos_per_renaming: video.demos_per_renaming,
-            held_out: HeldOutConfigurations::new()?,
+            held_out: HeldOutConfigurations::new(config.tasks.as_deref())?,
         })
     }
 
@@ -663,7 +741,7 @@ fn with_video_run<R>(
             seed,
         )
     };
-    let validation = env_blocks::validation_tasks(config.validation_tasks)?;
+    let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
     let record_validation = |i: usize, seed: u64| {
         record_video(validation[i].clone(), config.failures, &video.frames, seed)
     };
@@ -772,7 +850,7 @@ fn train_state_run(
     device: &Device,
     mut on_epoch: impl FnMut(&EpochMetrics),
 ) -> anyhow::Result<NtgModel> {
-    let split = env_blocks::standard_split()?;
+    let split = task_split(config.tasks.as_deref())?;
     let tasks = split.train(config.train_tasks)?;
     let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config, tasks))?;
     let model = new_model(config, device)?;
@@ -781,7 +859,7 @@ fn train_state_run(
     let accept_renaming = held_out
         .as_ref()
         .map(|h| move |task: usize, perm: &[usize]| !h.contains_renamed(&tasks[task], perm));
-    let validation = env_blocks::validation_tasks(config.validation_tasks)?;
+    let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
     let mut validator =
         |model: &NtgModel| validation_score(model, config.obs, config.failures, &validation);
     let extras = TrainExtras {
@@ -835,7 +913,7 @@ pub fn train_ntp_run(
     if config.obs == ObsKind::Vid && config.method != MethodId::NtpDetector {
         return train_ntp_video_run(run, config, kind, device, on_epoch);
     }
-    let split = env_blocks::standard_split()?;
+    let split = task_split(config.tasks.as_deref())?;
     let tasks = split.train(config.train_tasks)?;
     // Trained first, so a bad setting fails before NTP's demos are recorded.
     let detector = match config.method {
@@ -876,7 +954,7 @@ pub fn train_ntp_run(
         accept: accept.as_ref().map(|f| f as RenamingFilter<'_>),
     });
     let step = NtpStep::new(&dataset, kind, renaming, device)?;
-    let validation = env_blocks::validation_tasks(config.validation_tasks)?;
+    let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
     Ok(match detector {
         None => Box::new(fit_validated(
             net,
@@ -1044,7 +1122,7 @@ pub fn train_ntp_detector(
         .context("an NTP (Detector) run's configuration needs its `detector` settings")?;
     settings.validate()?;
     let env = env_config(ObsKind::Vid, config.failures);
-    let validation = env_blocks::validation_tasks(2 * settings.validation_tasks)?;
+    let validation = validation_tasks_of(config.tasks.as_deref(), 2 * settings.validation_tasks)?;
     let (select, report) = validation.split_at(settings.validation_tasks);
     let frames = DetectorFrames {
         train: DetectorDataset::record_spread(tasks, settings.episodes, TRAIN_SEED_BASE, env)?,
@@ -1081,16 +1159,17 @@ impl HeldOutConfigurations {
     /// cubes and excludes held-out renamings.
     pub fn for_run(config: &BlocksRunConfig) -> anyhow::Result<Option<Self>> {
         if config.permute_objects && config.exclude_held_out_renamings {
-            Ok(Some(HeldOutConfigurations::new()?))
+            Ok(Some(HeldOutConfigurations::new(config.tasks.as_deref())?))
         } else {
             Ok(None)
         }
     }
 
-    /// The held-out configurations of the standard split.
-    pub fn new() -> anyhow::Result<Self> {
-        let split = env_blocks::standard_split()?;
-        let validation = env_blocks::validation_tasks(HELD_OUT_VALIDATION_TASKS)?;
+    /// The held-out configurations of the split of the task set `tasks`
+    /// ([`task_split`]; `None`: the standard one).
+    pub fn new(tasks: Option<&Path>) -> anyhow::Result<Self> {
+        let split = task_split(tasks)?;
+        let validation = validation_tasks_of(tasks, HELD_OUT_VALIDATION_TASKS)?;
         let keys = split
             .test
             .iter()
@@ -1340,26 +1419,22 @@ pub fn evaluate(
     test_tasks: usize,
     variant: Variant,
 ) -> anyhow::Result<EvalResult> {
+    let split = task_split(None)?;
     evaluate_tasks(
         model,
         obs,
         failures,
-        test_tasks_of(test_tasks)?,
+        test_tasks_of(&split, test_tasks)?,
         Seeds::TEST,
         variant,
     )
 }
 
-/// The first `test_tasks` tasks of the standard test set.
-fn test_tasks_of(test_tasks: usize) -> anyhow::Result<&'static [StackTask]> {
-    static SPLIT: std::sync::OnceLock<env_blocks::StandardSplit> = std::sync::OnceLock::new();
-    let split = match SPLIT.get() {
-        Some(s) => s,
-        None => {
-            let s = env_blocks::standard_split()?;
-            SPLIT.get_or_init(|| s)
-        }
-    };
+/// The first `test_tasks` tasks of `split`'s test set.
+fn test_tasks_of(
+    split: &env_blocks::StandardSplit,
+    test_tasks: usize,
+) -> anyhow::Result<&[StackTask]> {
     if test_tasks > split.test.len() {
         bail!(
             "asked for {test_tasks} test tasks; there are {}",
@@ -1404,19 +1479,21 @@ pub fn evaluate_ntp_tasks(
     evaluate_on(&domain, model, "full", tasks, seeds)
 }
 
-/// Evaluates an NTP baseline on the first `test_tasks` test tasks (the
-/// tasks and seeds NTG is evaluated on).
+/// Evaluates an NTP baseline on the first `test_tasks` test tasks of the
+/// task set `tasks` (the tasks and seeds NTG is evaluated on).
 pub fn evaluate_ntp(
     model: &dyn crate::method::TrainedPolicy,
+    tasks: Option<&Path>,
     obs: ObsKind,
     failures: bool,
     test_tasks: usize,
 ) -> anyhow::Result<EvalResult> {
+    let split = task_split(tasks)?;
     evaluate_ntp_tasks(
         model,
         obs,
         failures,
-        test_tasks_of(test_tasks)?,
+        test_tasks_of(&split, test_tasks)?,
         Seeds::TEST,
     )
 }
@@ -1457,6 +1534,12 @@ pub struct BlocksFlags {
     /// The training recipe the other options add to.
     #[arg(long, value_enum, default_value_t = Recipe::Recommended)]
     pub recipe: Recipe,
+    /// Train and evaluate on this NTP task file (e.g. NTP's own
+    /// `stack_2000.json`) instead of the generated stand-in set: its first
+    /// 1000 tasks are the training pool, the rest the test tasks (the
+    /// standard rule); validation tasks are drawn outside all of them.
+    #[arg(long, value_name = "FILE")]
+    pub tasks: Option<PathBuf>,
     /// Train the edge classifier on GCN embeddings of another demo of the
     /// same task than the one it imitates.
     #[arg(long)]
@@ -1576,6 +1659,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         detach_gcn_from_edges: base.detach_gcn_from_edges || own.detach_gcn_from_edges,
         soft_edges: base.soft_edges || own.soft_edges,
         ablation: flags.ablation,
+        tasks: own.tasks.clone(),
         optim: OptimConfig {
             batch_size: flags.batch_size,
             learning_rate: flags.lr.unwrap_or(base.optim.learning_rate),
@@ -1649,7 +1733,8 @@ impl DomainRuns for Blocks {
                 other.name()
             ),
         }
-        env_blocks::standard_split()?
+        task_split(config.tasks.as_deref())
+            .with_context(|| "--tasks")?
             .train(config.train_tasks)
             .with_context(|| format!("--train-tasks {}", config.train_tasks))?;
         let run = RunDir::start_or_resume(
@@ -1733,13 +1818,17 @@ fn eval_split(
     flags: &EvalFlags,
     config: &BlocksRunConfig,
 ) -> anyhow::Result<(&'static str, Vec<StackTask>, Seeds)> {
+    let tasks = config.tasks.as_deref();
+    let split = task_split(tasks)?;
     Ok(match flags.split {
-        crate::domain::EvalSplit::Test => {
-            ("", test_tasks_of(flags.test_tasks)?.to_vec(), Seeds::TEST)
-        }
+        crate::domain::EvalSplit::Test => (
+            "",
+            test_tasks_of(&split, flags.test_tasks)?.to_vec(),
+            Seeds::TEST,
+        ),
         crate::domain::EvalSplit::Validation => (
             "validation-",
-            env_blocks::validation_tasks(flags.test_tasks)?,
+            validation_tasks_of(tasks, flags.test_tasks)?,
             Seeds::VALIDATION,
         ),
         crate::domain::EvalSplit::Seen => {
@@ -1750,7 +1839,6 @@ fn eval_split(
                     config.train_tasks
                 );
             }
-            let split = env_blocks::standard_split()?;
             (
                 "seen-",
                 split.train(flags.test_tasks)?.to_vec(),
@@ -1760,7 +1848,7 @@ fn eval_split(
         crate::domain::EvalSplit::Structure => (
             "structure-",
             env_blocks::structure_test_tasks(
-                &env_blocks::standard_split()?.train_pool,
+                &split.train_pool,
                 flags.test_tasks,
                 env_blocks::STRUCTURE_SEED,
             )?,
@@ -1848,7 +1936,7 @@ mod tests {
     #[test]
     fn held_out_configurations_catch_a_training_task_renamed_into_a_test_task() {
         let split = env_blocks::standard_split().unwrap();
-        let held_out = HeldOutConfigurations::new().unwrap();
+        let held_out = HeldOutConfigurations::new(None).unwrap();
         let identity: Vec<usize> = (0..env_blocks::world::NUM_OBJECTS).collect();
         // Unrenamed, no training task is held out, and every test task is.
         for task in &split.train_pool {

@@ -78,8 +78,14 @@ pub fn blocks_trace(
             std::fs::remove_dir_all(&candidate)
                 .with_context(|| format!("removing {}", candidate.display()))?;
         }
-        let trace =
-            crate::trace::trace_task(&model, config.obs, config.failures, index, &candidate)?;
+        let trace = crate::trace::trace_task(
+            &model,
+            config.tasks.as_deref(),
+            config.obs,
+            config.failures,
+            index,
+            &candidate,
+        )?;
         let found = trace.success.then(|| revisited_node(&trace)).flatten();
         let Some((node, visits)) = found else {
             std::fs::remove_dir_all(&candidate)

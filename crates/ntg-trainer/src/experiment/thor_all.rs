@@ -75,6 +75,32 @@ pub struct ThorAllScale {
     /// per seed, in folders `thor_all-METHOD-seedS`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub extra_seeds: Vec<u64>,
+    /// With `memory`: also train both methods without it (folders
+    /// `thor_all-METHOD-no-memory`, first seed only), since the two
+    /// memories differ in form (NTG's reads its own task graph): the
+    /// comparison without memory gives both exactly the same information.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub without_memory: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// One run of the figure: a method, a seed, and whether it has the
+/// execution memory.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ThorAllRun {
+    /// The method.
+    pub method: MethodId,
+    /// Seed of its weights and shuffling.
+    pub seed: u64,
+    /// Whether it has the execution memory.
+    pub memory: bool,
 }
 
 /// One method's line of fig. "thor_all".
@@ -86,6 +112,10 @@ pub struct ThorAllLine {
     /// seeds: 0).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub seed: u64,
+    /// Whether the run has the execution memory when the profile gives it
+    /// one (results written before the variant without: yes).
+    #[serde(default = "yes", skip_serializing_if = "Clone::clone")]
+    pub memory: bool,
     /// Success per N on unseen tasks.
     pub points: Vec<NPoint>,
     /// Seconds spent in training epochs (summed from the run's
@@ -125,19 +155,51 @@ impl ThorAllExperiment {
         seeds
     }
 
-    /// The run folder name of `method` with `seed`.
-    pub fn run_name(&self, method: MethodId, seed: u64) -> String {
-        let base = format!("thor_all-{}", method.name());
-        crate::experiment::seeded_name(base, seed, self.seed)
+    /// Every run of `profile`: each method for each seed, then, with
+    /// `without_memory`, each method without memory (first seed).
+    pub fn runs(&self, profile: Profile) -> Vec<ThorAllRun> {
+        let scale = self.profiles.get(profile);
+        let mut runs: Vec<ThorAllRun> = self
+            .seeds(profile)
+            .into_iter()
+            .flat_map(|seed| {
+                self.methods.iter().map(move |&method| ThorAllRun {
+                    method,
+                    seed,
+                    memory: true,
+                })
+            })
+            .collect();
+        if scale.memory && scale.without_memory {
+            runs.extend(self.methods.iter().map(|&method| ThorAllRun {
+                method,
+                seed: self.seed,
+                memory: false,
+            }));
+        }
+        runs
     }
 
-    /// The run configuration of `method` with `seed` at `profile`.
+    /// The run folder name of `run`.
+    pub fn run_name(&self, run: ThorAllRun) -> String {
+        let mut base = format!("thor_all-{}", run.method.name());
+        if !run.memory {
+            base.push_str("-no-memory");
+        }
+        crate::experiment::seeded_name(base, run.seed, self.seed)
+    }
+
+    /// The run configuration of `run` at `profile`.
     pub fn run_config(
         &self,
         profile: Profile,
-        method: MethodId,
-        seed: u64,
+        run: ThorAllRun,
     ) -> anyhow::Result<CollectRunConfig> {
+        let ThorAllRun {
+            method,
+            seed,
+            memory,
+        } = run;
         ensure!(
             self.domain == DomainId::Collect,
             "{}: thor_all trains on object collection (domain = \"collect\")",
@@ -163,7 +225,7 @@ impl ThorAllExperiment {
             seed,
         );
         config.learn_end = scale.learn_end;
-        config.memory = scale.memory;
+        config.memory = scale.memory && memory;
         config.optim.batch_size = scale.batch_size;
         config.optim.learning_rate = scale.learning_rate;
         let overrides = self
@@ -185,9 +247,10 @@ pub fn run(
     plan: &crate::experiment::Plan<'_>,
 ) -> anyhow::Result<ThorAllResult> {
     let scale = experiment.profiles.get(profile).clone();
-    let line = |method: MethodId, seed: u64| -> anyhow::Result<Option<ThorAllLine>> {
-        let config = experiment.run_config(profile, method, seed)?;
-        let name = experiment.run_name(method, seed);
+    let line = |variant: ThorAllRun| -> anyhow::Result<Option<ThorAllLine>> {
+        let ThorAllRun { method, seed, .. } = variant;
+        let config = experiment.run_config(profile, variant)?;
+        let name = experiment.run_name(variant);
         let eval_file = format!("collect-{}.json", scale.test_episodes);
         let Some(dir) = plan.prepare(&name, &config, &eval_file)? else {
             return Ok(None);
@@ -215,6 +278,7 @@ pub fn run(
         Ok(Some(ThorAllLine {
             method,
             seed,
+            memory: variant.memory,
             points: eval.points,
             train_seconds: run.epoch_seconds()?,
             run: dir,
@@ -225,13 +289,11 @@ pub fn run(
         "thor_all",
         plan.jobs,
         experiment
-            .seeds(profile)
+            .runs(profile)
             .into_iter()
-            .flat_map(|seed| experiment.methods.iter().map(move |&m| (m, seed)))
-            .filter(|&(method, seed)| plan.selected(&experiment.run_name(method, seed)))
-            .map(|(method, seed)| {
-                Box::new(move || line(method, seed))
-                    as crate::experiment::Job<'_, Option<ThorAllLine>>
+            .filter(|&run| plan.selected(&experiment.run_name(run)))
+            .map(|run| {
+                Box::new(move || line(run)) as crate::experiment::Job<'_, Option<ThorAllLine>>
             })
             .collect(),
     )?
@@ -364,15 +426,26 @@ pub fn report_section(result: &ThorAllResult) -> String {
     if let Some(sentence) = comparison_sentence(result) {
         let _ = writeln!(s, "{sentence}\n");
     }
+    if let Some(without) = compare(result, false) {
+        let _ = writeln!(
+            s,
+            "Without the execution memory (both methods reactive: exactly the same information, the demo and the current observation): {without}.\n"
+        );
+    }
     s
 }
 
-/// A line's legend: the method's, with its seed if not 0.
+/// A line's legend: the method's, with its seed if not 0, and "no memory"
+/// for the variant without.
 fn line_name(line: &ThorAllLine) -> String {
-    match line.seed {
-        0 => line.method.legend().to_owned(),
-        seed => format!("{}, seed {seed}", line.method.legend()),
+    let mut name = line.method.legend().to_owned();
+    if line.seed != 0 {
+        name.push_str(&format!(", seed {}", line.seed));
     }
+    if !line.memory {
+        name.push_str(", no memory");
+    }
+    name
 }
 
 /// How NTG's success compares with the Flat Policy's at each N, read off
@@ -380,12 +453,18 @@ fn line_name(line: &ThorAllLine) -> String {
 /// intervals, above within overlapping intervals, tied, or below. `None`
 /// when a method is missing.
 pub fn comparison_sentence(result: &ThorAllResult) -> Option<String> {
+    compare(result, true).map(|c| format!("Measured: {c}."))
+}
+
+/// [`comparison_sentence`]'s comparison (without "Measured"), of the lines
+/// with or without the execution memory.
+fn compare(result: &ThorAllResult, memory: bool) -> Option<String> {
     let first = result.lines.first()?.seed;
     let line = |m: MethodId| {
         result
             .lines
             .iter()
-            .find(|l| l.method == m && l.seed == first)
+            .find(|l| l.method == m && l.seed == first && l.memory == memory)
     };
     let (ntg, flat) = (line(MethodId::Ntg)?, line(MethodId::Flat)?);
     let mut groups: [(&str, Vec<usize>); 4] = [
@@ -418,7 +497,7 @@ pub fn comparison_sentence(result: &ThorAllResult) -> Option<String> {
             format!("{what} at N = {}", ns.join(", "))
         })
         .collect();
-    Some(format!("Measured: NTG's success is {}.", parts.join("; ")))
+    Some(format!("NTG's success is {}", parts.join("; ")))
 }
 
 #[cfg(test)]
@@ -430,6 +509,7 @@ mod tests {
         ThorAllLine {
             method,
             seed: 0,
+            memory: true,
             points: successes
                 .iter()
                 .enumerate()
@@ -449,15 +529,35 @@ mod tests {
         let experiment = ThorAllExperiment::load(Default::default()).unwrap();
         assert_eq!(experiment.seeds(Profile::Quick), vec![0]);
         assert_eq!(experiment.seeds(Profile::Paper), vec![0, 1, 2]);
-        assert_eq!(experiment.run_name(MethodId::Ntg, 0), "thor_all-ntg");
+        let run = |method, seed, memory| ThorAllRun {
+            method,
+            seed,
+            memory,
+        };
         assert_eq!(
-            experiment.run_name(MethodId::Flat, 2),
+            experiment.run_name(run(MethodId::Ntg, 0, true)),
+            "thor_all-ntg"
+        );
+        assert_eq!(
+            experiment.run_name(run(MethodId::Flat, 2, true)),
             "thor_all-flat-seed2"
         );
         let c = experiment
-            .run_config(Profile::Paper, MethodId::Ntg, 2)
+            .run_config(Profile::Paper, run(MethodId::Ntg, 2, true))
             .unwrap();
         assert_eq!((c.model_seed, c.optim.seed), (2, 2));
+        // Both methods once more without the memory, first seed.
+        let runs = experiment.runs(Profile::Paper);
+        assert_eq!(runs.len(), 8);
+        assert_eq!(experiment.run_name(runs[7]), "thor_all-flat-no-memory");
+        let c = experiment.run_config(Profile::Paper, runs[7]).unwrap();
+        assert!(!c.memory && c.learn_end);
+        assert!(
+            experiment
+                .run_config(Profile::Paper, runs[0])
+                .unwrap()
+                .memory
+        );
     }
 
     #[test]
@@ -518,12 +618,28 @@ mod tests {
                 video: None,
             };
             assert_eq!(
-                experiment.run_config(Profile::Quick, method, 0).unwrap(),
+                experiment
+                    .run_config(
+                        Profile::Quick,
+                        ThorAllRun {
+                            method,
+                            seed: 0,
+                            memory: true
+                        }
+                    )
+                    .unwrap(),
                 expected
             );
         }
         let paper = experiment
-            .run_config(Profile::Paper, MethodId::Flat, 0)
+            .run_config(
+                Profile::Paper,
+                ThorAllRun {
+                    method: MethodId::Flat,
+                    seed: 0,
+                    memory: true,
+                },
+            )
             .unwrap();
         assert_eq!((paper.obs, paper.tasks_per_n), (ObsKind::Vid, 400));
     }

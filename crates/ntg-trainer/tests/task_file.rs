@@ -1,0 +1,122 @@
+//! `ntg train --domain blocks --tasks FILE`: training and evaluation on an
+//! NTP task file instead of the generated stand-in set, split by the
+//! standard rule (first 1000 tasks the training pool, the rest the test
+//! tasks), with validation tasks drawn outside the file's configurations.
+
+mod common;
+
+use std::path::Path;
+
+use common::ntg;
+use env_blocks::StackTask;
+
+/// An NTP task file of `count` tasks named `mine_<i>` (not the stand-in
+/// set's tasks, nor its names).
+fn write_task_file(path: &Path, count: usize) -> Vec<StackTask> {
+    let tasks: Vec<StackTask> = env_blocks::generate_stack_tasks(777, count)
+        .unwrap()
+        .into_iter()
+        .enumerate()
+        .map(|(i, t)| StackTask::new(format!("mine_{i}"), t.goals).unwrap())
+        .collect();
+    std::fs::write(path, env_blocks::write_ntp_tasks(&tasks)).unwrap();
+    tasks
+}
+
+#[test]
+fn a_run_trains_and_is_evaluated_on_the_task_file_it_names() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("tasks.json");
+    let tasks = write_task_file(&file, 1010);
+    let run = tmp.path().join("run");
+    let (code, _, err) = ntg(&[
+        "train",
+        "--domain",
+        "blocks",
+        "--tasks",
+        file.to_str().unwrap(),
+        "--train-tasks",
+        "2",
+        "--demos-per-task",
+        "1",
+        "--epochs",
+        "1",
+        "--validation-tasks",
+        "2",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = ntg(&["eval", "--run", run.to_str().unwrap(), "--test-tasks", "2"]);
+    assert_eq!(code, 0, "{err}");
+    let eval: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("eval/full-2.json")).unwrap())
+            .unwrap();
+    let names: Vec<&str> = eval["tasks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["task"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["mine_1000", "mine_1001"]);
+    assert_eq!(tasks[1000].id, "mine_1000");
+    // A file the split cannot use is an error that names it, and no run
+    // folder is made.
+    let short = tmp.path().join("short.json");
+    write_task_file(&short, 900);
+    let refused = tmp.path().join("refused");
+    let (code, _, err) = ntg(&[
+        "train",
+        "--domain",
+        "blocks",
+        "--tasks",
+        short.to_str().unwrap(),
+        "--train-tasks",
+        "2",
+        "--out",
+        refused.to_str().unwrap(),
+    ]);
+    assert_ne!(code, 0);
+    assert!(
+        err.contains("short.json") && err.contains("900 tasks"),
+        "{err}"
+    );
+    assert!(!refused.exists());
+}
+
+#[test]
+fn validation_tasks_avoid_every_configuration_of_the_task_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("tasks.json");
+    let tasks = write_task_file(&file, 1100);
+    let split = ntg_trainer::blocks::task_split(Some(&file)).unwrap();
+    assert_eq!((split.train_pool.len(), split.test.len()), (1000, 100));
+    assert_eq!(split.test[0], tasks[1000]);
+    let validation = ntg_trainer::blocks::validation_tasks_of(Some(&file), 300).unwrap();
+    let seen: std::collections::HashSet<_> =
+        tasks.iter().map(StackTask::configuration_key).collect();
+    assert!(
+        validation
+            .iter()
+            .all(|t| !seen.contains(&t.configuration_key()))
+    );
+}
+
+/// NTP's own task file, where `../shared/data` has it (never committed).
+#[test]
+fn ntps_own_task_file_splits_into_the_standard_sizes() {
+    let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/ntp-block-stacking/stack_2000.json");
+    if !file.is_file() {
+        eprintln!("skipped: {} is not here", file.display());
+        return;
+    }
+    let split = ntg_trainer::blocks::task_split(Some(&file)).unwrap();
+    assert_eq!((split.train_pool.len(), split.test.len()), (1000, 1000));
+    assert_eq!(
+        ntg_trainer::blocks::validation_tasks_of(Some(&file), 100)
+            .unwrap()
+            .len(),
+        100
+    );
+}
