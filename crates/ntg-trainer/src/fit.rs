@@ -361,6 +361,16 @@ where
         let mut validation = None;
         if let Some(sel) = selection.as_mut().filter(|s| validate_now(s.every)) {
             let score = sel.validator.validate(&model)?;
+            // Labelled: `ntg reproduce --jobs` interleaves runs' lines.
+            eprintln!(
+                "  [{}] epoch {epoch:>3} validation: success {:.3}, goals met {:.3}",
+                run.root()
+                    .file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy(),
+                score.success,
+                score.goal_fraction
+            );
             let record = ValidationRecord { epoch, score };
             let improves = match selected_epoch(run)? {
                 None => true,

@@ -806,7 +806,7 @@ pub fn train_video_run(
     })
 }
 
-/// The full model's score on the validation tasks `tasks` (printed).
+/// The full model's score on the validation tasks `tasks`.
 fn validation_score<M: NtgBased>(
     model: &M,
     obs: ObsKind,
@@ -824,14 +824,8 @@ fn validation_score<M: NtgBased>(
     Ok(validation_result(&result))
 }
 
-/// The score of a validation evaluation (printed).
+/// The score of a validation evaluation (printed by `fit`).
 fn validation_result(result: &EvalResult) -> ValidationScore {
-    eprintln!(
-        "  validation ({} tasks): success {:.3}, goals met {:.3}",
-        result.tasks.len(),
-        result.success.rate,
-        result.mean_goal_fraction
-    );
     ValidationScore {
         success: result.success.rate,
         goal_fraction: result.mean_goal_fraction,

@@ -288,12 +288,6 @@ pub fn train_run(
     let validation = episodes(&validation, config.validation_episodes, VALIDATION_SEEDS);
     let mut validator = |model: &NtgModel| {
         let result = evaluate(model, config, &validation, Variant::Full)?;
-        eprintln!(
-            "  validation ({} episodes): success {:.3}, objects sorted {:.3}",
-            validation.len(),
-            result.success.rate,
-            result.goal_fraction
-        );
         Ok(ValidationScore {
             success: result.success.rate,
             goal_fraction: result.goal_fraction,
