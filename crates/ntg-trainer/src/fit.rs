@@ -364,10 +364,7 @@ where
             // Labelled: `ntg reproduce --jobs` interleaves runs' lines.
             eprintln!(
                 "  [{}] epoch {epoch:>3} validation: success {:.3}, goals met {:.3}",
-                run.root()
-                    .file_name()
-                    .unwrap_or_default()
-                    .to_string_lossy(),
+                run.root().file_name().unwrap_or_default().to_string_lossy(),
                 score.success,
                 score.goal_fraction
             );
