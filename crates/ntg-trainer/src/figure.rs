@@ -204,14 +204,18 @@ where
                     )
                     .map_err(|e| anyhow!("drawing {}: {e}", series.name))?;
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperLeft)
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK.mix(0.4))
-                .label_font(("sans-serif", 13))
-                .draw()
-                .map_err(|e| anyhow!("drawing the legend: {e}"))?;
+            // No legend box on a panel with nothing drawn (a profile
+            // completed run by run).
+            if panel.series.iter().any(|s| !s.points.is_empty()) {
+                chart
+                    .configure_series_labels()
+                    .position(SeriesLabelPosition::UpperLeft)
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(BLACK.mix(0.4))
+                    .label_font(("sans-serif", 13))
+                    .draw()
+                    .map_err(|e| anyhow!("drawing the legend: {e}"))?;
+            }
         }};
     }
     // Ticks exactly at the measured x values: a log axis's own ticks

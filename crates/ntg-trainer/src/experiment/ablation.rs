@@ -205,7 +205,11 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
         "## Fig. ablation (a): NTG without each part, block stacking\n\n![ablation](ablation.png)\n"
     );
     if points.is_empty() {
-        let _ = writeln!(s, "No run at this profile.\n");
+        let _ = writeln!(
+            s,
+            "No run of it trained yet at this profile (see \"Not reproduced yet\")."
+        );
+        let _ = writeln!(s);
         return s;
     }
     let _ = writeln!(
@@ -485,7 +489,11 @@ pub fn report_section_b(points: &[SortingPoint]) -> String {
         "## Fig. ablation (b): object sorting, another order than the demo's\n\nPanel (b) of [ablation.png](ablation.png).\n"
     );
     if points.is_empty() {
-        let _ = writeln!(s, "No run at this profile.\n");
+        let _ = writeln!(
+            s,
+            "No run of it trained yet at this profile (see \"Not reproduced yet\")."
+        );
+        let _ = writeln!(s);
         return s;
     }
     let _ = writeln!(

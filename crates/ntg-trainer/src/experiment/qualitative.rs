@@ -231,7 +231,7 @@ pub fn sorting_report_section(figure: Option<&SortingTraceFigure>, folder: &str)
     let Some(f) = figure else {
         let _ = writeln!(
             s,
-            "No successful test episode of the searched run left its demo's path.\n"
+            "No successful test episode of the searched run (the whole sorting model's) left its demo's path, or that run is not trained yet at this profile.\n"
         );
         return s;
     };

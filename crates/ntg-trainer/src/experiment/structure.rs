@@ -126,7 +126,11 @@ pub fn report_section(points: &[StructurePoint]) -> String {
         "## Beyond the paper: block stacking split by structure\n\nEach curve of fig. ntp_exp at its largest number of training tasks, scored on as many tasks whose structure (the goals once cube names are ignored) no training-pool task has: of the 33 structures of at most eight cubes the standard set has the 23 with towers of two to four cubes, and these tasks have a tower of five to eight (`ntg eval --split structure`; every seed of that point).\n"
     );
     if points.is_empty() {
-        let _ = writeln!(s, "No run at this profile.\n");
+        let _ = writeln!(
+            s,
+            "No run of it trained yet at this profile (see \"Not reproduced yet\")."
+        );
+        let _ = writeln!(s);
         return s;
     }
     let _ = writeln!(
