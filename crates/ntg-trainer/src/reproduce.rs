@@ -150,13 +150,24 @@ pub fn reproduce(
         .unwrap_or_else(|e| e.into_inner())
         .clone();
     if !missing.is_empty() {
-        not_yet.push((
-            format!("{} runs not trained yet", missing.len()),
-            format!(
-                "left out of the figures and tables above: {}",
-                missing.join(", ")
-            ),
-        ));
+        // By figure: the run name's prefix (`ntp_exp-...`, `ablation_b-...`).
+        let mut by_figure: Vec<(&str, Vec<&str>)> = Vec::new();
+        for name in &missing {
+            let figure = name.split('-').next().unwrap_or(name);
+            match by_figure.iter_mut().find(|(f, _)| *f == figure) {
+                Some((_, names)) => names.push(name),
+                None => by_figure.push((figure, vec![name])),
+            }
+        }
+        for (figure, names) in by_figure {
+            not_yet.push((
+                format!("fig. {figure}: {} runs not trained yet", names.len()),
+                format!(
+                    "left out of the figure and tables above: {}",
+                    names.join(", ")
+                ),
+            ));
+        }
     }
     if profile != Profile::Paper {
         not_yet.push((
