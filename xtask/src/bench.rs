@@ -5,8 +5,9 @@
 //!
 //! 1. burn, rows 1–5: the `twin_bench` example of `ntg-model` (release),
 //!    with `RAYON_NUM_THREADS=N` (burn's `flex` backend computes on rayon's
-//!    global pool); one JSON line per row. Row 1b is the state step split
-//!    into 2 data-parallel shards, as `ntg train` trains by default; then
+//!    global pool); one JSON line per row. Rows 1b and 2b are the state
+//!    step and the frame step split into 2 data-parallel shards, as `ntg
+//!    train` trains by default; then
 //!    the state step again on 1 thread, 1 shard, the reference of row 7
 //!    (the data-parallel speedup in samples per second);
 //! 2. PyTorch, rows 1–5: `crates/ntg-model/benches/pytorch/twin.py --bench
@@ -44,9 +45,10 @@ pub struct Bench {
     pub out: PathBuf,
 }
 
-/// The rows both sides time: (key, label). `state_step_2_shards` is burn's
-/// only; its PyTorch column is the twin's `state_step` (see [`twin_key`]).
-const NET_ROWS: [(&str, &str); 6] = [
+/// The rows both sides time: (key, label). The `_2_shards` rows are burn's
+/// only; their PyTorch column is the twin's step without the suffix (see
+/// [`twin_key`]).
+const NET_ROWS: [(&str, &str); 7] = [
     ("state_step", "state training step (full model, batch 32)"),
     (
         "state_step_2_shards",
@@ -55,6 +57,10 @@ const NET_ROWS: [(&str, &str); 6] = [
     (
         "frame_step",
         "frame encoder training step (stage A, 64 frames)",
+    ),
+    (
+        "frame_step_2_shards",
+        "  the same, 2 data-parallel shards (stage A of ntg train --obs vid)",
     ),
     ("interpreter_step", "demo interpreter training step (state)"),
     ("gcn_step", "GCN training step (32 graphs)"),
@@ -100,10 +106,10 @@ fn json_lines(stdout: &[u8]) -> Vec<Value> {
 /// against the twin's plain step, which uses its threads inside each
 /// operation (the same batch, the same thread count).
 fn twin_key(key: &str) -> &str {
-    if key == "state_step_2_shards" {
-        "state_step"
-    } else {
-        key
+    match key {
+        "state_step_2_shards" => "state_step",
+        "frame_step_2_shards" => "frame_step",
+        _ => key,
     }
 }
 
@@ -288,7 +294,7 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
         Twin::Missing(why) => (&[][..], None, Some(why.clone())),
     };
     let mut rows: Vec<Row> = Vec::new();
-    let numbers = ["1", "1b", "2", "3", "4", "5"];
+    let numbers = ["1", "1b", "2", "2b", "3", "4", "5"];
     for ((key, label), number) in NET_ROWS.iter().zip(numbers) {
         let ours = find(&burn, key);
         let theirs = find(twin_rows, twin_key(key));
@@ -413,7 +419,7 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
     }
     println!(
         "burn: RAYON_NUM_THREADS={}; PyTorch: torch.set_num_threads({}){}. \
-         Row 1b's PyTorch column is the twin's row 1; rows 6 and 7 have no PyTorch counterpart.",
+         Rows 1b and 2b have the PyTorch column of rows 1 and 2; rows 6 and 7 have no PyTorch counterpart.",
         b.threads,
         b.threads,
         torch

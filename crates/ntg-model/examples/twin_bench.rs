@@ -21,6 +21,9 @@
 //! - `frame_step`: one stage A step (`FrameStageNet` at the trainer's
 //!   default settings: 3×3 convolutions, no decoder) on 64 frames of
 //!   3×64×64;
+//! - `frame_step_2_shards`: the same step as stage A of `ntg train --obs
+//!   vid` takes it (2 shards by default): frames 0–31 and 32–63 each on
+//!   their own thread, losses weighted by half, one Adam step;
 //! - `interpreter_step`: the demo interpreter alone on the same 32 demos;
 //! - `gcn_step`: the GCN alone on the same 32 graphs;
 //! - `policy_step`: one executor decision at rollout (inference): encode
@@ -78,10 +81,11 @@ const FRAME_DIM: usize = 3 * 64 * 64;
 /// Adam's learning rate (the twin's).
 const LR: f64 = 3e-3;
 /// Every row, in the table's order.
-const ROWS: [&str; 6] = [
+const ROWS: [&str; 7] = [
     "state_step",
     "state_step_2_shards",
     "frame_step",
+    "frame_step_2_shards",
     "interpreter_step",
     "gcn_step",
     "policy_step",
@@ -326,7 +330,7 @@ fn bench_row(
             })?;
             Ok((median, min, repeats, shape))
         }
-        "frame_step" => {
+        "frame_step" | "frame_step_2_shards" => {
             let n = NUM_NODES;
             let pixels: Vec<f32> = (0..FRAMES * FRAME_DIM)
                 .map(|i| unit(1_000_000_000 + i as u64) as f32)
@@ -356,17 +360,39 @@ fn bench_row(
                 .init(&device)?;
             let mut slot = Some(net);
             let mut optim: ModuleOptimizer = AdamConfig::new().init();
+            // The 2-shard row splits the 64 frames into halves, as stage A
+            // of `ntg train --shards 2` does.
+            let half = FRAMES / 2;
+            let halves: Vec<_> = (0..2)
+                .map(|i| {
+                    (
+                        frames.clone().narrow(0, i * half, half),
+                        labels.clone().narrow(0, i * half, half),
+                        next.clone().narrow(0, i * half, half),
+                        successors.clone().narrow(0, i * half, half),
+                    )
+                })
+                .collect();
             let (median, min) = time(warmup, repeats, || {
                 let net = slot.take().ok_or("net")?;
-                let loss = net
-                    .loss(
-                        frames.clone(),
-                        labels.clone(),
-                        next.clone(),
-                        successors.clone(),
-                    )?
-                    .loss;
-                slot = Some(adam_step(net, &mut optim, loss));
+                if row == "frame_step" {
+                    let loss = net
+                        .loss(
+                            frames.clone(),
+                            labels.clone(),
+                            next.clone(),
+                            successors.clone(),
+                        )?
+                        .loss;
+                    slot = Some(adam_step(net, &mut optim, loss));
+                } else {
+                    let (grads, _) = ntg_model::sharded_gradients(&net, 2, |m, i| {
+                        let (f, l, x, s) = &halves[i];
+                        let loss = m.loss(f.clone(), l.clone(), x.clone(), s.clone())?.loss;
+                        Ok::<_, ntg_model::ModelError>((loss.mul_scalar(0.5), ()))
+                    })?;
+                    slot = Some(optim.step(LR, net, grads));
+                }
                 sync(&device)?;
                 Ok(())
             })?;

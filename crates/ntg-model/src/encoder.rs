@@ -419,9 +419,9 @@ impl Encoder {
                 if e.coords {
                     x = Tensor::cat(vec![x, coordinate_channels(batch, s, &obs_device)], 1);
                 }
-                let x = relu(e.conv1.forward(x));
-                let x = relu(e.conv2.forward(x));
-                let x = relu(e.conv3.forward(x));
+                let x = relu(crate::conv::conv2d(&e.conv1, x));
+                let x = relu(crate::conv::conv2d(&e.conv2, x));
+                let x = relu(crate::conv::conv2d(&e.conv3, x));
                 let x: Tensor<2> = if e.keypoints {
                     expected_coordinates(x)
                 } else {

@@ -221,8 +221,8 @@ impl FrameDecoder {
         let b = encoded.dims()[0];
         let s = self.side;
         let x: Tensor<4> = relu(self.fc.forward(encoded)).reshape([b, self.channels[0], s, s]);
-        let x = relu(self.conv1.forward(upsample2(x)));
-        self.conv2.forward(upsample2(x))
+        let x = relu(crate::conv::conv2d(&self.conv1, upsample2(x)));
+        crate::conv::conv2d(&self.conv2, upsample2(x))
     }
 
     /// Mean squared error against frames `[B, D]` (flattened CHW),

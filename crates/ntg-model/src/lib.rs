@@ -41,6 +41,7 @@
 mod backend;
 mod batch;
 mod checkpoint;
+pub mod conv;
 mod detector;
 mod edge;
 mod encoder;
