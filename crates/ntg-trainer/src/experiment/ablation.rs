@@ -187,13 +187,21 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
             ));
         }
     }
-    let best = points.iter().all(|p| p.success.rate <= full.success.rate);
-    lines.push(format!(
-        "The whole model is best: **{}** ({}).",
-        holds(best),
-        rate(full)
-    ));
+    lines.push(whole_model_best(points.len(), rate(full), || {
+        points.iter().all(|p| p.success.rate <= full.success.rate)
+    }));
     lines
+}
+
+/// The line "the whole model is best": checked only against at least one
+/// other trained variant (`variants` counts the whole model too).
+fn whole_model_best(variants: usize, full: String, best: impl FnOnce() -> bool) -> String {
+    if variants < 2 {
+        format!("The whole model is best: **not checked**, no other variant trained yet ({full}).")
+    } else {
+        let verdict = if best() { "holds" } else { "does not hold" };
+        format!("The whole model is best: **{verdict}** ({full}).")
+    }
 }
 
 /// The report section of fig. "ablation" (Markdown); `recipe_note` says
@@ -472,11 +480,9 @@ pub fn trend_checks_b(points: &[SortingPoint]) -> Vec<String> {
         ));
     }
     if let Some(full) = of(Variant::Full) {
-        lines.push(format!(
-            "The whole model is best: **{}** ({}).",
-            holds(points.iter().all(|p| p.success.rate <= full.success.rate)),
-            rate(full)
-        ));
+        lines.push(whole_model_best(points.len(), rate(full), || {
+            points.iter().all(|p| p.success.rate <= full.success.rate)
+        }));
     }
     lines
 }
@@ -620,6 +626,18 @@ mod tests {
         assert!(report.contains("The whole model is best: **"), "{report}");
         write_figure(&points, &[], &dir.path().join("ablation")).unwrap();
         assert!(dir.path().join("ablation.svg").is_file());
+    }
+
+    #[test]
+    fn the_whole_model_is_best_only_against_another_variant() {
+        let line = |n, best| whole_model_best(n, "0.6".into(), || best);
+        assert!(
+            line(1, true).contains("**not checked**"),
+            "{}",
+            line(1, true)
+        );
+        assert!(line(2, true).contains("**holds**"));
+        assert!(line(3, false).contains("**does not hold**"));
     }
 
     #[test]
