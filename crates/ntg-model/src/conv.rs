@@ -350,30 +350,20 @@ impl<B: Im2colKernels, C: CheckpointStrategy> Im2colConv for Autodiff<B, C> {
             stride,
             padding,
         );
-        match Im2colConvBackward
+        let kind = Im2colConvBackward
             .prepare::<C>([x.node(), weight.node(), bias.node()])
             .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => {
-                let w = weight.primitive().clone();
-                let (y, cols) = B::im2col_conv_forward(
-                    x.into_primitive(),
-                    weight.into_primitive(),
-                    bias.into_primitive(),
-                    g,
-                );
-                prep.finish((cols, w, g), y)
-            }
-            OpsKind::UnTracked(prep) => {
-                let (y, _) = B::im2col_conv_forward(
-                    x.into_primitive(),
-                    weight.into_primitive(),
-                    bias.into_primitive(),
-                    g,
-                );
-                prep.finish(y)
-            }
+            .stateful();
+        let w = weight.primitive().clone();
+        let (y, cols) = B::im2col_conv_forward(
+            x.into_primitive(),
+            weight.into_primitive(),
+            bias.into_primitive(),
+            g,
+        );
+        match kind {
+            OpsKind::Tracked(prep) => prep.finish((cols, w, g), y),
+            OpsKind::UnTracked(prep) => prep.finish(y),
         }
     }
 }
