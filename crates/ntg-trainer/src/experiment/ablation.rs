@@ -441,7 +441,7 @@ pub fn run_b(
         })
         .collect();
     Ok(
-        crate::experiment::in_parallel("ablation (b)", plan.jobs, wave)?
+        crate::experiment::in_parallel("ablation (b)", &plan.slots, wave)?
             .into_iter()
             .flatten()
             .collect(),

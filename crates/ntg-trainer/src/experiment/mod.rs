@@ -48,8 +48,9 @@ pub const BUILT_IN: [(&str, &str); 5] = [
 pub struct Plan<'a> {
     /// The folder of the run folders.
     pub runs: &'a Path,
-    /// Runs trained at once (each on one thread).
-    pub jobs: usize,
+    /// Places for the runs trained at once (each on one thread), shared by
+    /// every figure of the invocation.
+    pub slots: Slots,
     /// Only these run folders (`--only`); `None`: every run.
     pub only: Option<&'a [String]>,
     /// Where run records are kept: a finished run's record is written there
@@ -72,7 +73,7 @@ impl<'a> Plan<'a> {
     pub fn train_all(runs: &'a Path, jobs: usize) -> Self {
         Plan {
             runs,
-            jobs,
+            slots: Slots::new(jobs),
             only: None,
             records: None,
             restore: false,
@@ -177,21 +178,119 @@ pub(crate) fn seeded_name(base: String, seed: u64, default: u64) -> String {
     }
 }
 
+/// The places for runs training at once, shared by the figures of one
+/// `ntg reproduce`: figures that do not depend on each other's runs train
+/// side by side, so a core left idle while one figure waits for its
+/// longest run takes the next run of another. A run takes a place before
+/// it starts and gives it back when it ends; after a failure no run gets
+/// one.
+#[derive(Debug)]
+pub struct Slots {
+    count: usize,
+    state: std::sync::Mutex<SlotState>,
+    changed: std::sync::Condvar,
+}
+
+#[derive(Debug)]
+struct SlotState {
+    free: usize,
+    /// Whether a run ever took a place, or [`Slots::open`] was called.
+    started: bool,
+    /// A run failed: no more places are given.
+    failed: bool,
+}
+
+impl Slots {
+    /// `count` places (at least one).
+    pub fn new(count: usize) -> Self {
+        let count = count.max(1);
+        Slots {
+            count,
+            state: std::sync::Mutex::new(SlotState {
+                free: count,
+                started: false,
+                failed: false,
+            }),
+            changed: std::sync::Condvar::new(),
+        }
+    }
+
+    /// How many runs train at once.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, SlotState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Waits for a free place and takes it; `None` once a run has failed.
+    fn take(&self) -> Option<SlotTaken<'_>> {
+        let mut state = self.lock();
+        while state.free == 0 && !state.failed {
+            state = self.changed.wait(state).unwrap_or_else(|e| e.into_inner());
+        }
+        if state.failed {
+            return None;
+        }
+        state.free -= 1;
+        state.started = true;
+        self.changed.notify_all();
+        Some(SlotTaken(self))
+    }
+
+    /// Waits until some run has taken a place (or [`Slots::open`] was
+    /// called): a figure started beside another calls it first, so that
+    /// the other's first run (listed first because it is the longest)
+    /// starts first.
+    pub(crate) fn wait_for_a_start(&self) {
+        let mut state = self.lock();
+        while !state.started && !state.failed {
+            state = self.changed.wait(state).unwrap_or_else(|e| e.into_inner());
+        }
+    }
+
+    /// Lets [`Slots::wait_for_a_start`] return although no run started
+    /// (the figure in front had none to train).
+    pub(crate) fn open(&self) {
+        self.lock().started = true;
+        self.changed.notify_all();
+    }
+
+    /// No run gets a place from now on.
+    pub(crate) fn fail(&self) {
+        self.lock().failed = true;
+        self.changed.notify_all();
+    }
+}
+
+/// A place taken from [`Slots`]; given back when dropped.
+struct SlotTaken<'a>(&'a Slots);
+
+impl Drop for SlotTaken<'_> {
+    fn drop(&mut self) {
+        self.0.lock().free += 1;
+        self.0.changed.notify_all();
+    }
+}
+
 /// One run of a figure, to be started by [`in_parallel`].
 pub(crate) type Job<'a, T> = Box<dyn FnOnce() -> anyhow::Result<T> + Send + 'a>;
 
 /// Runs `jobs` (each a run of a figure: trained or reused, then evaluated)
-/// on up to `workers` threads at once, in list order, and returns their
-/// results in that order. A run's result does not depend on which others
-/// run beside it (each is seeded on its own), only the wall time does: the
-/// figures' runs train on one thread each (`shards` unset), so two at once
-/// use both cores of a 2-core machine. After a job fails no new one starts,
-/// and the first failure in list order is returned. A line on stderr
-/// after each run says how many of `what` are done, and the time left at
-/// the pace so far (a rough guide: runs differ in size).
+/// in list order, each once it has a place in `slots` (so at most
+/// `slots.count()` at once, this call's and other figures' together), and
+/// returns their results in that order. A run's result does not depend on
+/// which others run beside it (each is seeded on its own), only the wall
+/// time does: the figures' runs train on one thread each (`shards` unset),
+/// so two at once use both cores of a 2-core machine. After a job fails no
+/// new one starts (here or in another figure), and the first failure in
+/// list order is returned. A line on stderr after each run says how many
+/// of `what` are done, and the time left at the pace so far (a rough
+/// guide: runs differ in size).
 pub(crate) fn in_parallel<T: Send>(
     what: &str,
-    workers: usize,
+    slots: &Slots,
     jobs: Vec<Job<'_, T>>,
 ) -> anyhow::Result<Vec<T>> {
     use std::sync::Mutex;
@@ -204,13 +303,17 @@ pub(crate) fn in_parallel<T: Send>(
         Mutex::new((0..count).map(|_| None).collect());
     let failed = AtomicBool::new(false);
     std::thread::scope(|scope| {
-        for _ in 0..workers.clamp(1, count.max(1)) {
+        for _ in 0..slots.count().min(count) {
             scope.spawn(|| {
                 while !failed.load(Ordering::SeqCst) {
+                    let Some(_slot) = slots.take() else { break };
                     let next = queue.lock().unwrap_or_else(|e| e.into_inner()).next();
                     let Some((index, job)) = next else { break };
                     let result = job();
-                    failed.fetch_or(result.is_err(), Ordering::SeqCst);
+                    if result.is_err() {
+                        failed.store(true, Ordering::SeqCst);
+                        slots.fail();
+                    }
                     let done = finished.fetch_add(1, Ordering::SeqCst) + 1;
                     let seconds = started.elapsed().as_secs_f64();
                     eprintln!(
@@ -227,7 +330,7 @@ pub(crate) fn in_parallel<T: Send>(
     for result in results {
         match result {
             Some(result) => done.push(result?),
-            None => bail!("a run before this one failed, so it was not started"),
+            None => bail!("another run failed, so this one was not started"),
         }
     }
     Ok(done)
@@ -415,7 +518,7 @@ mod tests {
             })
             .collect();
         assert_eq!(
-            in_parallel("test", 3, jobs).unwrap(),
+            in_parallel("test", &Slots::new(3), jobs).unwrap(),
             vec![0, 10, 20, 30, 40, 50, 60]
         );
         let jobs: Vec<Job<'static, usize>> = vec![
@@ -423,13 +526,69 @@ mod tests {
             Box::new(|| bail!("run two broke")),
             Box::new(|| bail!("run three broke")),
         ];
-        let err = in_parallel("test", 1, jobs).unwrap_err().to_string();
+        let err = in_parallel("test", &Slots::new(1), jobs)
+            .unwrap_err()
+            .to_string();
         assert_eq!(err, "run two broke");
         assert!(
-            in_parallel::<usize>("test", 2, Vec::new())
+            in_parallel::<usize>("test", &Slots::new(2), Vec::new())
                 .unwrap()
                 .is_empty()
         );
+    }
+
+    #[test]
+    fn figures_side_by_side_share_the_places_and_a_failure_stops_both() {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        let slots = Slots::new(2);
+        let (running, most) = (AtomicUsize::new(0), AtomicUsize::new(0));
+        let job = |i: usize| {
+            let (running, most) = (&running, &most);
+            Box::new(move || {
+                let now = running.fetch_add(1, Ordering::SeqCst) + 1;
+                most.fetch_max(now, Ordering::SeqCst);
+                std::thread::sleep(std::time::Duration::from_millis(3));
+                running.fetch_sub(1, Ordering::SeqCst);
+                Ok(i)
+            }) as Job<'_, usize>
+        };
+        let (a, b) = std::thread::scope(|scope| {
+            let b = scope.spawn(|| {
+                slots.wait_for_a_start();
+                in_parallel("b", &slots, (10..16).map(job).collect())
+            });
+            let a = in_parallel("a", &slots, (0..6).map(job).collect());
+            (a, b.join().unwrap())
+        });
+        assert_eq!(a.unwrap(), (0..6).collect::<Vec<_>>());
+        assert_eq!(b.unwrap(), (10..16).collect::<Vec<_>>());
+        assert_eq!(most.load(Ordering::SeqCst), 2, "two places, both used");
+
+        // Nothing to run in front: `open` lets the other figure go.
+        let slots = Slots::new(2);
+        std::thread::scope(|scope| {
+            let b = scope.spawn(|| {
+                slots.wait_for_a_start();
+                in_parallel(
+                    "b",
+                    &slots,
+                    vec![Box::new(|| Ok(1_usize)) as Job<'_, usize>],
+                )
+            });
+            slots.open();
+            assert_eq!(b.join().unwrap().unwrap(), vec![1]);
+        });
+
+        // A failure in one figure: the other starts no new run.
+        let slots = Slots::new(1);
+        let err = in_parallel::<usize>("a", &slots, vec![Box::new(|| bail!("broke"))]);
+        assert_eq!(err.unwrap_err().to_string(), "broke");
+        let err = in_parallel(
+            "b",
+            &slots,
+            vec![Box::new(|| Ok(1_usize)) as Job<'_, usize>],
+        );
+        assert!(err.unwrap_err().to_string().contains("another run failed"));
     }
 
     #[test]

@@ -397,7 +397,7 @@ pub fn run(
             })
             .collect();
         points.extend(
-            crate::experiment::in_parallel(&experiment.name, plan.jobs, wave)?
+            crate::experiment::in_parallel(&experiment.name, &plan.slots, wave)?
                 .into_iter()
                 .flatten(),
         );

@@ -287,7 +287,7 @@ pub fn run(
     let line = &line;
     let lines = crate::experiment::in_parallel(
         "thor_all",
-        plan.jobs,
+        &plan.slots,
         experiment
             .runs(profile)
             .into_iter()
