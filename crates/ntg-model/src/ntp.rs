@@ -276,7 +276,7 @@ impl DemoGrid {
     }
 
     /// The decisions' rows `[S, C]` of a grid `[B, M, C]`.
-    fn from_grid(&self, x: Tensor<3>) -> Tensor<2> {
+    fn decisions_of(&self, x: Tensor<3>) -> Tensor<2> {
         let c = x.dims()[2];
         x.reshape([self.demos * self.width, c])
             .select(0, self.place.clone())
@@ -651,14 +651,14 @@ impl NtpNet {
             .matmul(spec.keys.clone().swap_dims(1, 2))
             .div_scalar((h as f32).sqrt()); // [B, M, R]
         // Empty places of the grid attend nowhere (all rows masked) and are
-        // dropped by `from_grid`.
+        // dropped by `decisions_of`.
         let outside = grid.to_grid(scope_mask).lower_elem(0.5);
         let alpha = softmax(scores.mask_fill(outside, MASKED_LOGIT), 2);
         let pooled_objects = spec
             .objects
             .as_ref()
-            .map(|objects| grid.from_grid(alpha.clone().matmul(objects.clone()))); // [S, K]
-        let context = grid.from_grid(alpha.matmul(spec.rows.clone())); // [S, E]
+            .map(|objects| grid.decisions_of(alpha.clone().matmul(objects.clone()))); // [S, K]
+        let context = grid.decisions_of(alpha.matmul(spec.rows.clone())); // [S, E]
         let mut core_input = vec![obs, prog, context];
         if let (Some(pooled), Some(current)) = (
             &pooled_objects,
@@ -709,7 +709,7 @@ impl NtpNet {
         let [_, m, _, c] = logits.dims();
         let k = grid.decisions;
         Ok(grid
-            .from_grid(logits.reshape([b, m, r * c]))
+            .decisions_of(logits.reshape([b, m, r * c]))
             .reshape([k, r, c]))
     }
 
