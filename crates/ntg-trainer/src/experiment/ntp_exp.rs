@@ -1301,11 +1301,14 @@ mod tests {
                 gcn_from_other_demo: false,
             },
         };
+        let small = &quick.panels[3];
+        let mut at_50 = expected(50, 19, 20, false);
+        at_50.validate_every = 2;
         assert_eq!(
             experiment
-                .run_config(Profile::Quick, state, (MethodId::Ntg, Variant::Full), 50)
+                .run_config(Profile::Quick, small, (MethodId::Ntg, Variant::Full), 50)
                 .unwrap(),
-            expected(50, 44, 50, false)
+            at_50
         );
         assert_eq!(
             experiment
@@ -1338,7 +1341,7 @@ mod tests {
                 50,
             )
             .unwrap();
-        assert_eq!(c.video.as_ref().unwrap().encoder.demos, 100);
+        assert_eq!(c.video.as_ref().unwrap().encoder.demos, 50);
         assert_eq!(
             experiment.run_name(quick_vid, (MethodId::Ntp, Variant::Full), 50),
             "ntp_exp-vid-ntp-50"
