@@ -165,11 +165,14 @@ pub fn reproduce(
         Some(p) => qualitative::blocks_trace(&p.run, p.success.trials, &out.join("trace_blocks"))?,
         None => None,
     };
-    let missing = plan
+    let mut missing = plan
         .missing
         .lock()
         .unwrap_or_else(|e| e.into_inner())
         .clone();
+    // Noted as runs finish, two at a time: sorted, so the report is the
+    // same from one invocation to the next.
+    missing.sort();
     if !missing.is_empty() {
         // By figure: the run name's prefix (`ntp_exp-...`, `ablation_b-...`).
         let mut by_figure: Vec<(&str, Vec<&str>)> = Vec::new();
