@@ -171,7 +171,7 @@ pub fn col2im(cols: &[f32], g: ConvGeometry) -> Vec<f32> {
 }
 
 /// The contiguous `f32` values of a flex tensor.
-fn values(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
+pub(crate) fn values(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
     match t.as_slice::<f32>() {
         Some(s) => std::borrow::Cow::Borrowed(s),
         None => {
@@ -180,7 +180,7 @@ fn values(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
     }
 }
 
-fn flex(values: Vec<f32>, shape: impl Into<Shape>) -> FlexTensor {
+pub(crate) fn flex(values: Vec<f32>, shape: impl Into<Shape>) -> FlexTensor {
     FlexTensor::from_data(TensorData::new(values, shape.into()))
 }
 
@@ -369,7 +369,7 @@ impl<B: Im2colKernels, C: CheckpointStrategy> Im2colConv for Autodiff<B, C> {
 }
 
 /// Whether `device` computes on `flex` (directly or under autodiff).
-fn is_flex(device: &DispatchDevice) -> bool {
+pub(crate) fn is_flex(device: &DispatchDevice) -> bool {
     match device {
         DispatchDevice::Flex(_) => true,
         DispatchDevice::Autodiff(inner) => matches!(**inner, DispatchDevice::Flex(_)),

@@ -3,7 +3,9 @@
 use burn::config::Config;
 use burn::module::{Module, Param};
 use burn::nn::Linear;
-use burn::tensor::activation::{relu, sigmoid};
+use burn::tensor::activation::relu;
+
+use crate::activation::sigmoid;
 use burn::tensor::{Device, Tensor, TensorData};
 use ctg_graph::Vocabulary;
 

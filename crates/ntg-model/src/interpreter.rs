@@ -4,7 +4,9 @@
 use burn::config::Config;
 use burn::module::{Module, Param};
 use burn::nn::Linear;
-use burn::tensor::activation::{softmax, tanh};
+use burn::tensor::activation::softmax;
+
+use crate::activation::tanh;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use ctg_graph::{ActionId, Vocabulary};
 

@@ -38,6 +38,7 @@
 //! environment crate (`env-*`) or on the trainer: it sees observations as
 //! flat `f32` rows and tensors, and task graphs as `ctg_graph` types.
 
+pub mod activation;
 mod backend;
 mod batch;
 mod checkpoint;

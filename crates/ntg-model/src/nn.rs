@@ -9,7 +9,9 @@
 use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
 use burn::nn::{Linear, PaddingConfig2d};
-use burn::tensor::activation::{log_softmax, sigmoid, tanh};
+use burn::tensor::activation::log_softmax;
+
+use crate::activation::{sigmoid, tanh};
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
