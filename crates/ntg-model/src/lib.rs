@@ -50,6 +50,7 @@ mod error;
 mod flat_policy;
 mod frame_stage;
 mod gcn;
+mod gru;
 mod interpreter;
 mod localizer;
 mod model;

@@ -11,7 +11,6 @@ use burn::nn::conv::Conv2d;
 use burn::nn::{Linear, PaddingConfig2d};
 use burn::tensor::activation::log_softmax;
 
-use crate::activation::{sigmoid, tanh};
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -139,16 +138,8 @@ impl GruCell {
 
     /// One step from a projected input `[B, 3H]` and state `[B, H]`.
     pub fn step_projected(&self, x_proj: Tensor<2>, h: Tensor<2>) -> Tensor<2> {
-        let hd = self.d_hidden;
         let h_proj = self.hidden.forward(h.clone());
-        let x_rz = x_proj.clone().narrow(1, 0, 2 * hd);
-        let h_rz = h_proj.clone().narrow(1, 0, 2 * hd);
-        let rz = sigmoid(x_rz + h_rz);
-        let r = rz.clone().narrow(1, 0, hd);
-        let z = rz.narrow(1, hd, hd);
-        let n = tanh(x_proj.narrow(1, 2 * hd, hd) + r * h_proj.narrow(1, 2 * hd, hd));
-        // h' = n + z ⊙ (h − n)
-        n.clone() + z * (h - n)
+        crate::gru::gru_gates(x_proj, h_proj, h, None)
     }
 
     /// One step from an input `[B, d_in]` and state `[B, H]`.
@@ -178,14 +169,10 @@ impl GruCell {
                 .clone()
                 .narrow(1, t, 1)
                 .reshape([batch, 3 * self.d_hidden]);
-            let next = self.step_projected(xt, h.clone());
-            h = match &mask {
-                Some(mask) => {
-                    let m = mask.clone().narrow(1, t, 1); // [B, 1]
-                    h.clone() + m * (next - h)
-                }
-                None => next,
-            };
+            let h_proj = self.hidden.forward(h.clone());
+            // Padded steps (mask 0) carry the state over.
+            let m = mask.as_ref().map(|mask| mask.clone().narrow(1, t, 1)); // [B, 1]
+            h = crate::gru::gru_gates(xt, h_proj, h, m);
             outputs.push(h.clone());
         }
         if outputs.is_empty() {
