@@ -452,10 +452,13 @@ fn is_zero(seed: &u64) -> bool {
     *seed == 0
 }
 
-/// Panel (b)'s trend, checked on the first seed's runs (Markdown lines).
+/// Panel (b)'s trend, checked on the runs of the smallest seed trained
+/// (Markdown lines): other seeds' runs are left out of every comparison,
+/// "the whole model is best" included.
 pub fn trend_checks_b(points: &[SortingPoint]) -> Vec<String> {
-    let first = points.first().map_or(0, |p| p.seed);
-    let of = |v: Variant| points.iter().find(|p| p.ablation == v && p.seed == first);
+    let first = points.iter().map(|p| p.seed).min().unwrap_or(0);
+    let points: Vec<&SortingPoint> = points.iter().filter(|p| p.seed == first).collect();
+    let of = |v: Variant| points.iter().copied().find(|p| p.ablation == v);
     let rate = |p: &SortingPoint| {
         format!(
             "{:.3} ({:.3}–{:.3})",
@@ -638,6 +641,43 @@ mod tests {
         );
         assert!(line(2, true).contains("**holds**"));
         assert!(line(3, false).contains("**does not hold**"));
+    }
+
+    #[test]
+    fn panel_b_trend_compares_runs_of_one_seed() {
+        let point = |ablation: Variant, seed: u64, successes: usize| SortingPoint {
+            ablation,
+            seed,
+            train_tasks: 10,
+            demos_per_task: 2,
+            epochs: 1,
+            selected_epoch: None,
+            success: SuccessRate::new(successes, 100),
+            goal_fraction: 0.5,
+            train_seconds: 1.0,
+            run: PathBuf::new(),
+        };
+        // A second seed of the whole model scoring above the first is not
+        // "another variant": the whole model stays best.
+        let points = [
+            point(Variant::Full, 1, 80),
+            point(Variant::Full, 0, 60),
+            point(Variant::NoGcn, 0, 30),
+            point(Variant::NoEdgeClassifier, 0, 0),
+        ];
+        let lines = trend_checks_b(&points).join("\n");
+        assert!(
+            lines.contains("The whole model is best: **holds** (0.600"),
+            "{lines}"
+        );
+        assert!(lines.contains("against 0.600"), "{lines}");
+        // Within one seed a variant above the whole model breaks it.
+        let points = [point(Variant::Full, 0, 30), point(Variant::NoGcn, 0, 60)];
+        let lines = trend_checks_b(&points).join("\n");
+        assert!(
+            lines.contains("The whole model is best: **does not hold**"),
+            "{lines}"
+        );
     }
 
     #[test]
