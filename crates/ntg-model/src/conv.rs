@@ -6,15 +6,24 @@
 //! output gradient, whose "kernel" is the whole output map. On `flex` that
 //! is several times slower than the forward pass at the frame encoder's
 //! sizes (64 frames, 3→32→64→64 channels, 64→32→16→8 pixels), and it was
-//! most of stage A's training step (issue 19). Here every pass is one large
-//! matrix product over the unfolded input (`cols`, `[C·k·k, B·L]`, kept
-//! from the forward pass for the weight gradient):
+//! most of stage A's training step (issue 19). Here every pass is one
+//! matrix product per image over its unfolded input (`cols_b`, `[C·k·k,
+//! L]`, kept from the forward pass for the backward), each written straight
+//! into a buffer this module owns (`matmul.rs`):
 //!
-//! - forward: `Y = W · cols` (`[C_out, B·L]`), bias added while writing
-//!   `[B, C_out, H_out, W_out]`;
-//! - weight gradient: `∂W = G · colsᵀ`; bias gradient: row sums of `G`;
-//! - input gradient: `∂cols = Wᵀ · G`, folded back onto the input
-//!   (col2im, a scatter-add).
+//! - forward: `Y_b = bias + W · cols_b`, already image `b`'s `[C_out, L]`
+//!   slab of the `[B, C_out, H_out, W_out]` output;
+//! - weight gradient: `∂W = Σ_b G_b · cols_bᵀ`, summed per fixed group of
+//!   images, the groups added in order (deterministic at any thread
+//!   count); bias gradient: sums of `G`;
+//! - input gradient: `∂cols_b = Wᵀ · G_b` into a per-group scratch buffer,
+//!   folded back onto image `b` at once (col2im, a scatter-add) while it
+//!   is in cache.
+//!
+//! No product allocates its output or changes layout between passes: the
+//! earlier version (one product over the whole batch through `flex`'s
+//! matmul) spent about a fifth of the step allocating, zero-filling,
+//! re-aligning and transposing outputs of up to 33 MB.
 //!
 //! [`conv2d`] takes this path on `flex` devices (autodiff or not) and burn's
 //! own `conv2d` everywhere else (ndarray, wgpu, cuda), and for dilated or
@@ -30,13 +39,14 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
-use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, DispatchDevice, Flex, TensorMetadata, backend_extension};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::Conv2d;
 use burn::tensor::{Shape, Tensor, TensorData};
 use rayon::prelude::*;
+
+use crate::matmul::{Matrix, gemm_into};
 
 /// Sizes of one convolution: input `[batch, channels, height, width]`,
 /// square kernel `kernel`, equal stride and padding on both axes.
@@ -105,70 +115,86 @@ impl ConvGeometry {
     }
 }
 
-/// Unfolds `x` (`[B, C, H, W]`, contiguous) into `cols` `[C·k·k, B·L]`:
-/// row `(c, ki, kj)`, column `(b, oi, oj)` holds `x[b, c, oi·s+ki−p,
-/// oj·s+kj−p]` (0 in the padding).
-pub fn im2col(x: &[f32], g: ConvGeometry) -> Vec<f32> {
+/// Unfolds one image `x` (`[C, H, W]`, contiguous) into `cols` (`[C·k·k,
+/// L]`, every entry written): row `(c, ki, kj)`, column `(oi, oj)` holds
+/// `x[c, oi·s+ki−p, oj·s+kj−p]` (0 in the padding).
+pub fn im2col_image(x: &[f32], g: ConvGeometry, cols: &mut [f32]) {
     let (ho, wo, l) = (g.out_height(), g.out_width(), g.positions());
-    let k = g.kernel;
-    let mut cols = vec![0.0f32; g.rows() * g.batch * l];
-    cols.par_chunks_mut(g.batch * l)
-        .enumerate()
-        .for_each(|(row, out)| {
-            let (c, ki, kj) = (row / (k * k), (row / k) % k, row % k);
-            let (lo, hi, first) = g.valid(kj, wo, g.width);
-            for b in 0..g.batch {
-                let plane = &x[(b * g.channels + c) * g.height * g.width..][..g.height * g.width];
+    let (k, step) = (g.kernel, g.stride);
+    for (row, out) in cols.chunks_mut(l).enumerate() {
+        let (c, ki, kj) = (row / (k * k), (row / k) % k, row % k);
+        let (lo, hi, first) = g.valid(kj, wo, g.width);
+        let plane = &x[c * g.height * g.width..][..g.height * g.width];
+        for (oi, dst) in out.chunks_mut(wo).enumerate().take(ho) {
+            let Some(i) = g.source(oi, ki, g.height) else {
+                dst.fill(0.0);
+                continue;
+            };
+            dst[..lo].fill(0.0);
+            dst[hi..].fill(0.0);
+            let (dst, src) = (&mut dst[lo..hi], &plane[i * g.width + first..]);
+            if step == 1 {
+                dst.copy_from_slice(&src[..dst.len()]);
+            } else {
+                for (j, d) in dst.iter_mut().enumerate() {
+                    *d = src[j * step];
+                }
+            }
+        }
+    }
+}
+
+/// The adjoint of [`im2col_image`]: adds each entry of `cols` (`[C·k·k,
+/// L]`) onto the position of `x` (`[C, H, W]`) it was read from.
+pub fn col2im_image(cols: &[f32], g: ConvGeometry, x: &mut [f32]) {
+    let (ho, wo, l) = (g.out_height(), g.out_width(), g.positions());
+    let (k, step) = (g.kernel, g.stride);
+    for (c, plane) in x.chunks_mut(g.height * g.width).enumerate() {
+        for ki in 0..k {
+            for kj in 0..k {
+                let (lo, hi, first) = g.valid(kj, wo, g.width);
+                let src = &cols[((c * k + ki) * k + kj) * l..][..l];
                 for oi in 0..ho {
                     let Some(i) = g.source(oi, ki, g.height) else {
                         continue;
                     };
-                    let src = &plane[i * g.width + first..];
-                    let dst = &mut out[b * l + oi * wo..][lo..hi];
-                    if g.stride == 1 {
-                        dst.copy_from_slice(&src[..hi - lo]);
-                    } else {
-                        for (d, s) in dst.iter_mut().zip(src.iter().step_by(g.stride)) {
-                            *d = *s;
-                        }
+                    let dst = &mut plane[i * g.width + first..];
+                    for (j, s) in src[oi * wo..][lo..hi].iter().enumerate() {
+                        dst[j * step] += s;
                     }
                 }
             }
-        });
+        }
+    }
+}
+
+/// Unfolds a batch `x` (`[B, C, H, W]`) into `[B, C·k·k, L]`, one
+/// [`im2col_image`] per image, the images in parallel.
+pub fn im2col(x: &[f32], g: ConvGeometry) -> Vec<f32> {
+    let (image, unfolded) = (g.channels * g.height * g.width, g.rows() * g.positions());
+    let mut cols = vec![0.0f32; g.batch * unfolded];
+    cols.par_chunks_mut(unfolded)
+        .zip(x.par_chunks(image))
+        .for_each(|(cols, x)| im2col_image(x, g, cols));
     cols
 }
 
-/// The adjoint of [`im2col`]: adds each entry of `cols` `[C·k·k, B·L]`
-/// onto the input position it was read from; returns `[B, C, H, W]`.
+/// The adjoint of [`im2col`]: folds `[B, C·k·k, L]` back onto `[B, C, H,
+/// W]`, the images in parallel.
 pub fn col2im(cols: &[f32], g: ConvGeometry) -> Vec<f32> {
-    let (ho, wo, l) = (g.out_height(), g.out_width(), g.positions());
-    let k = g.kernel;
-    let plane_size = g.height * g.width;
-    let mut x = vec![0.0f32; g.batch * g.channels * plane_size];
-    x.par_chunks_mut(plane_size)
-        .enumerate()
-        .for_each(|(bc, plane)| {
-            let (b, c) = (bc / g.channels, bc % g.channels);
-            for ki in 0..k {
-                for kj in 0..k {
-                    let (lo, hi, first) = g.valid(kj, wo, g.width);
-                    let row = (c * k + ki) * k + kj;
-                    let src = &cols[row * g.batch * l + b * l..][..l];
-                    for oi in 0..ho {
-                        let Some(i) = g.source(oi, ki, g.height) else {
-                            continue;
-                        };
-                        let dst = &mut plane[i * g.width + first..];
-                        let src = &src[oi * wo..][lo..hi];
-                        for (d, s) in dst.iter_mut().step_by(g.stride).zip(src) {
-                            *d += s;
-                        }
-                    }
-                }
-            }
-        });
+    let (image, unfolded) = (g.channels * g.height * g.width, g.rows() * g.positions());
+    let mut x = vec![0.0f32; g.batch * image];
+    x.par_chunks_mut(image)
+        .zip(cols.par_chunks(unfolded))
+        .for_each(|(x, cols)| col2im_image(cols, g, x));
     x
 }
+
+/// The backward pass splits the batch into this many groups of
+/// consecutive images, whatever the thread count: each group sums its
+/// images' weight gradients, and the groups' sums are added in order, so
+/// the result does not depend on how rayon schedules the groups.
+const GRADIENT_GROUPS: usize = 8;
 
 /// The contiguous `f32` values of a flex tensor.
 pub(crate) fn values(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
@@ -215,21 +241,22 @@ impl Im2colKernels for Flex {
     ) -> (FlexTensor, FlexTensor) {
         let c_out = weight.shape()[0];
         let (rows, l) = (g.rows(), g.positions());
-        let cols = flex(im2col(&values(&x), g), [rows, g.batch * l]);
-        let w = Flex::float_reshape(weight, Shape::new([c_out, rows]));
-        let y = Flex::float_matmul(w, cols.clone());
-        let (y, bias) = (values(&y), values(&bias));
-        // [C_out, B·L] → [B, C_out, L], plus the bias.
+        let cols = im2col(&values(&x), g);
+        let (w, bias) = (values(&weight), values(&bias));
+        let w = Matrix::row_major(&w, c_out, rows);
+        // Image b's output [C_out, L] = bias + W · cols_b, written in place.
         let mut out = vec![0.0f32; g.batch * c_out * l];
-        out.par_chunks_mut(l).enumerate().for_each(|(bo, dst)| {
-            let (b, o) = (bo / c_out, bo % c_out);
-            for (d, s) in dst.iter_mut().zip(&y[o * g.batch * l + b * l..][..l]) {
-                *d = s + bias[o];
-            }
-        });
+        out.par_chunks_mut(c_out * l)
+            .zip(cols.par_chunks(rows * l))
+            .for_each(|(out, cols)| {
+                for (row, b) in out.chunks_mut(l).zip(bias.iter()) {
+                    row.fill(*b);
+                }
+                gemm_into(out, true, w, Matrix::row_major(cols, rows, l));
+            });
         (
             flex(out, [g.batch, c_out, g.out_height(), g.out_width()]),
-            cols,
+            flex(cols, [g.batch, rows, l]),
         )
     }
 
@@ -243,31 +270,64 @@ impl Im2colKernels for Flex {
         let weight_shape = weight.shape();
         let c_out = weight_shape[0];
         let (rows, l) = (g.rows(), g.positions());
-        // [B, C_out, L] → G = [C_out, B·L].
-        let grad = values(&grad);
-        let mut g2 = vec![0.0f32; c_out * g.batch * l];
-        g2.par_chunks_mut(l).enumerate().for_each(|(ob, dst)| {
-            let (o, b) = (ob / g.batch, ob % g.batch);
-            dst.copy_from_slice(&grad[(b * c_out + o) * l..][..l]);
-        });
+        let image = g.channels * g.height * g.width;
+        let (cols, grad, w) = (values(&cols), values(&grad), values(&weight));
+        let w_t = Matrix::transposed(&w, rows, c_out);
         let bias = need_b.then(|| {
-            let sums: Vec<f32> = g2.par_chunks(g.batch * l).map(|r| r.iter().sum()).collect();
+            let mut sums = vec![0.0f32; c_out];
+            for (row, values) in grad.chunks(l).enumerate() {
+                sums[row % c_out] += values.iter().sum::<f32>();
+            }
             flex(sums, [c_out])
         });
-        let g2 = flex(g2, [c_out, g.batch * l]);
+        let per_group = g.batch.div_ceil(GRADIENT_GROUPS).max(1);
+        // One group of images from `first`: its summed weight gradient
+        // (∂W += G_b · cols_bᵀ) and, into `dx`, its input gradients
+        // (∂cols_b = Wᵀ · G_b folded back onto image b).
+        let group = |first: usize, dx: Option<&mut [f32]>| {
+            let images = first..(first + per_group).min(g.batch);
+            let mut weight_sum = need_w.then(|| vec![0.0f32; c_out * rows]);
+            let mut d_cols = dx.is_some().then(|| vec![0.0f32; rows * l]);
+            let mut dx = dx;
+            for (i, b) in images.enumerate() {
+                let g_b = Matrix::row_major(&grad[b * c_out * l..][..c_out * l], c_out, l);
+                let cols_b = &cols[b * rows * l..][..rows * l];
+                if let Some(sum) = weight_sum.as_mut() {
+                    gemm_into(sum, true, g_b, Matrix::transposed(cols_b, l, rows));
+                }
+                if let (Some(d_cols), Some(dx)) = (d_cols.as_mut(), dx.as_mut()) {
+                    gemm_into(d_cols, false, w_t, g_b);
+                    col2im_image(d_cols, g, &mut dx[i * image..][..image]);
+                }
+            }
+            weight_sum
+        };
+        let mut x_grad = need_x.then(|| vec![0.0f32; g.batch * image]);
+        let sums: Vec<Option<Vec<f32>>> = match x_grad.as_mut() {
+            Some(dx) => dx
+                .par_chunks_mut(per_group * image)
+                .enumerate()
+                .map(|(i, dx)| group(i * per_group, Some(dx)))
+                .collect(),
+            None => (0..g.batch.div_ceil(per_group))
+                .into_par_iter()
+                .map(|i| group(i * per_group, None))
+                .collect(),
+        };
         let weight_grad = need_w.then(|| {
-            let gw = Flex::float_matmul(g2.clone(), Flex::float_transpose(cols));
-            Flex::float_reshape(gw, weight_shape.clone())
+            let mut total = vec![0.0f32; c_out * rows];
+            for sum in sums.into_iter().flatten() {
+                for (t, s) in total.iter_mut().zip(sum) {
+                    *t += s;
+                }
+            }
+            flex(total, weight_shape)
         });
-        let x = need_x.then(|| {
-            let w = Flex::float_reshape(weight, Shape::new([c_out, rows]));
-            let dcols = Flex::float_matmul(Flex::float_transpose(w), g2);
-            flex(
-                col2im(&values(&dcols), g),
-                [g.batch, g.channels, g.height, g.width],
-            )
-        });
-        [x, weight_grad, bias]
+        [
+            x_grad.map(|dx| flex(dx, [g.batch, g.channels, g.height, g.width])),
+            weight_grad,
+            bias,
+        ]
     }
 }
 

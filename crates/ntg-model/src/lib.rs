@@ -53,6 +53,7 @@ mod gcn;
 mod gru;
 mod interpreter;
 mod localizer;
+mod matmul;
 mod model;
 pub mod nn;
 mod ntp;
