@@ -46,6 +46,7 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::{Shape, Tensor, TensorData};
 use rayon::prelude::*;
 
+use crate::conv_phases::Phases;
 use crate::matmul::{Matrix, gemm_into};
 
 /// Sizes of one convolution: input `[batch, channels, height, width]`,
@@ -85,7 +86,7 @@ impl ConvGeometry {
     }
 
     /// Output positions per image `L`.
-    fn positions(&self) -> usize {
+    pub(crate) fn positions(&self) -> usize {
         self.out_height() * self.out_width()
     }
 
@@ -190,6 +191,14 @@ pub fn col2im(cols: &[f32], g: ConvGeometry) -> Vec<f32> {
     x
 }
 
+/// Whether a convolution runs in the phase layout (`conv_phases.rs`)
+/// rather than through im2col: where the input has enough channels for
+/// one tap's matrix product (`K = C`) to keep the matrix kernel busy. The
+/// frame encoder's first layer (3 colour channels) unfolds.
+fn phase_layout(g: ConvGeometry) -> Option<Phases> {
+    (g.channels >= 8).then(|| Phases::new(g))
+}
+
 /// The backward pass splits the batch into this many groups of
 /// consecutive images, whatever the thread count: each group sums its
 /// images' weight gradients, and the groups' sums are added in order, so
@@ -241,8 +250,27 @@ impl Im2colKernels for Flex {
     ) -> (FlexTensor, FlexTensor) {
         let c_out = weight.shape()[0];
         let (rows, l) = (g.rows(), g.positions());
-        let cols = im2col(&values(&x), g);
         let (w, bias) = (values(&weight), values(&bias));
+        if let Some(phases) = phase_layout(g) {
+            let (x, image) = (values(&x), g.channels * g.height * g.width);
+            let len = phases.image_len();
+            let mut xq = vec![0.0f32; g.batch * len];
+            xq.par_chunks_mut(len)
+                .zip(x.par_chunks(image))
+                .for_each(|(xq, x)| phases.split(x, xq));
+            let mut out = vec![0.0f32; g.batch * c_out * l];
+            out.par_chunks_mut(c_out * l)
+                .zip(xq.par_chunks(len))
+                .for_each_init(
+                    || vec![0.0f32; phases.scratch_len(c_out)],
+                    |scratch, (out, xq)| phases.forward(&w, &bias, xq, scratch, out),
+                );
+            return (
+                flex(out, [g.batch, c_out, g.out_height(), g.out_width()]),
+                flex(xq, [g.batch, len]),
+            );
+        }
+        let cols = im2col(&values(&x), g);
         let w = Matrix::row_major(&w, c_out, rows);
         // Image b's output [C_out, L] = bias + W · cols_b, written in place.
         let mut out = vec![0.0f32; g.batch * c_out * l];
@@ -284,9 +312,36 @@ impl Im2colKernels for Flex {
         // One group of images from `first`: its summed weight gradient
         // (∂W += G_b · cols_bᵀ) and, into `dx`, its input gradients
         // (∂cols_b = Wᵀ · G_b folded back onto image b).
+        let phases = phase_layout(g);
         let group = |first: usize, dx: Option<&mut [f32]>| {
             let images = first..(first + per_group).min(g.batch);
             let mut weight_sum = need_w.then(|| vec![0.0f32; c_out * rows]);
+            if let Some(phases) = phases {
+                // The same in the phase layout: `cols` holds the images
+                // split into phases, the weight sum is tap-major.
+                let len = phases.image_len();
+                let mut scratch = vec![0.0f32; phases.scratch_len(c_out)];
+                let mut dq = dx.is_some().then(|| vec![0.0f32; len]);
+                let mut dx = dx;
+                for (i, b) in images.enumerate() {
+                    let input = match (dq.as_mut(), dx.as_mut()) {
+                        (Some(dq), Some(dx)) => {
+                            Some((dq.as_mut_slice(), &mut dx[i * image..][..image]))
+                        }
+                        _ => None,
+                    };
+                    phases.backward(
+                        &w,
+                        c_out,
+                        &cols[b * len..][..len],
+                        &grad[b * c_out * l..][..c_out * l],
+                        &mut scratch,
+                        weight_sum.as_deref_mut(),
+                        input,
+                    );
+                }
+                return weight_sum;
+            }
             let mut d_cols = dx.is_some().then(|| vec![0.0f32; rows * l]);
             let mut dx = dx;
             for (i, b) in images.enumerate() {
@@ -320,6 +375,10 @@ impl Im2colKernels for Flex {
                 for (t, s) in total.iter_mut().zip(sum) {
                     *t += s;
                 }
+            }
+            if let Some(phases) = phases {
+                let taps = std::mem::replace(&mut total, vec![0.0f32; c_out * rows]);
+                phases.add_taps(&taps, c_out, &mut total);
             }
             flex(total, weight_shape)
         });
@@ -475,13 +534,22 @@ mod tests {
     use burn::nn::conv::Conv2dConfig;
     use burn::tensor::Distribution;
 
-    /// The im2col path against burn's conv2d: outputs and the gradients of
-    /// input, weight and bias, for the encoder's shapes and a stride-1 and
-    /// kernel-4 case.
+    /// The im2col and phase-layout paths against burn's conv2d: outputs and
+    /// the gradients of input, weight and bias, for strides 1 and 2,
+    /// kernels 3 and 4, even and odd sides, and inputs below and above
+    /// the phase layout's channel threshold.
     #[test]
     fn matches_burn_conv2d_forward_and_backward() {
         let device = burn::tensor::Device::flex().autodiff();
-        for (c_in, c_out, side, k, s) in [(3, 8, 16, 3, 2), (8, 6, 8, 3, 1), (4, 5, 12, 4, 2)] {
+        for (c_in, c_out, side, k, s) in [
+            (3, 8, 16, 3, 2),
+            (4, 5, 12, 4, 2),
+            (8, 6, 8, 3, 1),
+            (8, 6, 9, 3, 2),
+            (10, 4, 12, 4, 2),
+            (16, 5, 7, 3, 1),
+            (9, 3, 11, 4, 2),
+        ] {
             let conv = Conv2dConfig::new([c_in, c_out], [k, k])
                 .with_stride([s, s])
                 .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))

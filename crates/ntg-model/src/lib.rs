@@ -43,6 +43,7 @@ mod backend;
 mod batch;
 mod checkpoint;
 pub mod conv;
+mod conv_phases;
 mod detector;
 mod edge;
 mod encoder;

@@ -72,6 +72,22 @@ fn last_index(rows: usize, cols: usize, row_stride: usize, col_stride: usize) ->
 /// # Panics
 /// If the inner dimensions differ or `dst` is too short.
 pub(crate) fn gemm_into(dst: &mut [f32], accumulate: bool, a: Matrix<'_>, b: Matrix<'_>) {
+    gemm_into_rows(dst, b.cols, accumulate, a, b);
+}
+
+/// [`gemm_into`] with the destination's rows `dst_row_stride` values apart
+/// (`≥ b.cols`; the values between rows are left alone).
+///
+/// # Panics
+/// If the inner dimensions differ, the stride is below `b.cols` or `dst`
+/// is too short.
+pub(crate) fn gemm_into_rows(
+    dst: &mut [f32],
+    dst_row_stride: usize,
+    accumulate: bool,
+    a: Matrix<'_>,
+    b: Matrix<'_>,
+) {
     let (m, k, n) = (a.rows, a.cols, b.cols);
     assert_eq!(
         k, b.rows,
@@ -79,26 +95,33 @@ pub(crate) fn gemm_into(dst: &mut [f32], accumulate: bool, a: Matrix<'_>, b: Mat
         b.rows
     );
     assert!(
-        dst.len() >= m * n,
-        "matrix product: destination of {} values for [{m}, {n}]",
-        dst.len()
+        dst_row_stride >= n,
+        "matrix product: row stride {dst_row_stride} below {n} columns"
     );
     if m == 0 || n == 0 {
         return;
     }
+    assert!(
+        last_index(m, n, dst_row_stride, 1) < dst.len(),
+        "matrix product: destination of {} values for [{m}, {n}] (row stride {dst_row_stride})",
+        dst.len()
+    );
     if k == 0 {
         if !accumulate {
-            dst[..m * n].fill(0.0);
+            for row in dst.chunks_mut(dst_row_stride).take(m) {
+                row[..n].fill(0.0);
+            }
         }
         return;
     }
     let stride = |s: usize| isize::try_from(s).expect("matrix stride fits isize");
     // SAFETY: `Matrix::strided` checked that every element `(i, j)` of `a`
     // (i < m, j < k) and of `b` (i < k, j < n) lies inside its slice, and
-    // `dst` holds the m·n row-major values written (row stride n, column
-    // stride 1). `dst` is a unique borrow, so it aliases neither input.
-    // With `read_dst` false, `gemm` never reads `dst` (its `alpha` is
-    // ignored); with it, `dst` is initialised `f32`s.
+    // the assertion above that every element `(i, j)` of `dst` (i < m,
+    // j < n, at i·dst_row_stride + j) does. `dst` is a unique borrow, so
+    // it aliases neither input, and with `dst_row_stride ≥ n` no two of
+    // its elements coincide. With `read_dst` false, `gemm` never reads
+    // `dst` (its `alpha` is ignored); with it, `dst` is initialised `f32`s.
     #[allow(unsafe_code)]
     unsafe {
         gemm::gemm(
@@ -107,7 +130,7 @@ pub(crate) fn gemm_into(dst: &mut [f32], accumulate: bool, a: Matrix<'_>, b: Mat
             k,
             dst.as_mut_ptr(),
             1,
-            stride(n),
+            stride(dst_row_stride),
             accumulate,
             a.data.as_ptr(),
             stride(a.col_stride),
@@ -161,6 +184,22 @@ mod tests {
             let doubled: Vec<f32> = expected.iter().map(|v| 2.0 * v).collect();
             assert_eq!(dst, doubled);
         }
+    }
+
+    /// A destination with gaps between its rows: the gaps keep their
+    /// values.
+    #[test]
+    fn a_strided_destination_leaves_the_gaps_alone() {
+        let (a, b) = ([1.0f32, 2.0, 3.0, 4.0], [1.0f32, 0.0, 0.0, 1.0]);
+        let mut dst = [9.0f32; 7];
+        gemm_into_rows(
+            &mut dst,
+            3,
+            false,
+            Matrix::row_major(&a, 2, 2),
+            Matrix::row_major(&b, 2, 2),
+        );
+        assert_eq!(dst, [1.0, 2.0, 9.0, 3.0, 4.0, 9.0, 9.0]);
     }
 
     #[test]
