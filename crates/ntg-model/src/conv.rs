@@ -1,5 +1,6 @@
-//! 2-D convolution as im2col and one matrix product per pass, with its own
-//! backward, for burn's `flex` CPU backend.
+//! 2-D convolution as im2col and a matrix product per image and pass (or,
+//! for inputs of 8+ channels, without unfolding: `conv_phases.rs`), with
+//! its own backward, for burn's `flex` CPU backend.
 //!
 //! burn 0.22's autodiff differentiates `conv2d` through the backend's
 //! default `conv2d_weight_backward`: a convolution of the input by the
@@ -24,6 +25,11 @@
 //! earlier version (one product over the whole batch through `flex`'s
 //! matmul) spent about a fifth of the step allocating, zero-filling,
 //! re-aligning and transposing outputs of up to 33 MB.
+//!
+//! Inputs of 8 or more channels (every encoder layer but the first) take
+//! the phase layout of `conv_phases.rs` instead: the same three passes as
+//! one product per kernel tap over strided views of the split input, with
+//! the split input (not `cols`) kept for the backward pass.
 //!
 //! [`conv2d`] takes this path on `flex` devices (autodiff or not) and burn's
 //! own `conv2d` everywhere else (ndarray, wgpu, cuda), and for dilated or
