@@ -8,8 +8,10 @@
 //!    global pool); one JSON line per row. Rows 1b and 2b are the state
 //!    step and the frame step split into 2 data-parallel shards, as `ntg
 //!    train` trains by default; then
-//!    the state step again on 1 thread, 1 shard, the reference of row 7
-//!    (the data-parallel speedup in samples per second);
+//!    row 7, the data-parallel speedup in samples per second: the state
+//!    step on a 1-thread pool and the 2-shard step on a 2-thread pool,
+//!    alternated step by step in one process (`--rows data_parallel`), the
+//!    median over pairs of their time ratio;
 //! 2. PyTorch, rows 1–5: `crates/ntg-model/benches/pytorch/twin.py --bench
 //!    all --threads N` (`torch.set_num_threads(N)`) with the interpreter
 //!    `NTG_PYTHON` (default `python3`), on exactly the same batches; without
@@ -160,9 +162,9 @@ fn twin_bench(root: &Path, b: &Bench, rows: &str, threads: usize) -> anyhow::Res
     Ok(json_lines(&out.stdout))
 }
 
-/// Rows 1–5 on burn (the `twin_bench` example), and the state step's
-/// median on one thread, one shard (row 7's reference).
-fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<(Vec<Value>, f64)> {
+/// Rows 1–5 on burn (the `twin_bench` example), and its `data_parallel`
+/// row (row 7: the 1-thread and 2-shard medians and the paired speedup).
+fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<(Vec<Value>, [f64; 3])> {
     eprintln!("bench: burn rows 1-5 (release build of ntg-model's twin_bench example)");
     let lines = twin_bench(root, b, "all", b.threads)?;
     for (key, _) in NET_ROWS {
@@ -170,12 +172,21 @@ fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<(Vec<Value>, f64)> {
             bail!("the twin_bench example printed no row {key:?}");
         }
     }
-    eprintln!("bench: row 7's reference, the state step on 1 thread, 1 shard");
-    let single = twin_bench(root, b, "state_step", 1)?;
-    let single = find(&single, "state_step")
-        .and_then(|v| v["median_ms"].as_f64())
-        .context("the twin_bench example printed no state_step on 1 thread")?;
-    Ok((lines, single))
+    eprintln!("bench: row 7, the state step on 1 thread alternated with 2 shards on 2");
+    let parallel = twin_bench(root, b, "data_parallel", b.threads)?;
+    let parallel = find(&parallel, "data_parallel")
+        .context("the twin_bench example printed no data_parallel row")?;
+    let field = |name: &str| {
+        parallel[name]
+            .as_f64()
+            .with_context(|| format!("the data_parallel row has no {name}"))
+    };
+    let row7 = [
+        field("one_thread_median_ms")?,
+        field("two_shards_median_ms")?,
+        field("speedup")?,
+    ];
+    Ok((lines, row7))
 }
 
 /// Rows 1–5 on PyTorch: `twin.py --bench all`, or why not.
@@ -285,7 +296,7 @@ fn number(x: f64) -> String {
 }
 
 pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
-    let (burn, single_thread_state) = burn_rows(root, b)?;
+    let (burn, [one_thread, two_shards, speedup]) = burn_rows(root, b)?;
     let twin = pytorch_rows(root, b);
     let (state_rate, rendered_rate, pool) = demo_rows(root, b)?;
 
@@ -339,19 +350,16 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
         });
     }
 
-    let sharded = rows
-        .iter()
-        .find(|r| r.key == "state_step_2_shards")
-        .and_then(|r| r.burn);
     rows.push(Row {
         number: "7".to_owned(),
         key: "data_parallel_speedup".to_owned(),
         label: format!(
-            "data-parallel speedup: state step samples/s, row 1b over 1 shard on 1 thread ({} ms)",
-            number(single_thread_state)
+            "data-parallel speedup: state step samples/s, 2 shards on 2 threads ({} ms) over 1 thread ({} ms), alternated, median paired ratio",
+            number(two_shards),
+            number(one_thread)
         ),
         unit: "x",
-        burn: sharded.map(|ms| single_thread_state / ms),
+        burn: Some(speedup),
         burn_repeats: None,
         pytorch: None,
         pytorch_repeats: None,

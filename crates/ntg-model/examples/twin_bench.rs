@@ -26,6 +26,14 @@
 //!   their own thread, losses weighted by half, one Adam step;
 //! - `interpreter_step`: the demo interpreter alone on the same 32 demos;
 //! - `gcn_step`: the GCN alone on the same 32 graphs;
+//! - `data_parallel` (not in `all`; the twin has no such row): the
+//!   `state_step` on a rayon pool of 1 thread and the
+//!   `state_step_2_shards` step on a pool of 2, alternated step by step
+//!   in one process, so that both see the same machine (this VM's speed
+//!   drifts by 15% and more between runs a minute apart). Prints both
+//!   medians and the speedup: the median over pairs of (1-thread time /
+//!   2-shard time), samples per second of the 2-shard step over the
+//!   1-thread one at the same batch;
 //! - `policy_step`: one executor decision at rollout (inference): encode
 //!   one observation row, localize it, classify the edges of every node
 //!   (soft edges), combine them into π(·|o) (`NtgPolicy::action_distribution`,
@@ -422,6 +430,73 @@ fn bench_row(
     }
 }
 
+/// The `data_parallel` row: `(1-thread median ms, 2-shard median ms,
+/// median of the paired ratios)` over `repeats` alternating pairs.
+fn data_parallel(warmup: usize, repeats: usize) -> Result<(f64, f64, f64), Box<dyn Error>> {
+    let device = ntg_model::cpu_device().autodiff();
+    let config = recommended_config(MODEL_SEED);
+    let whole = StateBatch::new(0..BATCH, &device)?;
+    let halves = [
+        StateBatch::new(0..BATCH / 2, &device)?,
+        StateBatch::new(BATCH / 2..BATCH, &device)?,
+    ];
+    let pool = |threads| rayon::ThreadPoolBuilder::new().num_threads(threads).build();
+    let (one, two) = (pool(1)?, pool(2)?);
+    let (mut single, mut sharded) = (
+        Some(NtgModel::new(config.clone(), &device)?),
+        Some(NtgModel::new(config, &device)?),
+    );
+    let (mut optim_single, mut optim_sharded): (ModuleOptimizer, ModuleOptimizer) =
+        (AdamConfig::new().init(), AdamConfig::new().init());
+    let sync = |d: &Device| d.sync().map_err(|e| format!("device sync: {e:?}"));
+    let mut step_single = || -> Result<f64, Box<dyn Error>> {
+        let start = Instant::now();
+        one.install(|| -> Result<(), String> {
+            let model = single.take().ok_or("model")?;
+            let loss = state_loss(&model, &whole).map_err(|e| e.to_string())?;
+            single = Some(adam_step(model, &mut optim_single, loss));
+            sync(&device)?;
+            Ok(())
+        })?;
+        Ok(start.elapsed().as_secs_f64() * 1e3)
+    };
+    let mut step_sharded = || -> Result<f64, Box<dyn Error>> {
+        let start = Instant::now();
+        two.install(|| -> Result<(), String> {
+            let model = sharded.take().ok_or("model")?;
+            let (grads, _) = ntg_model::sharded_gradients(&model, 2, |m, i| {
+                Ok::<_, ntg_model::ModelError>((state_loss(m, &halves[i])?.mul_scalar(0.5), ()))
+            })
+            .map_err(|e| e.to_string())?;
+            sharded = Some(optim_sharded.step(LR, model, grads));
+            sync(&device)?;
+            Ok(())
+        })?;
+        Ok(start.elapsed().as_secs_f64() * 1e3)
+    };
+    for _ in 0..warmup {
+        step_single()?;
+        step_sharded()?;
+    }
+    let (mut ones, mut twos, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..repeats.max(1) {
+        let (a, b) = (step_single()?, step_sharded()?);
+        ones.push(a);
+        twos.push(b);
+        ratios.push(a / b);
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        let mid = v.len() / 2;
+        if v.len() % 2 == 1 {
+            v[mid]
+        } else {
+            0.5 * (v[mid - 1] + v[mid])
+        }
+    };
+    Ok((median(ones), median(twos), median(ratios)))
+}
+
 fn main() -> Result<(), Box<dyn Error>> {
     let mut rows: Vec<String> = ROWS.iter().map(|s| s.to_string()).collect();
     let (mut repeats, mut warmup) = (20usize, 3usize);
@@ -439,7 +514,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             "--warmup" => warmup = value()?.parse()?,
             "-h" | "--help" => {
                 println!(
-                    "usage: twin_bench [--rows all|ROW,ROW] [--repeats N] [--warmup N]; rows: {}",
+                    "usage: twin_bench [--rows all|ROW,ROW] [--repeats N] [--warmup N]; rows: {}, data_parallel",
                     ROWS.join(", ")
                 );
                 return Ok(());
@@ -449,6 +524,21 @@ fn main() -> Result<(), Box<dyn Error>> {
     }
     let threads = std::env::var("RAYON_NUM_THREADS").ok();
     for row in &rows {
+        if row == "data_parallel" {
+            let (one, two, speedup) = data_parallel(warmup, repeats)?;
+            println!(
+                "{}",
+                json!({
+                    "row": row,
+                    "backend": "flex",
+                    "one_thread_median_ms": (one * 1e3).round() / 1e3,
+                    "two_shards_median_ms": (two * 1e3).round() / 1e3,
+                    "speedup": (speedup * 1e3).round() / 1e3,
+                    "repeats": repeats,
+                })
+            );
+            continue;
+        }
         let (median, min, repeats, shape) = bench_row(row, warmup, repeats)?;
         println!(
             "{}",
