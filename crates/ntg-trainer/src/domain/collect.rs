@@ -31,7 +31,7 @@ use crate::dataset::DemoDataset;
 use crate::domain::{
     self, Domain, DomainFlags, DomainRuns, Episode, EpisodeRecord, EvalFlags, TrainFlags,
 };
-use crate::fit::{OptimConfig, TrainStep, fit};
+use crate::fit::{OptimConfig, Selection, TrainStep, ValidationScore, Validator, fit};
 use crate::method::flat::{FlatStep, FlatTraining};
 use crate::method::ntg::{GcnSource, NtgStep, NtgTraining};
 use crate::method::on_frames::{EmbeddingReader, OnFrames, OnFramesStep};
@@ -218,6 +218,18 @@ pub struct CollectRunConfig {
     /// one frame per action, each network's CNN trained end to end.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub video: Option<CollectVideo>,
+    /// Validation tasks per number of training objects
+    /// ([`validation_tasks`]: train-side tasks the run does not train on,
+    /// never test tasks), each rolled out once after every epoch from a
+    /// demo of its own; the best epoch (success, then goals met) is kept
+    /// in `best/` and is the one evaluated. 0, as in configurations saved
+    /// before it: no validation, the last epoch is evaluated.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub validation_tasks_per_n: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 /// How an object-collection run on frames records its demo videos and
@@ -275,6 +287,7 @@ impl CollectRunConfig {
                 gcn_from_other_demo: false,
             },
             video: (obs == ObsKind::Vid).then(CollectVideo::default),
+            validation_tasks_per_n: 0,
         }
     }
 
@@ -357,6 +370,28 @@ pub fn validation_tasks(config: &CollectRunConfig, per_n: usize) -> anyhow::Resu
         );
     }
     Ok(tasks)
+}
+
+/// Seed base of the conditioning demo and the rollout scene of each
+/// validation episode (after [`VALIDATION_SEED_BASE`]'s stage-A videos).
+pub const VALIDATION_EPISODE_SEED_BASE: u64 = 85_000_000;
+
+/// The run's validation episodes: one per task of [`validation_tasks`]
+/// (`config.validation_tasks_per_n` per N), grouped by N, each with its
+/// own demo and scene seeds.
+pub fn validation_episodes(config: &CollectRunConfig) -> anyhow::Result<Vec<Episode<Task>>> {
+    let tasks = validation_tasks(config, config.validation_tasks_per_n)?;
+    Ok(tasks
+        .into_iter()
+        .enumerate()
+        .map(|(i, task)| Episode {
+            group: task.num_objects(),
+            index: i,
+            task,
+            demo_seed: VALIDATION_EPISODE_SEED_BASE + 2 * i as u64,
+            rollout_seed: VALIDATION_EPISODE_SEED_BASE + 2 * i as u64 + 1,
+        })
+        .collect())
 }
 
 /// Records the training demonstrations of a run, in parallel.
@@ -499,40 +534,88 @@ where
     S: TrainStep<M> + Sync,
     OnFrames<M>: TrainedPolicy,
 {
+    let episodes = validation_episodes(config)?;
+    let domain = CollectDomain::for_run(config);
+    let score = |model: &dyn TrainedPolicy| -> anyhow::Result<ValidationScore> {
+        let records = domain::evaluate(&domain, model, &episodes)?;
+        Ok(ValidationScore {
+            success: domain::success_rate(&records).rate,
+            goal_fraction: domain::mean_goal_fraction(&records),
+        })
+    };
+    let validate = !episodes.is_empty();
     Ok(match frames {
-        Some(frames) => Box::new(fit(
+        Some(frames) => Box::new(fit_validated(
             OnFrames::new(frames, model)?,
             &OnFramesStep(step),
-            &config.optim,
+            config,
             run,
             device,
-            None,
+            validate.then_some(&score),
             on_epoch,
         )?),
-        None => Box::new(fit(
+        None => Box::new(fit_validated(
             model,
             &step,
-            &config.optim,
+            config,
             run,
             device,
-            None,
+            validate.then_some(&score),
             on_epoch,
         )?),
     })
 }
 
+/// Scores a model on the validation episodes.
+type ScoreFn<'a> = dyn Fn(&dyn TrainedPolicy) -> anyhow::Result<ValidationScore> + 'a;
+
+/// [`fit`] with `score` (the validation episodes' rollouts, if any)
+/// after every epoch, the best epoch kept.
+fn fit_validated<T, S>(
+    model: T,
+    step: &S,
+    config: &CollectRunConfig,
+    run: &RunDir,
+    device: &Device,
+    score: Option<&ScoreFn<'_>>,
+    on_epoch: impl FnMut(&S::Metrics),
+) -> anyhow::Result<T>
+where
+    T: crate::fit::TrainedModel + TrainedPolicy + Send,
+    S: TrainStep<T> + Sync,
+{
+    let Some(score) = score else {
+        return fit(model, step, &config.optim, run, device, None, on_epoch);
+    };
+    let mut validator = |m: &T| score(m);
+    let selection = Selection {
+        validator: &mut validator as &mut dyn Validator<T>,
+        every: 1,
+    };
+    fit(
+        model,
+        step,
+        &config.optim,
+        run,
+        device,
+        Some(selection),
+        on_epoch,
+    )
+}
+
 /// Loads the trained model of a run (inference device).
 pub fn load_model(run: &RunDir, config: &CollectRunConfig) -> anyhow::Result<Model> {
     let device = crate::spec::device();
+    // The epoch validation selected, if the run validated.
+    let dir = match crate::fit::selected_epoch(run)? {
+        Some(_) => run.best_dir(),
+        None => run.checkpoint_dir(),
+    };
     let model = config
         .method
-        .load(&run.checkpoint_dir(), &device)
+        .load(&dir, &device)
         .with_context(|| format!("{} has no trained model yet", run.root().display()))?;
-    crate::method::on_frames::check_model_obs(
-        &run.checkpoint_dir(),
-        config.obs,
-        &run.config_path(),
-    )?;
+    crate::method::on_frames::check_model_obs(&dir, config.obs, &run.config_path())?;
     Ok(model)
 }
 
@@ -719,6 +802,12 @@ pub struct CollectFlags {
     /// interpreter].
     #[arg(long, value_name = "W", value_parser = crate::spec::parse::finite)]
     pub location_step_prior: Option<f32>,
+    /// Validation tasks per number of training objects: held-out
+    /// train-side tasks (never test tasks) rolled out after every epoch;
+    /// the best epoch is kept in best/ and is the one `ntg eval` scores.
+    /// 0: no validation (the last epoch is scored).
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub validation_tasks_per_n: usize,
 }
 
 impl CollectFlags {
@@ -779,6 +868,7 @@ impl DomainRuns for Collect {
         config.memory = c.memory;
         config.interpreter = c.interpreter(flags.obs);
         config.location_step_prior = c.location_step_prior(flags.obs, flags.method);
+        config.validation_tasks_per_n = c.validation_tasks_per_n;
         config.optim.batch_size = flags.batch_size;
         config.optim.learning_rate = flags.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE);
         config.optim.cosine_decay = flags.cosine_decay;
@@ -882,6 +972,7 @@ mod tests {
                 gcn_from_other_demo: false,
             },
             video: None,
+            validation_tasks_per_n: 0,
         }
     }
 
@@ -926,6 +1017,49 @@ mod tests {
             };
             assert!(RunDir::open_or_create(run.root(), &other).is_err());
         }
+    }
+
+    #[test]
+    fn validation_scores_every_epoch_on_held_out_train_side_tasks_and_keeps_the_best() {
+        let dir = tempfile::tempdir().unwrap();
+        let device = ntg_model::cpu_device().autodiff();
+        let config = CollectRunConfig {
+            validation_tasks_per_n: 2,
+            ..config(MethodId::Flat, 3)
+        };
+        // Two per N in 1 and 2, none a training task, none a test task.
+        let episodes = validation_episodes(&config).unwrap();
+        assert_eq!(episodes.len(), 4);
+        let training = training_tasks(&config).unwrap();
+        let splitter = env_collect::TaskSplitter::default();
+        for e in &episodes {
+            assert!(!training.contains(&e.task));
+            assert_eq!(e.group, e.task.num_objects());
+            let train_side = splitter.tasks_with(e.group, Some(Split::Train)).unwrap();
+            assert!(train_side.contains(&e.task), "{} is not train-side", e.task);
+        }
+        assert_eq!(episodes, validation_episodes(&config).unwrap(), "seeded");
+        let run = RunDir::open_or_create(dir.path(), &config).unwrap();
+        let model = train_run(&run, &config, &device, |_| {}).unwrap();
+        let lines = std::fs::read_to_string(run.validation_path()).unwrap();
+        assert_eq!(
+            lines.lines().count(),
+            3,
+            "one validation per epoch: {lines}"
+        );
+        let selected = crate::fit::selected_epoch(&run)
+            .unwrap()
+            .expect("a selected epoch");
+        assert!(selected.epoch < 3);
+        // What train_run returns and ntg eval loads is the selected epoch.
+        assert_eq!(
+            weights(&load_model(&run, &config).unwrap()),
+            weights(&model)
+        );
+        // Without validation the written configuration has no such field
+        // (runs saved before it keep their config.json).
+        let plain = serde_json::to_value(super::tests::config(MethodId::Flat, 3)).unwrap();
+        assert!(plain.get("validation_tasks_per_n").is_none());
     }
 
     #[test]

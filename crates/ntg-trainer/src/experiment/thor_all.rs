@@ -81,6 +81,15 @@ pub struct ThorAllScale {
     /// comparison without memory gives both exactly the same information.
     #[serde(default, skip_serializing_if = "is_false")]
     pub without_memory: bool,
+    /// Validation tasks per training N (held-out train-side tasks, rolled
+    /// out after every epoch; the best epoch is the one evaluated:
+    /// `CollectRunConfig::validation_tasks_per_n`). Absent: 0, none.
+    #[serde(default, skip_serializing_if = "no_tasks")]
+    pub validation_tasks_per_n: usize,
+}
+
+fn no_tasks(n: &usize) -> bool {
+    *n == 0
 }
 
 fn is_false(b: &bool) -> bool {
@@ -228,6 +237,7 @@ impl ThorAllExperiment {
         config.memory = scale.memory && memory;
         config.optim.batch_size = scale.batch_size;
         config.optim.learning_rate = scale.learning_rate;
+        config.validation_tasks_per_n = scale.validation_tasks_per_n;
         let overrides = self
             .overrides
             .get(method.name())
@@ -616,6 +626,7 @@ mod tests {
                     gcn_from_other_demo: false,
                 },
                 video: None,
+                validation_tasks_per_n: 0,
             };
             assert_eq!(
                 experiment
