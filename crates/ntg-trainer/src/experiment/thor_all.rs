@@ -127,6 +127,10 @@ pub struct ThorAllLine {
     pub memory: bool,
     /// Success per N on unseen tasks.
     pub points: Vec<NPoint>,
+    /// The epoch (from 0) that scored best on the validation tasks and was
+    /// evaluated; absent when the run did not validate (the last epoch).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub selected_epoch: Option<usize>,
     /// Seconds spent in training epochs (summed from the run's
     /// `metrics.jsonl`, so a reused run reports its original cost).
     pub train_seconds: f64,
@@ -290,6 +294,7 @@ pub fn run(
             seed,
             memory: variant.memory,
             points: eval.points,
+            selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
             train_seconds: run.epoch_seconds()?,
             run: dir,
         }))
@@ -403,14 +408,40 @@ pub fn report_section(result: &ThorAllResult) -> String {
                 "is the paper's seq2seq with Luong attention (on demo videos, whose actions span 2 to 9 frames, the length-independent stepping variant of the state input stalls: it moves its attention at most 2 frames per token)",
         },
     );
+    let validated = sc.validation_tasks_per_n > 0;
+    if validated {
+        let _ = writeln!(
+            s,
+            "Model selection: after every epoch each run is rolled out on {} held-out training-side tasks per training N (tasks in neither the training pool nor the test side), and the epoch with the best validation success (then goals met) is the one tested (column \"epoch\", from 1; the epoch counts above are the most each trains).\n",
+            sc.validation_tasks_per_n
+        );
+    }
     let _ = write!(s, "| method | training time |");
+    if validated {
+        let _ = write!(s, " epoch |");
+    }
     for n in EVAL_OBJECTS {
         let _ = write!(s, " N = {n} |");
     }
     let _ = writeln!(s);
-    let _ = writeln!(s, "|---|---|{}", "---|".repeat(EVAL_OBJECTS.len()));
+    let _ = writeln!(
+        s,
+        "|---|---|{}{}",
+        if validated { "---|" } else { "" },
+        "---|".repeat(EVAL_OBJECTS.len())
+    );
     for line in &result.lines {
         let _ = write!(s, "| {} | {:.0} s |", line_name(line), line.train_seconds);
+        if validated {
+            match line.selected_epoch {
+                Some(e) => {
+                    let _ = write!(s, " {} |", e + 1);
+                }
+                None => {
+                    let _ = write!(s, " last |");
+                }
+            }
+        }
         for p in &line.points {
             let _ = write!(
                 s,
@@ -529,6 +560,7 @@ mod tests {
                     ended: 0,
                 })
                 .collect(),
+            selected_epoch: None,
             train_seconds: 0.0,
             run: PathBuf::new(),
         }
@@ -626,7 +658,9 @@ mod tests {
                     gcn_from_other_demo: false,
                 },
                 video: None,
-                validation_tasks_per_n: 0,
+                // Session 26: every epoch scored on 50 held-out
+                // training-side tasks per N, the best one tested.
+                validation_tasks_per_n: 50,
             };
             assert_eq!(
                 experiment
@@ -652,6 +686,9 @@ mod tests {
                 },
             )
             .unwrap();
-        assert_eq!((paper.obs, paper.tasks_per_n), (ObsKind::Vid, 400));
+        assert_eq!(
+            (paper.obs, paper.tasks_per_n, paper.validation_tasks_per_n),
+            (ObsKind::Vid, 400, 100)
+        );
     }
 }
