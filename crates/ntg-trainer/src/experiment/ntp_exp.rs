@@ -1301,7 +1301,7 @@ mod tests {
                 gcn_from_other_demo: false,
             },
         };
-        let small = &quick.panels[3];
+        let small = &quick.panels[4];
         let mut at_50 = expected(50, 19, 20, false);
         at_50.validate_every = 2;
         assert_eq!(
@@ -1315,6 +1315,20 @@ mod tests {
                 .run_config(Profile::Quick, state, (MethodId::Ntg, Variant::Full), 1000)
                 .unwrap(),
             expected(1000, 6, 50, false)
+        );
+        // Both recipes at the state panel's 1000-task point (issue 17, 4b).
+        let recommended = &quick.panels[2];
+        let c = experiment
+            .run_config(
+                Profile::Quick,
+                recommended,
+                (MethodId::Ntg, Variant::Full),
+                1000,
+            )
+            .unwrap();
+        assert_eq!(
+            (c.obs, c.demos_per_task, c.optim.epochs, c.permute_objects),
+            (ObsKind::State, 10, 6, true)
         );
         let paper = &experiment.profiles.get(Profile::Paper).panels[0];
         let c = experiment
@@ -1332,7 +1346,7 @@ mod tests {
         // The video panel's own overrides reach its encoder stage only.
         let encoder = &c.video.as_ref().unwrap().encoder;
         assert_eq!((encoder.demos, encoder.epochs), (10, 1));
-        let quick_vid = &quick.panels[2];
+        let quick_vid = &quick.panels[3];
         let c = experiment
             .run_config(
                 Profile::Quick,
