@@ -207,19 +207,13 @@ fn whole_model_best(variants: usize, full: String, best: impl FnOnce() -> bool) 
 /// The report section of fig. "ablation" (Markdown); `recipe_note` says
 /// what the file changes in the recipe.
 pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "## Fig. ablation (a): NTG without each part, block stacking\n\n![ablation](ablation.png)\n"
-    );
-    if points.is_empty() {
-        let _ = writeln!(
-            s,
-            "No run of it trained yet at this profile (see \"Not reproduced yet\")."
-        );
-        let _ = writeln!(s);
-        return s;
-    }
+    let mut s = match super::open_section(
+        "## Fig. ablation (a): NTG without each part, block stacking\n\n![ablation](ablation.png)",
+        !points.is_empty(),
+    ) {
+        Ok(head) => head,
+        Err(whole) => return whole,
+    };
     let _ = writeln!(
         s,
         "| variant | input | training tasks | demos/task | epochs (selected) | training time | test tasks | success (95% CI) | goals met |"
@@ -492,19 +486,13 @@ pub fn trend_checks_b(points: &[SortingPoint]) -> Vec<String> {
 
 /// Panel (b)'s report section (Markdown).
 pub fn report_section_b(points: &[SortingPoint]) -> String {
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "## Fig. ablation (b): object sorting, another order than the demo's\n\nPanel (b) of [ablation.png](ablation.png).\n"
-    );
-    if points.is_empty() {
-        let _ = writeln!(
-            s,
-            "No run of it trained yet at this profile (see \"Not reproduced yet\")."
-        );
-        let _ = writeln!(s);
-        return s;
-    }
+    let mut s = match super::open_section(
+        "## Fig. ablation (b): object sorting, another order than the demo's\n\nPanel (b) of [ablation.png](ablation.png).",
+        !points.is_empty(),
+    ) {
+        Ok(head) => head,
+        Err(whole) => return whole,
+    };
     let _ = writeln!(
         s,
         "| variant | training maps | demos/map | epochs (selected) | training time | test scenes | success (95% CI) | objects sorted |\n|---|---|---|---|---|---|---|---|"

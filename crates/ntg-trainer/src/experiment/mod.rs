@@ -428,6 +428,19 @@ where
     serde_json::from_value(value).with_context(|| format!("applying the overrides of {what}"))
 }
 
+/// The start of a figure's report section: `heading` (a Markdown heading
+/// and any text under it) and a blank line. `Err` holds the whole section
+/// when `trained` is false: the heading and a line saying no run of it has
+/// trained yet at this profile.
+pub(crate) fn open_section(heading: &str, trained: bool) -> Result<String, String> {
+    let head = format!("{heading}\n\n");
+    if trained {
+        Ok(head)
+    } else {
+        Err(head + "No run of it trained yet at this profile (see \"Not reproduced yet\").\n\n")
+    }
+}
+
 /// `overrides` as `a.b = value` settings separated by commas, in key
 /// order ("none" when empty): how a report names what a figure's
 /// file changes in its recipe.

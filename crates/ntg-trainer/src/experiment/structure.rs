@@ -120,19 +120,13 @@ pub fn run(points: &[NtpExpPoint], plan: &Plan<'_>) -> anyhow::Result<Vec<Struct
 
 /// The report section (Markdown).
 pub fn report_section(points: &[StructurePoint]) -> String {
-    let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "## Beyond the paper: block stacking split by structure\n\nEach curve of fig. ntp_exp at its largest number of training tasks, scored on as many tasks whose structure (the goals once cube names are ignored) no training-pool task has: of the 33 structures of at most eight cubes the standard set has the 23 with towers of two to four cubes, and these tasks have a tower of five to eight (`ntg eval --split structure`; every seed of that point).\n"
-    );
-    if points.is_empty() {
-        let _ = writeln!(
-            s,
-            "No run of it trained yet at this profile (see \"Not reproduced yet\")."
-        );
-        let _ = writeln!(s);
-        return s;
-    }
+    let mut s = match super::open_section(
+        "## Beyond the paper: block stacking split by structure\n\nEach curve of fig. ntp_exp at its largest number of training tasks, scored on as many tasks whose structure (the goals once cube names are ignored) no training-pool task has: of the 33 structures of at most eight cubes the standard set has the 23 with towers of two to four cubes, and these tasks have a tower of five to eight (`ntg eval --split structure`; every seed of that point).",
+        !points.is_empty(),
+    ) {
+        Ok(head) => head,
+        Err(whole) => return whole,
+    };
     let _ = writeln!(
         s,
         "| method | input | training tasks | seed | standard test tasks | structure split (95% CI) | goals met |\n|---|---|---|---|---|---|---|"
