@@ -377,12 +377,14 @@ fn protocol(sc: &ThorAllScale) -> &'static str {
 /// The report section of fig. "thor_all" (Markdown).
 pub fn report_section(result: &ThorAllResult) -> String {
     use std::fmt::Write as _;
-    let mut s = String::new();
     let sc = &result.scale;
-    let _ = writeln!(
-        s,
-        "## Fig. thor_all (b): object collection, generalising to other numbers of objects\n\n![thor_all](thor_all.png)\n"
-    );
+    let mut s = match super::open_section(
+        "## Fig. thor_all (b): object collection, generalising to other numbers of objects\n\n![thor_all](thor_all.png)",
+        !result.lines.is_empty(),
+    ) {
+        Ok(head) => head,
+        Err(whole) => return whole,
+    };
     let _ = writeln!(
         s,
         "Input: **the {}**{}. Trained on N = {:?} only: {} training-side tasks per N × {} demos, batch {}, Adam at {} (NTG: {} epochs, the rate decaying per step along a half cosine to a tenth; Flat Policy: {} epochs at a constant rate; each the setting under which it trained well), seed 0. Tested on {} episodes per N (tasks from the held-out side of the split; the conditioning demo and the rollout are different scenes).\n\nProtocol (both methods, see `ntg_trainer::collect`): {} each training demo is imitated while conditioned on *another* demo of its task (the Flat Policy attends over it; NTG's GCN completes its path, whose `NE_gcn` the edge classifier reads), as at test time; NTG's demo interpreter {} and also learns from one random contiguous stretch of each demo.\n",
