@@ -34,6 +34,11 @@
 //!   medians and the speedup: the median over pairs of (1-thread time /
 //!   2-shard time), samples per second of the 2-shard step over the
 //!   1-thread one at the same batch;
+//! - `part_parallel` (not in `all`; an experiment): as `data_parallel`,
+//!   but the 2-thread step splits the work instead of the batch: the demo
+//!   interpreter and node localizer on one thread, the GCN and edge
+//!   classifier on the other, each over the whole batch (the state step's
+//!   two halves share only the node embeddings);
 //! - `policy_step`: one executor decision at rollout (inference): encode
 //!   one observation row, localize it, classify the edges of every node
 //!   (soft edges), combine them into π(·|o) (`NtgPolicy::action_distribution`,
@@ -209,12 +214,24 @@ impl StateBatch {
 /// `twin_export` (and the trainer's `NtgStep`) does with the recommended
 /// recipe.
 fn state_loss(model: &NtgModel, x: &StateBatch) -> ntg_model::Result<Tensor<1>> {
+    Ok(state_loss_part(model, x, 0)? + state_loss_part(model, x, 1)?)
+}
+
+/// One of the state step's two independent halves of work: part 0 the
+/// demo interpreter's and the node localizer's losses, part 1 the GCN's
+/// and the edge classifier's (which reads the GCN's detached output). Their
+/// sum is [`state_loss`]; they share only the localizer's node embeddings
+/// (which the edge classifier also reads), whose gradients add up.
+fn state_loss_part(model: &NtgModel, x: &StateBatch, part: usize) -> ntg_model::Result<Tensor<1>> {
+    if part == 0 {
+        let interp = model.interpreter.loss(&x.demo)?;
+        let loc_logits = model.localizer.forward(x.obs.clone())?;
+        let loc = model.localizer.loss(loc_logits, x.nodes.clone())?;
+        return Ok(interp.loss + loc.loss);
+    }
     let n = NUM_NODES;
-    let interp = model.interpreter.loss(&x.demo)?;
     let gcn_out = model.gcn.forward(x.gcn_input.clone())?;
     let gcn = model.gcn.loss(&gcn_out, x.gcn_target.clone())?;
-    let loc_logits = model.localizer.forward(x.obs.clone())?;
-    let loc = model.localizer.loss(loc_logits, x.nodes.clone())?;
 
     let r = x.obs.dims()[0];
     let soft = gcn_out
@@ -238,7 +255,7 @@ fn state_loss(model: &NtgModel, x: &StateBatch) -> ntg_model::Result<Tensor<1>> 
         .reshape([r, n]);
     let logits = logits + c_rows.clamp(SOFT_EDGE_FLOOR, 1.0).log();
     let edge = model.edges.loss(logits, x.next.clone())?;
-    Ok(interp.loss + loc.loss + gcn + edge.loss)
+    Ok(gcn + edge.loss)
 }
 
 /// Median and minimum of `repeats` timed calls of `f` (in ms), after
@@ -432,7 +449,11 @@ fn bench_row(
 
 /// The `data_parallel` row: `(1-thread median ms, 2-shard median ms,
 /// median of the paired ratios)` over `repeats` alternating pairs.
-fn data_parallel(warmup: usize, repeats: usize) -> Result<(f64, f64, f64), Box<dyn Error>> {
+fn data_parallel(
+    warmup: usize,
+    repeats: usize,
+    by_parts: bool,
+) -> Result<(f64, f64, f64), Box<dyn Error>> {
     let device = ntg_model::cpu_device().autodiff();
     let config = recommended_config(MODEL_SEED);
     let whole = StateBatch::new(0..BATCH, &device)?;
@@ -465,7 +486,12 @@ fn data_parallel(warmup: usize, repeats: usize) -> Result<(f64, f64, f64), Box<d
         two.install(|| -> Result<(), String> {
             let model = sharded.take().ok_or("model")?;
             let (grads, _) = ntg_model::sharded_gradients(&model, 2, |m, i| {
-                Ok::<_, ntg_model::ModelError>((state_loss(m, &halves[i])?.mul_scalar(0.5), ()))
+                let loss = if by_parts {
+                    state_loss_part(m, &whole, i)?
+                } else {
+                    state_loss(m, &halves[i])?.mul_scalar(0.5)
+                };
+                Ok::<_, ntg_model::ModelError>((loss, ()))
             })
             .map_err(|e| e.to_string())?;
             sharded = Some(optim_sharded.step(LR, model, grads));
@@ -514,7 +540,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             "--warmup" => warmup = value()?.parse()?,
             "-h" | "--help" => {
                 println!(
-                    "usage: twin_bench [--rows all|ROW,ROW] [--repeats N] [--warmup N]; rows: {}, data_parallel",
+                    "usage: twin_bench [--rows all|ROW,ROW] [--repeats N] [--warmup N]; rows: {}, data_parallel, part_parallel",
                     ROWS.join(", ")
                 );
                 return Ok(());
@@ -524,8 +550,8 @@ fn main() -> Result<(), Box<dyn Error>> {
     }
     let threads = std::env::var("RAYON_NUM_THREADS").ok();
     for row in &rows {
-        if row == "data_parallel" {
-            let (one, two, speedup) = data_parallel(warmup, repeats)?;
+        if row == "data_parallel" || row == "part_parallel" {
+            let (one, two, speedup) = data_parallel(warmup, repeats, row == "part_parallel")?;
             println!(
                 "{}",
                 json!({
