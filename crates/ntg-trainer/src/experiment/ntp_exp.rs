@@ -1316,6 +1316,11 @@ mod tests {
                 .unwrap(),
             expected(1000, 6, 50, false)
         );
+        let quick_ntg_1000 = |panel| {
+            experiment
+                .run_config(Profile::Quick, panel, (MethodId::Ntg, Variant::Full), 1000)
+                .unwrap()
+        };
         // Both recipes at the state panel's 1000-task point (issue 17, 4b).
         let recommended = &quick.panels[2];
         let c = experiment
