@@ -1323,14 +1323,7 @@ mod tests {
         };
         // Both recipes at the state panel's 1000-task point (issue 17, 4b).
         let recommended = &quick.panels[2];
-        let c = experiment
-            .run_config(
-                Profile::Quick,
-                recommended,
-                (MethodId::Ntg, Variant::Full),
-                1000,
-            )
-            .unwrap();
+        let c = quick_ntg_1000(recommended);
         assert_eq!(
             (c.obs, c.demos_per_task, c.optim.epochs, c.permute_objects),
             (ObsKind::State, 10, 6, true)
@@ -1373,14 +1366,7 @@ mod tests {
             experiment.run_name(recommended, (MethodId::Ntg, Variant::Full), 1000),
             "ntp_exp-vid-recommended-1000"
         );
-        let c = experiment
-            .run_config(
-                Profile::Quick,
-                recommended,
-                (MethodId::Ntg, Variant::Full),
-                1000,
-            )
-            .unwrap();
+        let c = quick_ntg_1000(recommended);
         let mut expected = Recipe::Recommended.config(ObsKind::Vid, 1000, 2, 10, 0);
         expected.state_hidden_layers = 3;
         expected.pairwise = true;
