@@ -43,8 +43,10 @@ pub struct RunRecord {
     pub format: u32,
     /// The run folder's name.
     pub run: String,
-    /// The commit of the checkout that wrote the record (`-dirty` with
-    /// changes to tracked files; `unknown` outside a git checkout). Where
+    /// The commit the writing binary was built from (`-dirty` with
+    /// uncommitted changes to the code then; `unknown` when built outside
+    /// a git checkout). Records written before session 27 hold the
+    /// checkout's commit when written instead. Where
     /// and with what each stretch of training ran is the run's
     /// `sessions.jsonl` ([`note_session`]).
     pub commit: String,
@@ -177,7 +179,7 @@ impl RunRecord {
 pub struct Session {
     /// The first epoch (from 0) trained in it.
     pub from_epoch: usize,
-    /// The checkout's commit (see [`RunRecord::commit`]).
+    /// The commit the binary was built from (see [`RunRecord::commit`]).
     pub commit: String,
     /// The CPU and thread count.
     pub machine: String,
@@ -279,24 +281,11 @@ fn drop_fields(value: &mut Value) {
     }
 }
 
-/// The commit of the git checkout in the working folder, `-dirty` if it
-/// has changes to tracked files; `unknown` where git cannot tell.
+/// The commit this binary was built from (`build.rs`): `-dirty` if the
+/// workspace's code had uncommitted changes then, `unknown` if it was not
+/// built in a git checkout.
 fn commit() -> String {
-    let git = |args: &[&str]| {
-        std::process::Command::new("git")
-            .args(args)
-            .output()
-            .ok()
-            .filter(|o| o.status.success())
-            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_owned())
-    };
-    match git(&["rev-parse", "--short=12", "HEAD"]) {
-        Some(head) => match git(&["status", "--porcelain", "--untracked-files=no"]) {
-            Some(changes) if !changes.is_empty() => format!("{head}-dirty"),
-            _ => head,
-        },
-        None => "unknown".into(),
-    }
+    env!("NTG_BUILD_COMMIT").to_owned()
 }
 
 fn machine() -> String {
