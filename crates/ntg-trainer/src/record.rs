@@ -151,7 +151,11 @@ impl RunRecord {
             r.files
                 .iter()
                 .filter(|(p, _)| p.starts_with("eval/") || p.as_str() == "config.json")
-                .map(|(p, v)| (p.clone(), v.clone()))
+                .map(|(p, v)| {
+                    let mut v = v.clone();
+                    without_key(&mut v, TRANSCRIBED_EXACTLY);
+                    (p.clone(), v)
+                })
                 .collect()
         };
         evals(self) == evals(other)
@@ -266,9 +270,23 @@ fn collect(root: &Path, dir: &Path, files: &mut BTreeMap<String, Value>) -> anyh
     Ok(())
 }
 
+/// The per-episode verdict kept of the dropped sequences (see
+/// `EpisodeRecord::transcribed_exactly`): derived here for evaluations
+/// saved before it, and left out of [`RunRecord::same_outcomes`], since
+/// records written before it lack it.
+const TRANSCRIBED_EXACTLY: &str = "transcribed_exactly";
+
 fn drop_fields(value: &mut Value) {
     match value {
         Value::Object(map) => {
+            if !map.contains_key(TRANSCRIBED_EXACTLY)
+                && let (Some(Value::Array(said)), Some(Value::Array(done))) =
+                    (map.get("transcription"), map.get("demo_actions"))
+                && !said.is_empty()
+            {
+                let exact = said == done;
+                map.insert(TRANSCRIBED_EXACTLY.into(), Value::Bool(exact));
+            }
             for field in DROPPED_FIELDS {
                 if map.get(field).is_some_and(Value::is_array) {
                     map.remove(field);
@@ -277,6 +295,18 @@ fn drop_fields(value: &mut Value) {
             map.values_mut().for_each(drop_fields);
         }
         Value::Array(items) => items.iter_mut().for_each(drop_fields),
+        _ => {}
+    }
+}
+
+/// Removes `key` from every object in `value`.
+fn without_key(value: &mut Value, key: &str) {
+    match value {
+        Value::Object(map) => {
+            map.remove(key);
+            map.values_mut().for_each(|v| without_key(v, key));
+        }
+        Value::Array(items) => items.iter_mut().for_each(|v| without_key(v, key)),
         _ => {}
     }
 }
@@ -325,7 +355,7 @@ mod tests {
         write("dataset/index.json", "{}");
         write(
             "eval/full-2.json",
-            r#"{"success": {"successes": 1, "trials": 2}, "tasks": [{"task": "a", "success": true, "trace": ["pick(A)"]}, {"task": "b", "success": false, "trace": []}]}"#,
+            r#"{"success": {"successes": 1, "trials": 2}, "tasks": [{"task": "a", "success": true, "trace": ["pick(A)"], "transcription": ["pick(A)"], "demo_actions": ["pick(A)"]}, {"task": "b", "success": false, "trace": [], "transcription": ["pick(B)"], "demo_actions": ["pick(C)"]}]}"#,
         );
         let record = RunRecord::of_run(&run).unwrap();
         assert_eq!(record.run, "ntp_exp-state-5");
@@ -338,11 +368,13 @@ mod tests {
                 "metrics.jsonl"
             ]
         );
-        assert!(
-            record.files["eval/full-2.json"]["tasks"][0]
-                .get("trace")
-                .is_none()
-        );
+        let tasks = &record.files["eval/full-2.json"]["tasks"];
+        for field in DROPPED_FIELDS {
+            assert!(tasks[0].get(field).is_none(), "{field} kept");
+        }
+        // What is kept of the dropped sequences: whether they agreed.
+        assert_eq!(tasks[0][TRANSCRIBED_EXACTLY], true);
+        assert_eq!(tasks[1][TRANSCRIBED_EXACTLY], false);
         assert_eq!(record.summary(), "eval/full-2.json: 1/2");
         let file = tmp.path().join("records").join("r.json");
         record.write(&file).unwrap();
@@ -360,6 +392,13 @@ mod tests {
         assert_eq!(eval["success"]["successes"], 1);
         assert!(back.same_outcomes(&RunRecord::of_run(&restored).unwrap()));
         assert!(back.restore(&restored, &file).is_err());
+        // A record written before the verdict was kept still matches.
+        let mut older = back.clone();
+        without_key(
+            older.files.get_mut("eval/full-2.json").unwrap(),
+            TRANSCRIBED_EXACTLY,
+        );
+        assert!(back.same_outcomes(&older));
         let mut other = back.clone();
         other.files.get_mut("eval/full-2.json").unwrap()["tasks"][1]["success"] = true.into();
         assert!(!back.same_outcomes(&other));

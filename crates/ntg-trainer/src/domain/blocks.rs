@@ -1267,6 +1267,16 @@ pub struct EvalResult {
     pub tasks: Vec<EpisodeRecord>,
 }
 
+impl EvalResult {
+    /// `"; demos transcribed exactly R"` for a method with a demo
+    /// interpreter ([`crate::domain::transcription_exact_rate`]), else empty.
+    pub fn transcribed_note(&self) -> String {
+        crate::domain::transcription_exact_rate(&self.tasks).map_or_else(String::new, |r| {
+            format!("; demos transcribed exactly {:.3}", r.rate)
+        })
+    }
+}
+
 /// Records the conditioning demo of test task `index` (seed
 /// `DEMO_SEED_BASE + index`) in `env` and builds the policy from it: the
 /// first half of every evaluation episode, for `ntg trace`.
@@ -1858,7 +1868,7 @@ fn write_eval(run: &RunDir, name: &str, result: &EvalResult) -> anyhow::Result<(
     RunDir::write_json(&path, result)?;
     let s = result.success;
     println!(
-        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); goals met {:.3}; records in {}",
+        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); goals met {:.3}{}; records in {}",
         result.variant,
         s.successes,
         s.trials,
@@ -1866,6 +1876,7 @@ fn write_eval(run: &RunDir, name: &str, result: &EvalResult) -> anyhow::Result<(
         s.ci_low,
         s.ci_high,
         result.mean_goal_fraction,
+        result.transcribed_note(),
         path.display()
     );
     Ok(())

@@ -405,6 +405,35 @@ pub struct EpisodeRecord {
     /// The expert's actual actions in the conditioning demo.
     #[serde(default)]
     pub demo_actions: Vec<String>,
+    /// Methods with a demo interpreter: whether its transcription is the
+    /// demo's action sequence exactly (kept in committed run records,
+    /// which drop the sequences themselves; absent in evaluations saved
+    /// before it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transcribed_exactly: Option<bool>,
+}
+
+impl EpisodeRecord {
+    /// [`Self::transcribed_exactly`], or where it was not saved, the
+    /// comparison of the saved sequences (`None` without a transcription).
+    pub fn transcription_exact(&self) -> Option<bool> {
+        self.transcribed_exactly.or_else(|| {
+            (!self.transcription.is_empty()).then(|| self.transcription == self.demo_actions)
+        })
+    }
+}
+
+/// The fraction of `records`' demos the demo interpreter transcribed
+/// exactly, with its 95% Wilson interval, over the records that say
+/// ([`EpisodeRecord::transcription_exact`]); `None` if none does.
+pub fn transcription_exact_rate<'a>(
+    records: impl IntoIterator<Item = &'a EpisodeRecord>,
+) -> Option<SuccessRate> {
+    let outcomes: Vec<bool> = records
+        .into_iter()
+        .filter_map(EpisodeRecord::transcription_exact)
+        .collect();
+    (!outcomes.is_empty()).then(|| SuccessRate::from_outcomes(outcomes))
 }
 
 /// The success rate of `records`, with its 95% Wilson interval.
@@ -537,7 +566,49 @@ pub fn run_episode_observed<D: Domain>(
         goals_met,
         goals,
         trace: names(&trace),
+        transcribed_exactly: (!agent.transcription().is_empty())
+            .then(|| agent.transcription() == demo_actions.as_slice()),
         transcription: names(agent.transcription()),
         demo_actions: names(&demo_actions),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(transcription: &[&str], demo: &[&str], saved: Option<bool>) -> EpisodeRecord {
+        let names = |a: &[&str]| a.iter().map(|s| (*s).to_owned()).collect();
+        EpisodeRecord {
+            group: 0,
+            index: 0,
+            task: "t".into(),
+            success: false,
+            steps: 0,
+            goals_met: 0,
+            goals: 1,
+            trace: Vec::new(),
+            transcription: names(transcription),
+            demo_actions: names(demo),
+            transcribed_exactly: saved,
+        }
+    }
+
+    #[test]
+    fn exact_transcriptions_are_counted_over_the_records_that_say() {
+        let records = [
+            record(&["a", "b"], &["a", "b"], None),
+            record(&["a", "c"], &["a", "b"], None),
+            // A committed record: sequences dropped, the verdict kept.
+            record(&[], &[], Some(true)),
+            // No demo interpreter (NTP): not counted.
+            record(&[], &["a"], None),
+        ];
+        assert_eq!(records[0].transcription_exact(), Some(true));
+        assert_eq!(records[1].transcription_exact(), Some(false));
+        assert_eq!(records[3].transcription_exact(), None);
+        let rate = transcription_exact_rate(&records).unwrap();
+        assert_eq!((rate.successes, rate.trials), (2, 3));
+        assert!(transcription_exact_rate(&records[3..]).is_none());
+    }
 }

@@ -503,12 +503,13 @@ fn run_point(
     plan.finish(&dir)?;
     let train_seconds = run.epoch_seconds()?;
     eprintln!(
-        "  [{name}] success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}",
+        "  [{name}] success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}{}",
         scale.test_tasks,
         result.success.rate,
         result.success.ci_low,
         result.success.ci_high,
-        result.mean_goal_fraction
+        result.mean_goal_fraction,
+        result.transcribed_note()
     );
     Ok(Some(NtpExpPoint {
         method,
