@@ -436,6 +436,38 @@ pub fn transcription_exact_rate<'a>(
     (!outcomes.is_empty()).then(|| SuccessRate::from_outcomes(outcomes))
 }
 
+/// Where a method with a demo interpreter failed: in transcribing the demo,
+/// or in acting on a right transcription.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TranscriptionSplit {
+    /// The fraction of demos transcribed exactly.
+    pub exact: SuccessRate,
+    /// Success on the episodes whose demo was transcribed exactly.
+    pub success_if_exact: SuccessRate,
+    /// Success on the others.
+    pub success_otherwise: SuccessRate,
+}
+
+impl TranscriptionSplit {
+    /// The split of `records` ([`EpisodeRecord::transcription_exact`]),
+    /// over the records that say; `None` if none does.
+    pub fn of(records: &[EpisodeRecord]) -> Option<Self> {
+        let said: Vec<(bool, bool)> = records
+            .iter()
+            .filter_map(|r| r.transcription_exact().map(|e| (e, r.success)))
+            .collect();
+        (!said.is_empty()).then(|| TranscriptionSplit {
+            exact: SuccessRate::from_outcomes(said.iter().map(|&(e, _)| e)),
+            success_if_exact: SuccessRate::from_outcomes(
+                said.iter().filter(|&&(e, _)| e).map(|&(_, s)| s),
+            ),
+            success_otherwise: SuccessRate::from_outcomes(
+                said.iter().filter(|&&(e, _)| !e).map(|&(_, s)| s),
+            ),
+        })
+    }
+}
+
 /// The success rate of `records`, with its 95% Wilson interval.
 pub fn success_rate<'a>(records: impl IntoIterator<Item = &'a EpisodeRecord>) -> SuccessRate {
     SuccessRate::from_outcomes(records.into_iter().map(|r| r.success))
@@ -609,6 +641,13 @@ mod tests {
         assert_eq!(records[3].transcription_exact(), None);
         let rate = transcription_exact_rate(&records).unwrap();
         assert_eq!((rate.successes, rate.trials), (2, 3));
+        let mut records = records.to_vec();
+        records[0].success = true;
+        let split = TranscriptionSplit::of(&records).unwrap();
+        assert_eq!((split.exact.successes, split.exact.trials), (2, 3));
+        let (hit, miss) = (split.success_if_exact, split.success_otherwise);
+        assert_eq!((hit.successes, hit.trials), (1, 2));
+        assert_eq!((miss.successes, miss.trials), (0, 1));
         assert!(transcription_exact_rate(&records[3..]).is_none());
     }
 }
