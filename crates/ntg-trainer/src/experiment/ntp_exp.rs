@@ -833,11 +833,7 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
         "**The paper's relations** (paper recipe; a point with several seeds is shown as their mean; \"clearly\" and \"above\" need every seed's 95% interval of one side above every seed's of the other, \"on par\" some overlap):",
         trend_checks(points),
     );
-    bullet_list(
-        &mut s,
-        "**Where NTG fails: transcribing the demo, or acting on it.** The fraction of test demos the demo interpreter transcribed exactly (the expert's flat action sequence, token for token), and success on those demos and on the others (runs whose evaluation kept it):",
-        transcription_lines(points),
-    );
+    bullet_list(&mut s, TRANSCRIPTION_TITLE, transcription_lines(points));
     bullet_list(
         &mut s,
         "**Over seeds.** Points trained with several seeds (the figure shows their mean, with a bar from the lowest seed's interval end to the highest's):",
@@ -846,9 +842,31 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
     s
 }
 
+/// The mean success of a point's `seeds`.
+pub(crate) fn seeds_mean(seeds: &[&NtpExpPoint]) -> f64 {
+    seeds.iter().map(|p| p.success.rate).sum::<f64>() / seeds.len().max(1) as f64
+}
+
+/// `"0.080 (mean of 2 seeds: 0.010, 0.150)"`: a point's seeds in a report.
+pub(crate) fn seeds_mean_text(seeds: &[&NtpExpPoint]) -> String {
+    let each: Vec<String> = seeds
+        .iter()
+        .map(|p| format!("{:.3}", p.success.rate))
+        .collect();
+    format!(
+        "{:.3} (mean of {} seeds: {})",
+        seeds_mean(seeds),
+        seeds.len(),
+        each.join(", ")
+    )
+}
+
+/// The title of [`transcription_lines`] in a report.
+pub(crate) const TRANSCRIPTION_TITLE: &str = "**Where NTG fails: transcribing the demo, or acting on it.** The fraction of test demos the demo interpreter transcribed exactly (the expert's flat action sequence, token for token), and success on those demos and on the others (runs whose evaluation kept it):";
+
 /// Appends `title`, then `lines` as a Markdown list; nothing if there are
 /// no lines.
-fn bullet_list(s: &mut String, title: &str, lines: Vec<String>) {
+pub(crate) fn bullet_list(s: &mut String, title: &str, lines: Vec<String>) {
     if lines.is_empty() {
         return;
     }
@@ -915,16 +933,7 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
         let name = format!("{} ({:?})", p.method.legend(), p.obs);
         match seeds {
             [one] => format!("{name} {:.3}", one.success.rate),
-            _ => format!(
-                "{name} {:.3} (mean of {} seeds: {})",
-                seeds.iter().map(|p| p.success.rate).sum::<f64>() / seeds.len() as f64,
-                seeds.len(),
-                seeds
-                    .iter()
-                    .map(|p| format!("{:.3}", p.success.rate))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
+            _ => format!("{name} {}", seeds_mean_text(seeds)),
         }
     };
     // (relation, [(where, a's seeds, b's seeds)]).
