@@ -55,6 +55,23 @@ impl SuccessRate {
     }
 }
 
+/// The mean rate of `rates` (one per seed of a point; 0 for none).
+pub fn mean_rate(rates: &[SuccessRate]) -> f64 {
+    rates.iter().map(|r| r.rate).sum::<f64>() / rates.len().max(1) as f64
+}
+
+/// `"0.080 (mean of 2 seeds: 0.010, 0.150)"`: one point's seeds in a
+/// report.
+pub fn seeds_text(rates: &[SuccessRate]) -> String {
+    let each: Vec<String> = rates.iter().map(|r| format!("{:.3}", r.rate)).collect();
+    format!(
+        "{:.3} (mean of {} seeds: {})",
+        mean_rate(rates),
+        rates.len(),
+        each.join(", ")
+    )
+}
+
 /// Mean and 95% interval (normal approximation, t-free) of a few values,
 /// e.g. one metric over seeds.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

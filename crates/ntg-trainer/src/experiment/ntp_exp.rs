@@ -842,23 +842,9 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
     s
 }
 
-/// The mean success of a point's `seeds`.
-pub(crate) fn seeds_mean(seeds: &[&NtpExpPoint]) -> f64 {
-    seeds.iter().map(|p| p.success.rate).sum::<f64>() / seeds.len().max(1) as f64
-}
-
-/// `"0.080 (mean of 2 seeds: 0.010, 0.150)"`: a point's seeds in a report.
-pub(crate) fn seeds_mean_text(seeds: &[&NtpExpPoint]) -> String {
-    let each: Vec<String> = seeds
-        .iter()
-        .map(|p| format!("{:.3}", p.success.rate))
-        .collect();
-    format!(
-        "{:.3} (mean of {} seeds: {})",
-        seeds_mean(seeds),
-        seeds.len(),
-        each.join(", ")
-    )
+/// The success rates of a point's `seeds`.
+pub(crate) fn seed_rates(seeds: &[&NtpExpPoint]) -> Vec<SuccessRate> {
+    seeds.iter().map(|p| p.success).collect()
 }
 
 /// The title of [`transcription_lines`] in a report.
@@ -933,7 +919,7 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
         let name = format!("{} ({:?})", p.method.legend(), p.obs);
         match seeds {
             [one] => format!("{name} {:.3}", one.success.rate),
-            _ => format!("{name} {}", seeds_mean_text(seeds)),
+            _ => format!("{name} {}", crate::stats::seeds_text(&seed_rates(seeds))),
         }
     };
     // (relation, [(where, a's seeds, b's seeds)]).
