@@ -836,6 +836,11 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
     bullet_list(&mut s, TRANSCRIPTION_TITLE, transcription_lines(points));
     bullet_list(
         &mut s,
+        "**Compute by method.** Training epochs of this figure's runs, summed per curve (each run's own epoch times, its stages' included: frame encoder, detector; evaluation not included):",
+        compute_lines(points),
+    );
+    bullet_list(
+        &mut s,
         "**Over seeds.** Points trained with several seeds (the figure shows their mean, with a bar from the lowest seed's interval end to the highest's):",
         seed_spread(points),
     );
@@ -861,6 +866,36 @@ pub(crate) fn bullet_list(s: &mut String, title: &str, lines: Vec<String>) {
         let _ = writeln!(s, "- {line}");
     }
     let _ = writeln!(s);
+}
+
+/// One line per curve (method, input, recipe): its runs and their summed
+/// training epochs (Markdown).
+pub(crate) fn compute_lines(points: &[NtpExpPoint]) -> Vec<String> {
+    let mut curves: Vec<(String, usize, f64)> = Vec::new();
+    for p in points {
+        let name = format!(
+            "{} ({:?})",
+            curve_name(p.method, p.recipe, p.ablation),
+            p.obs
+        );
+        match curves.iter_mut().find(|(n, _, _)| *n == name) {
+            Some((_, runs, seconds)) => {
+                *runs += 1;
+                *seconds += p.train_seconds;
+            }
+            None => curves.push((name, 1, p.train_seconds)),
+        }
+    }
+    curves
+        .into_iter()
+        .map(|(name, runs, seconds)| {
+            format!(
+                "{name}: {runs} run{}, {:.2} core-hours",
+                if runs == 1 { "" } else { "s" },
+                seconds / 3600.0
+            )
+        })
+        .collect()
 }
 
 /// One line per point with a [`TranscriptionSplit`] (Markdown).
@@ -1144,6 +1179,10 @@ mod tests {
             transcription: None,
             ..points[0].clone()
         });
+        assert_eq!(
+            compute_lines(&points),
+            ["NTG (ours) (State): 2 runs, 0.00 core-hours"]
+        );
         assert_eq!(
             transcription_lines(&points),
             [
