@@ -889,10 +889,14 @@ pub(crate) fn compute_lines(points: &[NtpExpPoint]) -> Vec<String> {
     curves
         .into_iter()
         .map(|(name, runs, seconds)| {
+            let time = if seconds >= 3600.0 {
+                format!("{:.2} core-hours", seconds / 3600.0)
+            } else {
+                format!("{:.1} core-minutes", seconds / 60.0)
+            };
             format!(
-                "{name}: {runs} run{}, {:.2} core-hours",
-                if runs == 1 { "" } else { "s" },
-                seconds / 3600.0
+                "{name}: {runs} run{}, {time}",
+                if runs == 1 { "" } else { "s" }
             )
         })
         .collect()
@@ -1181,7 +1185,7 @@ mod tests {
         });
         assert_eq!(
             compute_lines(&points),
-            ["NTG (ours) (State): 2 runs, 0.00 core-hours"]
+            ["NTG (ours) (State): 2 runs, 0.0 core-minutes"]
         );
         assert_eq!(
             transcription_lines(&points),
