@@ -671,6 +671,7 @@ mod tests {
             goal_fraction: 0.5,
             train_seconds: 1.0,
             transcription: None,
+            seen: None,
             run: std::path::PathBuf::new(),
         };
         let points = [

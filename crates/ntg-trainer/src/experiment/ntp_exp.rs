@@ -9,6 +9,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use crate::blocks::{self, BlocksRunConfig, Recipe, Variant};
@@ -344,6 +345,11 @@ pub struct NtpExpPoint {
     /// keep it: runs restored from records written before it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub transcription: Option<TranscriptionSplit>,
+    /// Success on the run's own training tasks (new demos and scenes),
+    /// where it was evaluated there (`ntg eval --split seen`): whether a
+    /// method does what it was trained on. The largest such evaluation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seen: Option<SuccessRate>,
     /// Run folder.
     pub run: PathBuf,
 }
@@ -531,8 +537,43 @@ fn run_point(
         goal_fraction: result.mean_goal_fraction,
         train_seconds,
         transcription: TranscriptionSplit::of(&result.tasks),
+        seen: seen_success(&run, method)?,
         run: dir,
     }))
+}
+
+/// The success rate of `run`'s largest evaluation on its own training
+/// tasks (`eval/seen-{full|METHOD}-N.json`, written by `ntg eval --split
+/// seen`), if any.
+fn seen_success(run: &RunDir, method: MethodId) -> anyhow::Result<Option<SuccessRate>> {
+    let prefix = if method.is_ntg() {
+        "seen-full-".to_owned()
+    } else {
+        format!("seen-{}-", method.name())
+    };
+    let dir = run.eval_dir();
+    if !dir.is_dir() {
+        return Ok(None);
+    }
+    let mut best: Option<SuccessRate> = None;
+    for entry in std::fs::read_dir(&dir).with_context(|| format!("reading {}", dir.display()))? {
+        let path = entry?.path();
+        let name = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or_default();
+        let is_seen = name
+            .strip_prefix(&prefix)
+            .and_then(|rest| rest.strip_suffix(".json"))
+            .is_some_and(|n| n.parse::<usize>().is_ok());
+        if is_seen {
+            let result: blocks::EvalResult = RunDir::read_json(&path)?;
+            if best.is_none_or(|b| result.success.trials > b.trials) {
+                best = Some(result.success);
+            }
+        }
+    }
+    Ok(best)
 }
 
 /// A finished run folder under `runs` with exactly `config` (another
@@ -834,6 +875,26 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
         trend_checks(points),
     );
     bullet_list(&mut s, TRANSCRIPTION_TITLE, transcription_lines(points));
+    bullet_list(
+        &mut s,
+        "**Seen tasks.** Where a run was also evaluated on its own training tasks, with demos and scenes it never trained on (`ntg eval --split seen`): whether the method does what it was trained on, beside its success on unseen tasks:",
+        points
+            .iter()
+            .filter_map(|p| {
+                let seen = p.seen?;
+                Some(format!(
+                    "{} ({:?}, {} tasks): seen {:.3} ({}/{}), unseen {:.3}",
+                    row_name(p),
+                    p.obs,
+                    p.train_tasks,
+                    seen.rate,
+                    seen.successes,
+                    seen.trials,
+                    p.success.rate
+                ))
+            })
+            .collect(),
+    );
     bullet_list(
         &mut s,
         "**Compute by method.** Training epochs of this figure's runs, summed per curve (each run's own epoch times, its stages' included: frame encoder, detector; evaluation not included):",
@@ -1177,10 +1238,12 @@ mod tests {
                 success_if_exact: rate(6, 8),
                 success_otherwise: rate(0, 2),
             }),
+            seen: None,
             run: PathBuf::new(),
         }];
         points.push(NtpExpPoint {
             transcription: None,
+            seen: None,
             ..points[0].clone()
         });
         assert_eq!(
@@ -1212,6 +1275,7 @@ mod tests {
             goal_fraction: 0.5,
             train_seconds: 1.0,
             transcription: None,
+            seen: None,
             run: PathBuf::new(),
         };
         let (state, vid) = (ObsKind::State, ObsKind::Vid);
@@ -1277,6 +1341,7 @@ mod tests {
             goal_fraction: 0.5,
             train_seconds: 1.0,
             transcription: None,
+            seen: None,
             run: PathBuf::from(format!("run{seed}")),
         };
         let points = vec![point(0, 20), point(1, 40), point(2, 30)];
