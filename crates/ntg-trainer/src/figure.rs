@@ -148,9 +148,77 @@ fn x_label(panel: &Panel, x: f64) -> String {
     }
 }
 
+/// Every series name of `panels`, in order of first appearance: a name's
+/// index is its colour in every panel and its place in the legend.
+fn series_names(panels: &[Panel]) -> Vec<&str> {
+    let mut names: Vec<&str> = Vec::new();
+    for series in panels.iter().flat_map(|p| &p.series) {
+        if !names.contains(&series.name.as_str()) {
+            names.push(&series.name);
+        }
+    }
+    names
+}
+
+/// The legend's entries, `(colour index, name)`: the series names with
+/// points in some panel (a profile completed run by run lists none it has
+/// not drawn), each with its index in [`series_names`].
+fn legend_entries(panels: &[Panel]) -> Vec<(usize, &str)> {
+    series_names(panels)
+        .into_iter()
+        .enumerate()
+        .filter(|&(_, name)| {
+            panels
+                .iter()
+                .flat_map(|p| &p.series)
+                .any(|s| s.name == name && !s.points.is_empty())
+        })
+        .collect()
+}
+
+/// Height in pixels of the legend strip under the panels: one row of
+/// [`LEGEND_ROW`] pixels per `columns` names.
+fn legend_height(names: usize, columns: usize) -> u32 {
+    (names.div_ceil(columns.max(1)) as u32) * LEGEND_ROW + 8
+}
+
+/// Pixels per legend row.
+const LEGEND_ROW: u32 = 18;
+
+fn draw_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    entries: &[(usize, &str)],
+    columns: usize,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let (width, _) = area.dim_in_pixel();
+    let column_width = (width / columns.max(1) as u32) as i32;
+    let style = TextStyle::from(("sans-serif", 13).into_font()).color(&BLACK);
+    for (i, &(colour, name)) in entries.iter().enumerate() {
+        let colour = PALETTE[colour % PALETTE.len()];
+        let (x, y) = (
+            12 + (i % columns) as i32 * column_width,
+            4 + (i / columns) as i32 * LEGEND_ROW as i32 + LEGEND_ROW as i32 / 2,
+        );
+        area.draw(&PathElement::new(
+            vec![(x, y), (x + 18, y)],
+            colour.stroke_width(2),
+        ))
+        .map_err(|e| anyhow!("drawing the legend: {e}"))?;
+        area.draw(&Circle::new((x + 9, y), 3, colour.filled()))
+            .map_err(|e| anyhow!("drawing the legend: {e}"))?;
+        area.draw(&Text::new(name.to_string(), (x + 26, y - 7), style.clone()))
+            .map_err(|e| anyhow!("drawing the legend: {e}"))?;
+    }
+    Ok(())
+}
+
 fn draw_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     panel: &Panel,
+    names: &[&str],
 ) -> anyhow::Result<()>
 where
     DB::ErrorType: 'static,
@@ -177,19 +245,20 @@ where
                 .light_line_style(WHITE)
                 .draw()
                 .map_err(|e| anyhow!("drawing the axes: {e}"))?;
-            for (i, series) in panel.series.iter().enumerate() {
+            for series in &panel.series {
+                let i = names
+                    .iter()
+                    .position(|n| *n == series.name)
+                    .unwrap_or_default();
                 let colour = PALETTE[i % PALETTE.len()];
                 let style = ShapeStyle::from(&colour).stroke_width(2);
+                // Left to right, whatever order the points came in (a
+                // curve can gather points of several panels of a file).
+                let mut line: Vec<(f64, f64)> = series.points.iter().map(|p| (p.x, p.y)).collect();
+                line.sort_by(|a, b| a.0.total_cmp(&b.0));
                 chart
-                    .draw_series(LineSeries::new(
-                        series.points.iter().map(|p| (p.x, p.y)),
-                        style,
-                    ))
-                    .map_err(|e| anyhow!("drawing {}: {e}", series.name))?
-                    .label(series.name.as_str())
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 18, y)], colour.stroke_width(2))
-                    });
+                    .draw_series(LineSeries::new(line, style))
+                    .map_err(|e| anyhow!("drawing {}: {e}", series.name))?;
                 chart
                     .draw_series(series.points.iter().map(|p| {
                         ErrorBar::new_vertical(p.x, p.lo, p.y, p.hi, colour.stroke_width(1), 6)
@@ -203,18 +272,6 @@ where
                             .map(|p| Circle::new((p.x, p.y), 3, colour.filled())),
                     )
                     .map_err(|e| anyhow!("drawing {}: {e}", series.name))?;
-            }
-            // No legend box on a panel with nothing drawn (a profile
-            // completed run by run).
-            if panel.series.iter().any(|s| !s.points.is_empty()) {
-                chart
-                    .configure_series_labels()
-                    .position(SeriesLabelPosition::UpperLeft)
-                    .background_style(WHITE.mix(0.85))
-                    .border_style(BLACK.mix(0.4))
-                    .label_font(("sans-serif", 13))
-                    .draw()
-                    .map_err(|e| anyhow!("drawing the legend: {e}"))?;
             }
         }};
     }
@@ -251,18 +308,36 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
-    let areas = root.split_evenly((1, panels.len().max(1)));
+    // The legend under the panels, not over their lines: one entry per
+    // series name, the same colour in every panel.
+    let names = series_names(panels);
+    let columns = legend_columns(panels);
+    let (charts, legend) = root.split_vertically(PANEL_HEIGHT);
+    let areas = charts.split_evenly((1, panels.len().max(1)));
     for (area, panel) in areas.iter().zip(panels) {
-        draw_panel(area, panel)?;
+        draw_panel(area, panel, &names)?;
     }
+    draw_legend(&legend, &legend_entries(panels), columns)?;
     root.present().map_err(|e| anyhow!("{e}"))?;
     Ok(())
+}
+
+/// Height in pixels of the panels (the legend strip goes below).
+const PANEL_HEIGHT: u32 = 360;
+
+/// Legend columns: one per panel's width (460 pixels fits the longest
+/// names).
+fn legend_columns(panels: &[Panel]) -> usize {
+    panels.len().max(1)
 }
 
 /// Writes `panels` side by side as `<stem>.svg` and `<stem>.png`.
 pub fn write_figure(panels: &[Panel], stem: &Path) -> anyhow::Result<()> {
     register_font()?;
-    let size = (460 * panels.len().max(1) as u32, 360);
+    let size = (
+        460 * panels.len().max(1) as u32,
+        PANEL_HEIGHT + legend_height(legend_entries(panels).len(), legend_columns(panels)),
+    );
     let svg = stem.with_extension("svg");
     let png = stem.with_extension("png");
     if let Some(dir) = stem.parent() {
@@ -468,7 +543,33 @@ mod tests {
         let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
         assert!(svg.contains("NTG") && svg.contains("training tasks"));
         let png = image::open(stem.with_extension("png")).unwrap();
-        assert_eq!((png.width(), png.height()), (920, 360));
+        // The panels, then one legend row for the one series.
+        assert_eq!((png.width(), png.height()), (920, 360 + 18 + 8));
+    }
+
+    #[test]
+    fn the_legend_lists_drawn_series_once_with_one_colour_each() {
+        let series = |name: &str, points: usize| Series {
+            name: name.into(),
+            points: (0..points).map(|i| Point::exact(i as f64, 0.5)).collect(),
+        };
+        let panel = |series: Vec<Series>| Panel {
+            title: String::new(),
+            x_label: String::new(),
+            y_label: String::new(),
+            x_log: false,
+            x_ticks_at_points: false,
+            y_range: (0.0, 1.0),
+            series,
+        };
+        let panels = [
+            panel(vec![series("a", 2), series("b", 0)]),
+            panel(vec![series("c", 1), series("a", 1)]),
+        ];
+        assert_eq!(series_names(&panels), ["a", "b", "c"]);
+        // "b" has no point: not in the legend, and "c" keeps its colour.
+        assert_eq!(legend_entries(&panels), [(0, "a"), (2, "c")]);
+        assert_eq!(legend_height(3, 2), 2 * LEGEND_ROW + 8);
     }
 
     #[test]
