@@ -1586,14 +1586,15 @@ mod tests {
             "ntp_exp-vid-recommended-1000"
         );
         let c = quick_ntg_1000(recommended);
-        let mut expected = Recipe::Recommended.config(ObsKind::Vid, 1000, 2, 10, 0);
+        // 4 demos per task, chosen on validation (session 27).
+        let mut expected = Recipe::Recommended.config(ObsKind::Vid, 1000, 4, 10, 0);
         expected.state_hidden_layers = 3;
         expected.pairwise = true;
         expected.validation_tasks = 50;
         expected.validate_every = 1;
         expected.optim.shards = 0; // unset in the file: one thread
         let video = expected.video.as_mut().unwrap();
-        video.encoder.demos = 2000;
+        video.encoder.demos = 2000; // each task's first two videos
         video.encoder.epochs = 5; // chosen on validation (session 26)
         assert_eq!(c, expected);
     }
