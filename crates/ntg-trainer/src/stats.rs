@@ -60,6 +60,15 @@ pub fn mean_rate(rates: &[SuccessRate]) -> f64 {
     rates.iter().map(|r| r.rate).sum::<f64>() / rates.len().max(1) as f64
 }
 
+/// The lowest interval end and the highest of `rates` (one per seed of a
+/// point): "above" between two points asks the one's lowest above the
+/// other's highest.
+pub fn interval_span(rates: &[SuccessRate]) -> (f64, f64) {
+    rates.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), r| {
+        (lo.min(r.ci_low), hi.max(r.ci_high))
+    })
+}
+
 /// `"0.080 (mean of 2 seeds: 0.010, 0.150)"`: one point's seeds in a
 /// report.
 pub fn seeds_text(rates: &[SuccessRate]) -> String {

@@ -496,7 +496,7 @@ pub fn trend_checks_b(points: &[SortingPoint]) -> Vec<String> {
         ));
     }
     if let (Some(full), Some(p)) = (of(Variant::Full), of(Variant::NoGcn)) {
-        let full_low = full.iter().map(|r| r.ci_low).fold(f64::INFINITY, f64::min);
+        let full_low = crate::stats::interval_span(&full).0;
         lines.push(format!(
             "Without the GCN it gets stuck on the unseen order, well below the whole model (intervals apart): **{}** ({} against {}).",
             holds(p.iter().all(|r| r.ci_high < full_low)),

@@ -1055,12 +1055,10 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
     // Over seeds: every interval of one side against every interval of
     // the other (with one seed each, the two intervals).
     fn low(s: &[&NtpExpPoint]) -> f64 {
-        s.iter()
-            .map(|p| p.success.ci_low)
-            .fold(f64::INFINITY, f64::min)
+        crate::stats::interval_span(&seed_rates(s)).0
     }
     fn high(s: &[&NtpExpPoint]) -> f64 {
-        s.iter().map(|p| p.success.ci_high).fold(0.0, f64::max)
+        crate::stats::interval_span(&seed_rates(s)).1
     }
     fn above(a: &[&NtpExpPoint], b: &[&NtpExpPoint]) -> bool {
         low(a) > high(b)

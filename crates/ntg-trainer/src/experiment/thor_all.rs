@@ -531,8 +531,10 @@ fn compare(result: &ThorAllResult, memory: bool) -> Option<String> {
             continue;
         }
         let (mean_a, mean_b) = (crate::stats::mean_rate(&a), crate::stats::mean_rate(&b));
-        let low_a = a.iter().map(|r| r.ci_low).fold(f64::INFINITY, f64::min);
-        let high_b = b.iter().map(|r| r.ci_high).fold(0.0, f64::max);
+        let (low_a, high_b) = (
+            crate::stats::interval_span(&a).0,
+            crate::stats::interval_span(&b).1,
+        );
         let group = if mean_a > mean_b && low_a > high_b {
             0
         } else if mean_a > mean_b {
