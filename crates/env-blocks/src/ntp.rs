@@ -17,13 +17,13 @@
 //! one after its last).
 
 use ctg_graph::{ActionId, CtgError, Environment, Result};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::env::{ActionLevel, BlocksAction, BlocksEnv, BlocksObservation, BlocksTask, EnvConfig};
 use crate::world::{Primitive, Target};
 
 /// A program of NTP's block-stacking hierarchy.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum NtpProgram {
     /// The root: `stack` (block stacking) or `sort` (object sorting).
@@ -107,7 +107,7 @@ impl NtpProgram {
 }
 
 /// One call of NTP's hierarchy in a recorded episode.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct NtpCall {
     /// The program called.
     pub program: NtpProgram,

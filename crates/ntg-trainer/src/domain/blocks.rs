@@ -989,7 +989,11 @@ fn train_ntp_video_run(
 ) -> anyhow::Result<Model> {
     with_video_run(config, |plan, video_run, validation| {
         let frames = crate::video::train_encoder(run, video_run, device)?;
-        let dataset = ntp_video_dataset(plan, config, &frames)?;
+        let dataset = NtpDataset::load_or_build(
+            &run.root().join(crate::method::ntp::NTP_FRAMES_DIR),
+            &encoder_probe(&frames)?,
+            || ntp_video_dataset(plan, config, &frames),
+        )?;
         let encoder = encoder(ObsKind::Vid, config.state_hidden_layers, false);
         let net = ntp_config(encoder, false, config.model_seed).init(device)?;
         let step = NtpStep::new(&dataset, kind, None, device)?;
@@ -1006,10 +1010,18 @@ fn train_ntp_video_run(
     })
 }
 
+/// What `frames`' encoder gives for a fixed frame (every value 0.5): a
+/// fingerprint of the encoder that encoded a cache.
+fn encoder_probe(frames: &ntg_model::FrameStageNet) -> anyhow::Result<Vec<f32>> {
+    let net = burn::module::Module::valid(frames);
+    let probe = vec![0.5; frames.encoder.input_dim()];
+    let mut encoded = crate::method::on_frames::encode_rows(&net, &[probe])?;
+    encoded.pop().context("the encoder gave no row")
+}
+
 /// NTP's training episodes on frames: every training demo of `plan`
 /// (virtual task, seed) recorded at the primitive level, its frame before
-/// each primitive and its last frame encoded by `frames`' frozen encoder
-/// (not cached: a resumed run encodes again).
+/// each primitive and its last frame encoded by `frames`' frozen encoder.
 pub fn ntp_video_dataset(
     plan: &VideoPlan,
     config: &BlocksRunConfig,

@@ -464,6 +464,15 @@ fn run_point(
             &run,
             &config,
         )?;
+        let sibling = match method {
+            MethodId::Ntp => MethodId::NtpFlat,
+            _ => MethodId::Ntp,
+        };
+        share_ntp_frames(
+            &runs.join(experiment.run_name(scale, (sibling, Variant::Full), n)),
+            &run,
+            &config,
+        )?;
     }
     eprintln!(
         "{} ({}{}, {} recipe, {obs:?}, {n} tasks x {} demos, {epochs} epochs): training -> {}",
@@ -612,23 +621,71 @@ fn finished_twin(runs: &Path, config: &BlocksRunConfig) -> anyhow::Result<Option
 /// still counts those epochs. Nothing is linked unless the configurations
 /// match but for the method and that stage A finished.
 fn share_stage_a(ntg_run: &Path, run: &RunDir, config: &BlocksRunConfig) -> anyhow::Result<()> {
-    let target = run.root().join(crate::video::STAGE_A_DIR);
-    let source = ntg_run.join(crate::video::STAGE_A_DIR);
-    let progress = source.join("checkpoint").join("progress.json");
-    let (Some(video), false, true) = (&config.video, target.exists(), progress.is_file()) else {
+    let Some(video) = &config.video else {
         return Ok(());
     };
-    let ntg: BlocksRunConfig = RunDir::read_json(&ntg_run.join("config.json"))?;
+    let finished = |source: &Path| -> anyhow::Result<bool> {
+        let progress = source.join("checkpoint").join("progress.json");
+        if !progress.is_file() {
+            return Ok(false);
+        }
+        let done: serde_json::Value = RunDir::read_json(&progress)?;
+        Ok(done["epochs_done"].as_u64() == Some(video.encoder.epochs as u64))
+    };
+    share_part(
+        (ntg_run, crate::video::STAGE_A_DIR, finished),
+        run,
+        config,
+        "stage A: the frame encoder",
+    )
+}
+
+/// NTP and NTP Flat on video encode the same primitive-level episodes with
+/// the same (shared) frame encoder: a baseline's run links the encoded
+/// episodes of its sibling's run (`sibling_run`) when those are complete
+/// and the configurations match but for the method. The cache itself
+/// checks, when read, that its frame encoder is this run's.
+fn share_ntp_frames(
+    sibling_run: &Path,
+    run: &RunDir,
+    config: &BlocksRunConfig,
+) -> anyhow::Result<()> {
+    share_part(
+        (
+            sibling_run,
+            crate::method::ntp::NTP_FRAMES_DIR,
+            |source: &Path| Ok(source.is_dir()),
+        ),
+        run,
+        config,
+        "NTP's encoded training episodes",
+    )
+}
+
+/// Links `part` of `source_run` into `run` when `ready` says the part is
+/// complete, `run` has none yet, and the two runs' configurations match
+/// but for the method.
+fn share_part(
+    (source_run, part, ready): (&Path, &str, impl Fn(&Path) -> anyhow::Result<bool>),
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    what: &str,
+) -> anyhow::Result<()> {
+    let target = run.root().join(part);
+    let source = source_run.join(part);
+    if target.exists() || !ready(&source)? {
+        return Ok(());
+    }
+    let theirs: BlocksRunConfig = RunDir::read_json(&source_run.join("config.json"))?;
     let mut same = config.clone();
-    same.method = ntg.method;
-    let done: serde_json::Value = RunDir::read_json(&progress)?;
-    if ntg != same || done["epochs_done"].as_u64() != Some(video.encoder.epochs as u64) {
+    same.method = theirs.method;
+    if theirs != same {
         return Ok(());
     }
     eprintln!(
-        "  [{}] stage A: the frame encoder of {} (the same videos and settings)",
+        "  [{}] {what} of {} (the same videos and settings)",
         run.root().file_name().unwrap_or_default().to_string_lossy(),
-        ntg_run.display()
+        source_run.display()
     );
     crate::run_dir::link_or_copy_tree(&source, &target)
 }

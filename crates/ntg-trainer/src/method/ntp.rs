@@ -156,6 +156,152 @@ impl NtpDataset {
     pub fn episodes(&self) -> &[NtpEpisode] {
         &self.episodes
     }
+
+    /// The dataset cached in `dir` when it was built with the same
+    /// `encoder_probe` (what the encoder that produced its rows gives for a
+    /// fixed input: a cache from another encoder is rebuilt, not read);
+    /// otherwise `build`'s, saved there first. A cache is written whole or
+    /// not at all, so a killed run rebuilds it.
+    pub fn load_or_build(
+        dir: &Path,
+        encoder_probe: &[f32],
+        build: impl FnOnce() -> anyhow::Result<Self>,
+    ) -> anyhow::Result<Self> {
+        if dir.join(EPISODES_FILE).is_file() {
+            match Self::load(dir, encoder_probe)? {
+                Some(cached) => return Ok(cached),
+                None => eprintln!(
+                    "  {}: encoded by another frame encoder; encoding again",
+                    dir.display()
+                ),
+            }
+        }
+        let dataset = build()?;
+        dataset.save(dir, encoder_probe)?;
+        Ok(dataset)
+    }
+
+    /// Writes the episodes to `dir` (`episodes.json`, `rows.bin` of
+    /// little-endian `f32`), through a sibling `.partial` folder renamed
+    /// into place.
+    pub fn save(&self, dir: &Path, encoder_probe: &[f32]) -> anyhow::Result<()> {
+        use std::io::Write;
+        let row_dim = self
+            .episodes
+            .first()
+            .and_then(|e| e.rows.first())
+            .map_or(0, Vec::len);
+        let partial = dir.with_extension("partial");
+        if partial.exists() {
+            std::fs::remove_dir_all(&partial)
+                .with_context(|| format!("removing {}", partial.display()))?;
+        }
+        std::fs::create_dir_all(&partial)
+            .with_context(|| format!("creating {}", partial.display()))?;
+        let bin = partial.join(ROWS_FILE);
+        let mut out = std::io::BufWriter::new(
+            std::fs::File::create(&bin).with_context(|| format!("writing {}", bin.display()))?,
+        );
+        for row in self.episodes.iter().flat_map(|e| &e.rows) {
+            anyhow::ensure!(row.len() == row_dim, "rows of unequal length");
+            for v in row {
+                out.write_all(&v.to_le_bytes())?;
+            }
+        }
+        out.flush()
+            .with_context(|| format!("writing {}", bin.display()))?;
+        let index = EpisodesIndex {
+            format: EPISODES_FORMAT.into(),
+            row_dim,
+            encoder_probe: encoder_probe.to_vec(),
+            episodes: self
+                .episodes
+                .iter()
+                .map(|e| EpisodeEntry {
+                    task: e.task,
+                    rows: e.rows.len(),
+                    trace: e.trace.clone(),
+                })
+                .collect(),
+        };
+        let json = partial.join(EPISODES_FILE);
+        std::fs::write(&json, serde_json::to_vec(&index)?)
+            .with_context(|| format!("writing {}", json.display()))?;
+        if dir.exists() {
+            std::fs::remove_dir_all(dir).with_context(|| format!("removing {}", dir.display()))?;
+        }
+        std::fs::rename(&partial, dir)
+            .with_context(|| format!("renaming {} to {}", partial.display(), dir.display()))
+    }
+
+    /// Reads the episodes [`Self::save`] wrote to `dir`; `None` when they
+    /// were encoded by an encoder whose probe differs from `encoder_probe`.
+    pub fn load(dir: &Path, encoder_probe: &[f32]) -> anyhow::Result<Option<Self>> {
+        let json = dir.join(EPISODES_FILE);
+        let text = std::fs::read(&json).with_context(|| format!("reading {}", json.display()))?;
+        let index: EpisodesIndex = serde_json::from_slice(&text)
+            .with_context(|| format!("{}: not an NTP episode index", json.display()))?;
+        anyhow::ensure!(
+            index.format == EPISODES_FORMAT,
+            "{}: format `{}`, expected `{EPISODES_FORMAT}`",
+            json.display(),
+            index.format
+        );
+        if index.encoder_probe != encoder_probe {
+            return Ok(None);
+        }
+        let bin = dir.join(ROWS_FILE);
+        let bytes = std::fs::read(&bin).with_context(|| format!("reading {}", bin.display()))?;
+        let rows: usize = index.episodes.iter().map(|e| e.rows).sum();
+        anyhow::ensure!(
+            bytes.len() == rows * index.row_dim * 4,
+            "{}: {} bytes, but {} says {rows} rows of {} values",
+            bin.display(),
+            bytes.len(),
+            json.display(),
+            index.row_dim
+        );
+        let mut values = bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+        let episodes = index
+            .episodes
+            .into_iter()
+            .map(|e| NtpEpisode {
+                task: e.task,
+                rows: (0..e.rows)
+                    .map(|_| values.by_ref().take(index.row_dim).collect())
+                    .collect(),
+                trace: e.trace,
+            })
+            .collect();
+        Ok(Some(Self::new(episodes)))
+    }
+}
+
+/// Folder of a video NTP run's encoded training episodes (see
+/// [`NtpDataset::load_or_build`]).
+pub const NTP_FRAMES_DIR: &str = "ntp_frames";
+const EPISODES_FILE: &str = "episodes.json";
+const ROWS_FILE: &str = "rows.bin";
+const EPISODES_FORMAT: &str = "ntg-rs ntp episodes v1";
+
+/// What `episodes.json` of an [`NtpDataset`] cache holds.
+#[derive(Serialize, Deserialize)]
+struct EpisodesIndex {
+    format: String,
+    row_dim: usize,
+    encoder_probe: Vec<f32>,
+    episodes: Vec<EpisodeEntry>,
+}
+
+/// One episode in `episodes.json`: its task, how many rows it has in
+/// `rows.bin` and its call tree.
+#[derive(Serialize, Deserialize)]
+struct EpisodeEntry {
+    task: usize,
+    rows: usize,
+    trace: NtpCall,
 }
 
 /// What a `pick_place` call does: the cube it picks and where it puts it.
@@ -546,6 +692,37 @@ mod tests {
 
     fn demo(task: &StackTask, seed: u64, config: EnvConfig) -> env_blocks::NtpDemo {
         env_blocks::record_ntp_demo(&BlocksTask::Stack(task.clone()), config, seed).unwrap()
+    }
+
+    #[test]
+    fn an_episode_cache_reads_back_what_was_saved_and_only_for_its_encoder() {
+        let tasks = tasks(2);
+        let config = EnvConfig::state_only();
+        let dataset = NtpDataset::record(&tasks, 2, 40, config, |o| {
+            crate::domain::blocks::featurize(o, crate::spec::ObsKind::State)
+        })
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let cache = dir.path().join(NTP_FRAMES_DIR);
+        let probe = [0.25_f32, -1.0 / 3.0];
+        let built = NtpDataset::load_or_build(&cache, &probe, || Ok(dataset.clone())).unwrap();
+        let read = NtpDataset::load_or_build(&cache, &probe, || panic!("cached")).unwrap();
+        for (a, b) in [&dataset, &built]
+            .iter()
+            .flat_map(|d| d.episodes().iter().zip(read.episodes()))
+        {
+            assert_eq!((a.task, &a.rows, &a.trace), (b.task, &b.rows, &b.trace));
+        }
+        assert_eq!(read.episodes().len(), 4);
+        assert!(
+            NtpDataset::load(&cache, &[0.25, 0.0]).unwrap().is_none(),
+            "another encoder's cache is not read"
+        );
+        let rows = cache.join(ROWS_FILE);
+        let bytes = std::fs::read(&rows).unwrap();
+        std::fs::write(&rows, &bytes[..bytes.len() - 4]).unwrap();
+        let err = NtpDataset::load(&cache, &probe).unwrap_err().to_string();
+        assert!(err.contains("rows.bin") && err.contains("bytes"), "{err}");
     }
 
     #[test]
