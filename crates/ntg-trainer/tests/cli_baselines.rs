@@ -61,6 +61,11 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
         .windows(2)
         .any(|w| w == ["--encoder-keypoints", "false"]);
     assert_eq!(keypoints, on_videos && !keypoints_off, "{config}");
+    assert_eq!(
+        run.join("ntp_frames/episodes.json").is_file(),
+        on_videos,
+        "{method}: NTP's encoded episodes are cached on videos, and only there"
+    );
     let on_estimates = config["detector"]["ntp_on_estimates"] == true;
     assert_eq!(
         on_estimates,
