@@ -51,6 +51,10 @@ pub struct Results {
     pub thor_all: ThorAllResult,
     /// Figures not reproduced yet, with the reason.
     pub not_yet: Vec<(String, String)>,
+    /// Runs of the profile's rollout figures not trained yet (listed in
+    /// `not_yet`; results written before it: 0).
+    #[serde(default)]
+    pub runs_missing: usize,
     /// What each block-stacking figure's file changes in its recipe
     /// (`(figure, note)`; results written before it: none).
     #[serde(default)]
@@ -173,6 +177,7 @@ pub fn reproduce(
     // Noted as runs finish, two at a time: sorted, so the report is the
     // same from one invocation to the next.
     missing.sort();
+    let runs_missing = missing.len();
     if !missing.is_empty() {
         // By figure: the run name's prefix (`ntp_exp-...`, `ablation_b-...`).
         let mut by_figure: Vec<(&str, Vec<&str>)> = Vec::new();
@@ -214,6 +219,7 @@ pub fn reproduce(
             ("ablation".into(), ablation_file.recipe_note(profile)),
         ],
         not_yet,
+        runs_missing,
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     ntp_exp::write_figure(&results.ntp_exp, &out.join("ntp_exp"))?;
@@ -299,7 +305,15 @@ fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
     let (runs, hours) = training_compute(results);
     let _ = writeln!(
         s,
-        "**Compute.** The rollout figures' {runs} runs took {hours:.1} core-hours of training epochs (each run's own epoch times, summed; a run shared by two figures counted once; evaluation and fig. jigsaws not included).\n"
+        "**Compute.** The rollout figures' {runs} runs took {hours:.1} core-hours of training epochs (each run's own epoch times, summed; a run shared by two figures counted once; evaluation and fig. jigsaws not included).{}\n",
+        match results.runs_missing {
+            0 => String::new(),
+            n => format!(
+                " {n} more run{} of this profile {} not trained yet (\"Not reproduced yet\").",
+                if n == 1 { "" } else { "s" },
+                if n == 1 { "is" } else { "are" }
+            ),
+        }
     );
     let note = |figure: &str| {
         results
@@ -628,8 +642,17 @@ mod tests {
             "{:?}",
             empty.not_yet
         );
+        assert_eq!(empty.runs_missing, outcomes.len());
+        assert_eq!(restored.runs_missing, 0);
         let report = std::fs::read_to_string(out_empty.join("REPORT.md")).unwrap();
         assert!(report.contains("## Beside the paper profile"), "{report}");
+        assert!(
+            report.contains(&format!(
+                "{} more runs of this profile are not trained yet",
+                outcomes.len()
+            )),
+            "{report}"
+        );
 
         let only = ["ablation_b-no-gcn".to_owned()];
         let lines = reproduce_only(
