@@ -304,7 +304,11 @@ impl DemoDataset {
         Ok(Demonstration::new(obs, entry.actions.clone(), &self.vocab)?)
     }
 
-    /// Writes `index.json` and `observations.bin` into `dir` (created if needed).
+    /// Writes `observations.bin` and then `index.json` into `dir` (created
+    /// if needed), each through a temporary file renamed into place: the
+    /// index, which [`DemoDataset::load_or_build`] looks for, appears only
+    /// once the observations are whole, so a save killed half-way is
+    /// rebuilt rather than read.
     pub fn save(&self, dir: &Path) -> anyhow::Result<()> {
         fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let index = Index {
@@ -318,11 +322,14 @@ impl DemoDataset {
             demos: self.demos.clone(),
         };
         let index_path = dir.join("index.json");
-        fs::write(&index_path, serde_json::to_vec(&index)?)
-            .with_context(|| format!("writing {}", index_path.display()))?;
+        if index_path.exists() {
+            fs::remove_file(&index_path)
+                .with_context(|| format!("removing {}", index_path.display()))?;
+        }
         let bin_path = dir.join("observations.bin");
-        let file = fs::File::create(&bin_path)
-            .with_context(|| format!("writing {}", bin_path.display()))?;
+        let bin_tmp = dir.join("observations.bin.partial");
+        let file =
+            fs::File::create(&bin_tmp).with_context(|| format!("writing {}", bin_tmp.display()))?;
         let mut w = BufWriter::new(file);
         match &self.obs {
             ObsBuffer::F32(b) => {
@@ -333,8 +340,20 @@ impl DemoDataset {
             ObsBuffer::U8(b) => w.write_all(b)?,
         }
         w.flush()
-            .with_context(|| format!("writing {}", bin_path.display()))?;
-        Ok(())
+            .with_context(|| format!("writing {}", bin_tmp.display()))?;
+        drop(w);
+        fs::rename(&bin_tmp, &bin_path)
+            .with_context(|| format!("renaming {} to {}", bin_tmp.display(), bin_path.display()))?;
+        let index_tmp = dir.join("index.json.partial");
+        fs::write(&index_tmp, serde_json::to_vec(&index)?)
+            .with_context(|| format!("writing {}", index_tmp.display()))?;
+        fs::rename(&index_tmp, &index_path).with_context(|| {
+            format!(
+                "renaming {} to {}",
+                index_tmp.display(),
+                index_path.display()
+            )
+        })
     }
 
     /// The dataset cached in `dir` if there is one; otherwise `build`'s,
@@ -650,6 +669,28 @@ mod tests {
         fs::write(dir.path().join("index.json"), "{not json").unwrap();
         let err = format!("{:#}", DemoDataset::load(dir.path()).unwrap_err());
         assert!(err.contains("index.json"), "{err}");
+    }
+
+    #[test]
+    fn a_save_killed_before_its_index_is_rebuilt_not_read() {
+        let ds = dataset(ObsDtype::F32);
+        let dir = tempfile::tempdir().unwrap();
+        // What a kill during the observations' write leaves: part of them,
+        // and no index.
+        fs::write(dir.path().join("observations.bin.partial"), [1u8, 2, 3]).unwrap();
+        fs::write(dir.path().join("observations.bin"), [1u8, 2, 3]).unwrap();
+        let built = DemoDataset::load_or_build(dir.path(), || Ok(ds.clone())).unwrap();
+        assert_eq!(built, ds);
+        assert_eq!(DemoDataset::load(dir.path()).unwrap(), ds);
+        assert!(!dir.path().join("observations.bin.partial").exists());
+        assert!(!dir.path().join("index.json.partial").exists());
+        let read = DemoDataset::load_or_build(dir.path(), || panic!("cached")).unwrap();
+        assert_eq!(read, ds);
+        // A save that fails while placing the observations leaves no index.
+        let failing = tempfile::tempdir().unwrap();
+        fs::create_dir(failing.path().join("observations.bin")).unwrap();
+        assert!(ds.save(failing.path()).is_err());
+        assert!(!failing.path().join("index.json").exists());
     }
 
     #[test]
