@@ -28,9 +28,11 @@ pub const FORMAT: u32 = 1;
 /// path.
 pub const RESTORED_MARKER: &str = "restored-from-record.txt";
 
-/// Folders of a run whose files are not recorded (regenerated from seeds,
-/// or figures).
-const SKIPPED_DIRS: [&str; 3] = ["dataset", "embeddings", "qualitative"];
+/// Folders of a run whose files are not recorded (caches regenerated from
+/// seeds: demos, frame embeddings, NTP's encoded episodes
+/// ([`crate::method::ntp::NTP_FRAMES_DIR`]); or figures), besides any
+/// `*.partial` folder (a cache or copy being written).
+const SKIPPED_DIRS: [&str; 4] = ["dataset", "embeddings", "ntp_frames", "qualitative"];
 
 /// Per-episode fields dropped from recorded evaluations (long; the
 /// qualitative figures, which need them, need the weights too).
@@ -242,7 +244,7 @@ fn collect(root: &Path, dir: &Path, files: &mut BTreeMap<String, Value>) -> anyh
     for path in entries {
         let name = path.file_name().unwrap_or_default().to_string_lossy();
         if path.is_dir() {
-            if !SKIPPED_DIRS.contains(&name.as_ref()) {
+            if !SKIPPED_DIRS.contains(&name.as_ref()) && !name.ends_with(".partial") {
                 collect(root, &path, files)?;
             }
             continue;
@@ -353,6 +355,11 @@ mod tests {
         write("checkpoint/progress.json", r#"{"epochs_done": 2}"#);
         write("checkpoint/model.bpk", "weights");
         write("dataset/index.json", "{}");
+        write(
+            &format!("{}/episodes.json", crate::method::ntp::NTP_FRAMES_DIR),
+            "{}",
+        );
+        write("embeddings.partial/index.json", "{}");
         write(
             "eval/full-2.json",
             r#"{"success": {"successes": 1, "trials": 2}, "tasks": [{"task": "a", "success": true, "trace": ["pick(A)"], "transcription": ["pick(A)"], "demo_actions": ["pick(A)"]}, {"task": "b", "success": false, "trace": [], "transcription": ["pick(B)"], "demo_actions": ["pick(C)"]}]}"#,
