@@ -584,11 +584,19 @@ mod tests {
         // and NTP Flat on states at 10 tasks, four methods on video).
         assert_eq!(results.structure.len(), 7);
         assert!(results.structure.iter().all(|p| p.train_tasks == 10));
-        assert!(
-            std::fs::read_to_string(out.join("REPORT.md"))
-                .unwrap()
-                .contains("split by structure")
-        );
+        let report = std::fs::read_to_string(out.join("REPORT.md")).unwrap();
+        assert!(report.contains("split by structure"));
+        // NTP (Detector)'s points carry their detector's held-out score,
+        // and only they.
+        for p in &results.ntp_exp {
+            assert_eq!(
+                p.detector.is_some(),
+                p.method == crate::method::MethodId::NtpDetector,
+                "{}",
+                p.run.display()
+            );
+        }
+        assert!(report.contains("**The detector of NTP (Detector).**"));
         // One record per rollout run.
         let outcomes = outcomes(&results);
         assert_eq!(std::fs::read_dir(&records).unwrap().count(), outcomes.len());
@@ -615,6 +623,19 @@ mod tests {
             assert!(a.matches(b), "{} / {}", a.text(), b.text());
         }
         assert_eq!(restored.structure.len(), 7);
+        assert_eq!(
+            restored
+                .ntp_exp
+                .iter()
+                .map(|p| &p.detector)
+                .collect::<Vec<_>>(),
+            results
+                .ntp_exp
+                .iter()
+                .map(|p| &p.detector)
+                .collect::<Vec<_>>(),
+            "the detector's score comes back from the records"
+        );
         assert_eq!(restored.trace_blocks, results.trace_blocks);
         // Nothing finished and nothing recorded: every run is listed as
         // missing, and nothing is trained.

@@ -672,6 +672,7 @@ mod tests {
             train_seconds: 1.0,
             transcription: None,
             seen: None,
+            detector: None,
             run: std::path::PathBuf::new(),
         };
         let points = [

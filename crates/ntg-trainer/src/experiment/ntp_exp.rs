@@ -350,6 +350,10 @@ pub struct NtpExpPoint {
     /// method does what it was trained on. The largest such evaluation.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seen: Option<SuccessRate>,
+    /// NTP (Detector): its detector's score on held-out frames
+    /// (`detector_stage/held_out.json`), where the run has a detector.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detector: Option<crate::method::detector::DetectorHeldOut>,
     /// Run folder.
     pub run: PathBuf,
 }
@@ -547,8 +551,20 @@ fn run_point(
         train_seconds,
         transcription: TranscriptionSplit::of(&result.tasks),
         seen: seen_success(&run, method)?,
+        detector: detector_held_out(&run)?,
         run: dir,
     }))
+}
+
+/// The score of `run`'s detector on held-out frames, where it has one.
+fn detector_held_out(
+    run: &RunDir,
+) -> anyhow::Result<Option<crate::method::detector::DetectorHeldOut>> {
+    let path = run
+        .root()
+        .join(crate::method::detector::DETECTOR_STAGE_DIR)
+        .join("held_out.json");
+    path.is_file().then(|| RunDir::read_json(&path)).transpose()
 }
 
 /// The success rate of `run`'s largest evaluation on its own training
@@ -954,6 +970,26 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
     );
     bullet_list(
         &mut s,
+        "**The detector of NTP (Detector).** Its mean position error on held-out frames of training-side tasks, frames it was neither trained nor selected on (state units; beside it, the error of always answering the training frames' mean state), and its gripper accuracy:",
+        points
+            .iter()
+            .filter_map(|p| {
+                let d = p.detector.as_ref()?;
+                Some(format!(
+                    "{} ({:?}, {} tasks): position error {:.4} on {} frames (mean state {:.4}), gripper {:.3}",
+                    row_name(p),
+                    p.obs,
+                    p.train_tasks,
+                    d.detector.position_error,
+                    d.detector.frames,
+                    d.mean_state_position_error,
+                    d.detector.gripper_accuracy
+                ))
+            })
+            .collect(),
+    );
+    bullet_list(
+        &mut s,
         "**Compute by method.** Training epochs of this figure's runs, summed per curve (each run's own epoch times, its stages' included: frame encoder, detector; evaluation not included):",
         compute_lines(points),
     );
@@ -1294,6 +1330,7 @@ mod tests {
                 success_otherwise: rate(0, 2),
             }),
             seen: None,
+            detector: None,
             run: PathBuf::new(),
         }];
         points.push(NtpExpPoint {
@@ -1331,6 +1368,7 @@ mod tests {
             train_seconds: 1.0,
             transcription: None,
             seen: None,
+            detector: None,
             run: PathBuf::new(),
         };
         let (state, vid) = (ObsKind::State, ObsKind::Vid);
@@ -1397,6 +1435,7 @@ mod tests {
             train_seconds: 1.0,
             transcription: None,
             seen: None,
+            detector: None,
             run: PathBuf::from(format!("run{seed}")),
         };
         let points = vec![point(0, 20), point(1, 40), point(2, 30)];
