@@ -1503,16 +1503,54 @@ mod tests {
         let smoke = &mut experiment.profiles.smoke;
         smoke.panels.remove(0);
         let panel = &mut smoke.panels[0];
-        panel.methods = Some(vec![MethodId::Ntg, MethodId::Ntp]);
+        panel.methods = Some(vec![MethodId::Ntg, MethodId::Ntp, MethodId::NtpFlat]);
         panel.train_tasks = vec![2];
         panel.test_tasks = 1;
         let runs = dir.path().join("runs");
-        let points = run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 2)).unwrap();
-        assert_eq!(points.len(), 2);
+        // One job: NTP Flat starts after NTP has encoded its episodes.
+        let points = run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
+        assert_eq!(points.len(), 3);
+        // NTP Flat reads NTP's encoded episodes (linked), on the same
+        // stage A.
+        let episodes = |p: &NtpExpPoint| {
+            std::fs::read(
+                p.run
+                    .join(crate::method::ntp::NTP_FRAMES_DIR)
+                    .join("episodes.json"),
+            )
+            .unwrap()
+        };
+        assert!(points[2].run.ends_with("ntp_exp-vid-ntp-flat-2"));
+        assert_eq!(episodes(&points[1]), episodes(&points[2]));
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let inode = |p: &NtpExpPoint| {
+                std::fs::metadata(
+                    p.run
+                        .join(crate::method::ntp::NTP_FRAMES_DIR)
+                        .join("rows.bin"),
+                )
+                .unwrap()
+                .ino()
+            };
+            assert_eq!(
+                inode(&points[1]),
+                inode(&points[2]),
+                "linked, not encoded again"
+            );
+        }
+        assert!(
+            !points[0]
+                .run
+                .join(crate::method::ntp::NTP_FRAMES_DIR)
+                .exists()
+        );
         let stage = |p: &NtpExpPoint| p.run.join(crate::video::STAGE_A_DIR);
         let weights =
             |p: &NtpExpPoint| std::fs::read(stage(p).join("checkpoint/model.bpk")).unwrap();
         assert_eq!(weights(&points[0]), weights(&points[1]));
+        assert_eq!(weights(&points[0]), weights(&points[2]));
         let metrics =
             |p: &NtpExpPoint| std::fs::read_to_string(stage(p).join("metrics.jsonl")).unwrap();
         assert_eq!(metrics(&points[0]), metrics(&points[1]), "trained once");
