@@ -1512,28 +1512,15 @@ mod tests {
         assert_eq!(points.len(), 3);
         // NTP Flat reads NTP's encoded episodes (linked), on the same
         // stage A.
-        let episodes = |p: &NtpExpPoint| {
-            std::fs::read(
-                p.run
-                    .join(crate::method::ntp::NTP_FRAMES_DIR)
-                    .join("episodes.json"),
-            )
-            .unwrap()
-        };
+        let cached =
+            |p: &NtpExpPoint, file: &str| p.run.join(crate::method::ntp::NTP_FRAMES_DIR).join(file);
+        let episodes = |p: &NtpExpPoint| std::fs::read(cached(p, "episodes.json")).unwrap();
         assert!(points[2].run.ends_with("ntp_exp-vid-ntp-flat-2"));
         assert_eq!(episodes(&points[1]), episodes(&points[2]));
         #[cfg(unix)]
         {
             use std::os::unix::fs::MetadataExt;
-            let inode = |p: &NtpExpPoint| {
-                std::fs::metadata(
-                    p.run
-                        .join(crate::method::ntp::NTP_FRAMES_DIR)
-                        .join("rows.bin"),
-                )
-                .unwrap()
-                .ino()
-            };
+            let inode = |p: &NtpExpPoint| std::fs::metadata(cached(p, "rows.bin")).unwrap().ino();
             assert_eq!(
                 inode(&points[1]),
                 inode(&points[2]),
