@@ -128,3 +128,66 @@ impl burn::module::ModuleVisitor for ParamCollector {
             .push(param.val().into_data().try_to_vec::<f32>().unwrap());
     }
 }
+
+/// The same on demo videos: stage A (the frame encoder, its own checkpoint
+/// in `stage_a/`), the embedding cache, then stage B killed after its
+/// epoch 1 and resumed: every stage's metrics and the final weights are
+/// the uninterrupted run's.
+#[test]
+fn a_video_run_killed_in_stage_b_resumes_to_the_uninterrupted_run() {
+    let mut video = ntg_trainer::blocks::BlocksVideo::new(false);
+    video.encoder.demos = 6;
+    video.encoder.epochs = 2;
+    video.encoder.batch_size = 16;
+    video.encoder.frame_fraction = 0.5;
+    let config = BlocksRunConfig {
+        obs: ObsKind::Vid,
+        train_tasks: 3,
+        permute_objects: false,
+        exclude_held_out_renamings: false,
+        validation_tasks: 2,
+        video: Some(video),
+        ..config()
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let device = ntg_model::cpu_device().autodiff();
+    let straight = RunDir::create(&tmp.path().join("straight")).unwrap();
+    train_run(&straight, &config, &device, |_| {}).unwrap();
+
+    let killed = RunDir::create(&tmp.path().join("killed")).unwrap();
+    let outcome = catch_unwind(AssertUnwindSafe(|| {
+        train_run(&killed, &config, &device, |m| {
+            if m.epoch == 1 {
+                panic!("simulated kill after stage B's epoch 1");
+            }
+        })
+    }));
+    assert!(
+        outcome.is_err(),
+        "the simulated kill must interrupt training"
+    );
+    assert_eq!(metrics_without_time(&killed).len(), 2);
+    train_run(&killed, &config, &device, |_| {}).unwrap();
+
+    assert_eq!(
+        metrics_without_time(&killed),
+        metrics_without_time(&straight)
+    );
+    let stage_a = |run: &RunDir| RunDir::open(&run.root().join("stage_a")).unwrap();
+    assert_eq!(
+        metrics_without_time(&stage_a(&killed)),
+        metrics_without_time(&stage_a(&straight))
+    );
+    let weights = |dir: std::path::PathBuf| -> Vec<Vec<f32>> {
+        let model = NtgModel::load(dir, &ntg_model::cpu_device()).unwrap();
+        let mut collector = ParamCollector(Vec::new());
+        model.visit(&mut collector);
+        collector.0
+    };
+    let (a, b) = (
+        weights(killed.checkpoint_dir()),
+        weights(straight.checkpoint_dir()),
+    );
+    assert!(!a.is_empty());
+    assert!(a == b, "the resumed video run's weights differ");
+}
