@@ -56,17 +56,12 @@ fn metrics_without_time(run: &RunDir) -> Vec<serde_json::Value> {
         .collect()
 }
 
-#[test]
-fn killed_and_resumed_run_matches_uninterrupted_run() {
-    let tmp = tempfile::tempdir().unwrap();
+/// Trains `config` in `run`, killed (a panic) after epoch 1, then resumed
+/// to the end.
+fn train_killed_then_resumed(run: &RunDir, config: &BlocksRunConfig) {
     let device = ntg_model::cpu_device().autodiff();
-
-    let straight = RunDir::create(&tmp.path().join("straight")).unwrap();
-    train_run(&straight, &config(), &device, |_| {}).unwrap();
-
-    let killed = RunDir::create(&tmp.path().join("killed")).unwrap();
     let outcome = catch_unwind(AssertUnwindSafe(|| {
-        train_run(&killed, &config(), &device, |m| {
+        train_run(run, config, &device, |m| {
             if m.epoch == 1 {
                 panic!("simulated kill after epoch 1");
             }
@@ -76,8 +71,29 @@ fn killed_and_resumed_run_matches_uninterrupted_run() {
         outcome.is_err(),
         "the simulated kill must interrupt training"
     );
-    assert_eq!(metrics_without_time(&killed).len(), 2);
-    train_run(&killed, &config(), &device, |_| {}).unwrap();
+    assert_eq!(metrics_without_time(run).len(), 2);
+    train_run(run, config, &device, |_| {}).unwrap();
+}
+
+/// Every float parameter of the NTG model saved in `dir`, in visiting
+/// order (the checkpoint file itself may carry per-save metadata).
+fn weights(dir: std::path::PathBuf) -> Vec<Vec<f32>> {
+    let model = NtgModel::load(dir, &ntg_model::cpu_device()).unwrap();
+    let mut collector = ParamCollector(Vec::new());
+    model.visit(&mut collector);
+    collector.0
+}
+
+#[test]
+fn killed_and_resumed_run_matches_uninterrupted_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let device = ntg_model::cpu_device().autodiff();
+
+    let straight = RunDir::create(&tmp.path().join("straight")).unwrap();
+    train_run(&straight, &config(), &device, |_| {}).unwrap();
+
+    let killed = RunDir::create(&tmp.path().join("killed")).unwrap();
+    train_killed_then_resumed(&killed, &config());
 
     assert_eq!(
         metrics_without_time(&killed),
@@ -90,14 +106,7 @@ fn killed_and_resumed_run_matches_uninterrupted_run() {
     assert_eq!(validation(&killed), validation(&straight));
     let selected = |run: &RunDir| ntg_trainer::fit::selected_epoch(run).unwrap().unwrap();
     assert_eq!(selected(&killed), selected(&straight));
-    // Compare the final and the selected weights parameter by parameter
-    // (the checkpoint file itself may carry per-save metadata).
-    let weights = |dir: std::path::PathBuf| -> Vec<Vec<f32>> {
-        let model = NtgModel::load(dir, &ntg_model::cpu_device()).unwrap();
-        let mut collector = ParamCollector(Vec::new());
-        model.visit(&mut collector);
-        collector.0
-    };
+    // Compare the final and the selected weights parameter by parameter.
     for (a, b) in [
         (
             weights(killed.checkpoint_dir()),
@@ -155,19 +164,7 @@ fn a_video_run_killed_in_stage_b_resumes_to_the_uninterrupted_run() {
     train_run(&straight, &config, &device, |_| {}).unwrap();
 
     let killed = RunDir::create(&tmp.path().join("killed")).unwrap();
-    let outcome = catch_unwind(AssertUnwindSafe(|| {
-        train_run(&killed, &config, &device, |m| {
-            if m.epoch == 1 {
-                panic!("simulated kill after stage B's epoch 1");
-            }
-        })
-    }));
-    assert!(
-        outcome.is_err(),
-        "the simulated kill must interrupt training"
-    );
-    assert_eq!(metrics_without_time(&killed).len(), 2);
-    train_run(&killed, &config, &device, |_| {}).unwrap();
+    train_killed_then_resumed(&killed, &config);
 
     assert_eq!(
         metrics_without_time(&killed),
@@ -178,12 +175,6 @@ fn a_video_run_killed_in_stage_b_resumes_to_the_uninterrupted_run() {
         metrics_without_time(&stage_a(&killed)),
         metrics_without_time(&stage_a(&straight))
     );
-    let weights = |dir: std::path::PathBuf| -> Vec<Vec<f32>> {
-        let model = NtgModel::load(dir, &ntg_model::cpu_device()).unwrap();
-        let mut collector = ParamCollector(Vec::new());
-        model.visit(&mut collector);
-        collector.0
-    };
     let (a, b) = (
         weights(killed.checkpoint_dir()),
         weights(straight.checkpoint_dir()),
