@@ -294,6 +294,20 @@ impl CollectRunConfig {
         }
     }
 
+    /// Whether `other` records the same training and validation videos as
+    /// this configuration and trains the same stage A encoder on them, so
+    /// that its `stage_a/` and `embeddings/` are this run's too: what
+    /// differs may only be the method and how stage B trains.
+    pub fn same_videos(&self, other: &Self) -> bool {
+        self.video.is_some()
+            && self.obs == other.obs
+            && self.train_objects == other.train_objects
+            && self.tasks_per_n == other.tasks_per_n
+            && self.demos_per_task == other.demos_per_task
+            && self.video == other.video
+            && self.model_seed == other.model_seed
+    }
+
     /// Checks the values.
     pub fn validate(&self) -> anyhow::Result<()> {
         ensure!(self.domain == "collect", "domain must be \"collect\"");
@@ -1194,6 +1208,26 @@ mod tests {
         c.tasks_per_n = 41;
         let err = format!("{:#}", training_tasks(&c).unwrap_err());
         assert!(err.contains("1 objects"), "{err}");
+    }
+
+    #[test]
+    fn ntg_and_the_flat_policy_of_one_seed_record_the_same_videos() {
+        let on_frames = |method, seed| {
+            let mut c = CollectRunConfig::new(method, ObsKind::Vid, vec![2, 4], 10, 2, 3, seed);
+            c.memory = method == MethodId::Ntg;
+            c
+        };
+        let ntg = on_frames(MethodId::Ntg, 0);
+        assert!(ntg.same_videos(&on_frames(MethodId::Flat, 0)));
+        assert!(
+            !ntg.same_videos(&on_frames(MethodId::Flat, 1)),
+            "another seed"
+        );
+        let mut more = on_frames(MethodId::Flat, 0);
+        more.demos_per_task = 3;
+        assert!(!ntg.same_videos(&more), "other videos");
+        let state = CollectRunConfig::new(MethodId::Ntg, ObsKind::State, vec![2, 4], 10, 2, 3, 0);
+        assert!(!state.same_videos(&state), "no videos on the state input");
     }
 
     #[test]

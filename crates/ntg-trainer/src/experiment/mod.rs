@@ -178,6 +178,37 @@ pub(crate) fn seeded_name(base: String, seed: u64, default: u64) -> String {
     }
 }
 
+/// Links `part` of the finished run folder `source_run` into `run` (hard
+/// links, or copies where the file system has none), so that `run` does not
+/// compute it again: only when `run` has no `part` yet, `ready` says the
+/// source's `part` is complete, and `same` accepts the source's
+/// `config.json` (the settings that decide `part` are equal). Says so on
+/// stderr, naming `what`; returns whether it linked.
+pub(crate) fn share_part<C: DeserializeOwned>(
+    (source_run, part): (&Path, &str),
+    run: &crate::run_dir::RunDir,
+    ready: impl Fn(&Path) -> anyhow::Result<bool>,
+    same: impl Fn(&C) -> bool,
+    what: &str,
+) -> anyhow::Result<bool> {
+    let target = run.root().join(part);
+    let source = source_run.join(part);
+    if target.exists() || !source.exists() || !ready(&source)? {
+        return Ok(false);
+    }
+    let theirs: C = crate::run_dir::RunDir::read_json(&source_run.join("config.json"))?;
+    if !same(&theirs) {
+        return Ok(false);
+    }
+    eprintln!(
+        "  [{}] {what} of {} (the same videos and settings)",
+        run.root().file_name().unwrap_or_default().to_string_lossy(),
+        source_run.display()
+    );
+    crate::run_dir::link_or_copy_tree(&source, &target)?;
+    Ok(true)
+}
+
 /// The places for runs training at once, shared by the figures of one
 /// `ntg reproduce`: figures that do not depend on each other's runs train
 /// side by side, so a core left idle while one figure waits for its
@@ -509,6 +540,39 @@ mod tests {
             cosine_decay: false,
             shards: 1,
         }
+    }
+
+    #[test]
+    fn share_part_links_a_finished_part_only_between_matching_runs() {
+        use crate::run_dir::RunDir;
+        let tmp = tempfile::tempdir().unwrap();
+        let config = |seed: u64, method: &str| serde_json::json!({"seed": seed, "method": method});
+        let source = RunDir::open_or_create(&tmp.path().join("a"), &config(0, "ntg")).unwrap();
+        std::fs::create_dir_all(source.root().join("part")).unwrap();
+        std::fs::write(source.root().join("part/data.bin"), b"encoder").unwrap();
+        let same_seed = |mine: Value| move |theirs: &Value| theirs["seed"] == mine["seed"];
+        let share = |run: &RunDir, ready: bool| {
+            share_part(
+                (source.root(), "part"),
+                run,
+                |_: &Path| Ok(ready),
+                same_seed(config(run.root().ends_with("c") as u64, "")),
+                "the part",
+            )
+            .unwrap()
+        };
+        let b = RunDir::open_or_create(&tmp.path().join("b"), &config(0, "flat")).unwrap();
+        assert!(!share(&b, false), "not finished: nothing linked");
+        assert!(!b.root().join("part").exists());
+        assert!(share(&b, true));
+        assert_eq!(
+            std::fs::read(b.root().join("part/data.bin")).unwrap(),
+            b"encoder"
+        );
+        assert!(!share(&b, true), "a part the run has is kept");
+        let c = RunDir::open_or_create(&tmp.path().join("c"), &config(1, "flat")).unwrap();
+        assert!(!share(&c, true), "another seed: nothing linked");
+        assert!(!c.root().join("part").exists());
     }
 
     #[test]

@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::blocks::{self, BlocksRunConfig, Recipe, Variant};
 use crate::domain::{DomainId, TranscriptionSplit};
-use crate::experiment::Plan;
+use crate::experiment::{Plan, share_part};
 use crate::figure::{Panel, Point, Series};
 use crate::method::MethodId;
 use crate::run_dir::RunDir;
@@ -640,20 +640,14 @@ fn share_stage_a(ntg_run: &Path, run: &RunDir, config: &BlocksRunConfig) -> anyh
     let Some(video) = &config.video else {
         return Ok(());
     };
-    let finished = |source: &Path| -> anyhow::Result<bool> {
-        let progress = source.join("checkpoint").join("progress.json");
-        if !progress.is_file() {
-            return Ok(false);
-        }
-        let done: serde_json::Value = RunDir::read_json(&progress)?;
-        Ok(done["epochs_done"].as_u64() == Some(video.encoder.epochs as u64))
-    };
     share_part(
-        (ntg_run, crate::video::STAGE_A_DIR, finished),
+        (ntg_run, crate::video::STAGE_A_DIR),
         run,
-        config,
+        |stage_a| crate::video::stage_a_finished(stage_a, &video.encoder),
+        same_but_method(config),
         "stage A: the frame encoder",
     )
+    .map(drop)
 }
 
 /// NTP and NTP Flat on video encode the same primitive-level episodes with
@@ -667,43 +661,22 @@ fn share_ntp_frames(
     config: &BlocksRunConfig,
 ) -> anyhow::Result<()> {
     share_part(
-        (
-            sibling_run,
-            crate::method::ntp::NTP_FRAMES_DIR,
-            |source: &Path| Ok(source.is_dir()),
-        ),
+        (sibling_run, crate::method::ntp::NTP_FRAMES_DIR),
         run,
-        config,
+        |source: &Path| Ok(source.is_dir()),
+        same_but_method(config),
         "NTP's encoded training episodes",
     )
+    .map(drop)
 }
 
-/// Links `part` of `source_run` into `run` when `ready` says the part is
-/// complete, `run` has none yet, and the two runs' configurations match
-/// but for the method.
-fn share_part(
-    (source_run, part, ready): (&Path, &str, impl Fn(&Path) -> anyhow::Result<bool>),
-    run: &RunDir,
-    config: &BlocksRunConfig,
-    what: &str,
-) -> anyhow::Result<()> {
-    let target = run.root().join(part);
-    let source = source_run.join(part);
-    if target.exists() || !ready(&source)? {
-        return Ok(());
+/// Accepts a run configuration equal to `config` but for the method.
+fn same_but_method(config: &BlocksRunConfig) -> impl Fn(&BlocksRunConfig) -> bool + '_ {
+    move |theirs| {
+        let mut same = config.clone();
+        same.method = theirs.method;
+        *theirs == same
     }
-    let theirs: BlocksRunConfig = RunDir::read_json(&source_run.join("config.json"))?;
-    let mut same = config.clone();
-    same.method = theirs.method;
-    if theirs != same {
-        return Ok(());
-    }
-    eprintln!(
-        "  [{}] {what} of {} (the same videos and settings)",
-        run.root().file_name().unwrap_or_default().to_string_lossy(),
-        source_run.display()
-    );
-    crate::run_dir::link_or_copy_tree(&source, &target)
 }
 
 /// The part of NTG that `ablation` removes, in words ("the GCN").

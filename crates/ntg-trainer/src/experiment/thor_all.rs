@@ -270,6 +270,11 @@ pub fn run(
             return Ok(None);
         };
         let run = RunDir::open_or_create(&dir, &config)?;
+        if let Some(video) = &config.video {
+            share_videos(
+                experiment, profile, variant, plan.runs, &run, &config, video,
+            )?;
+        }
         eprintln!(
             "thor_all ({}): training -> {}",
             method.name(),
@@ -300,26 +305,86 @@ pub fn run(
         }))
     };
     let line = &line;
-    let lines = crate::experiment::in_parallel(
-        "thor_all",
-        &plan.slots,
-        experiment
-            .runs(profile)
+    // On video the first run of each seed trains stage A; the others of
+    // that seed start after it and link its encoder and embeddings.
+    let (mut first, mut after) = (Vec::new(), Vec::new());
+    for run in experiment.runs(profile) {
+        let wave =
+            if scale.obs == ObsKind::Vid && first.iter().any(|r: &ThorAllRun| r.seed == run.seed) {
+                &mut after
+            } else {
+                &mut first
+            };
+        wave.push(run);
+    }
+    let mut lines = Vec::new();
+    for wave in [first, after] {
+        let jobs = wave
             .into_iter()
             .filter(|&run| plan.selected(&experiment.run_name(run)))
             .map(|run| {
                 Box::new(move || line(run)) as crate::experiment::Job<'_, Option<ThorAllLine>>
             })
-            .collect(),
-    )?
-    .into_iter()
-    .flatten()
-    .collect();
+            .collect();
+        lines.extend(
+            crate::experiment::in_parallel("thor_all", &plan.slots, jobs)?
+                .into_iter()
+                .flatten(),
+        );
+    }
+    lines.sort_by_key(|l: &ThorAllLine| {
+        experiment
+            .runs(profile)
+            .iter()
+            .position(|r| (r.method, r.seed, r.memory) == (l.method, l.seed, l.memory))
+    });
     Ok(ThorAllResult {
         scale,
         train_objects: experiment.train_objects.clone(),
         lines,
     })
+}
+
+/// Links the stage A encoder and the frame embeddings of another run of
+/// the figure with the same seed into `run`, where that run finished them
+/// and records the same videos ([`CollectRunConfig::same_videos`]): NTG
+/// and the Flat Policy, with or without memory, read the same videos
+/// through the same encoder, so they are computed once per seed.
+fn share_videos(
+    experiment: &ThorAllExperiment,
+    profile: Profile,
+    variant: ThorAllRun,
+    runs: &Path,
+    run: &RunDir,
+    config: &CollectRunConfig,
+    video: &crate::collect::CollectVideo,
+) -> anyhow::Result<()> {
+    use crate::experiment::share_part;
+    let same = |theirs: &CollectRunConfig| config.same_videos(theirs);
+    for other in experiment.runs(profile) {
+        if other == variant || other.seed != variant.seed {
+            continue;
+        }
+        let source = runs.join(experiment.run_name(other));
+        let linked = share_part(
+            (&source, crate::video::STAGE_A_DIR),
+            run,
+            |stage_a| crate::video::stage_a_finished(stage_a, &video.encoder),
+            same,
+            "stage A: the frame encoder",
+        )?;
+        if linked {
+            share_part(
+                (&source, crate::video::EMBEDDINGS_DIR),
+                run,
+                |embeddings| Ok(embeddings.join("index.json").is_file()),
+                same,
+                "the frames' embeddings",
+            )?;
+            return Ok(());
+        }
+    }
+    Ok(())
 }
 
 /// Writes the figure (one panel, success vs N for both methods) as
