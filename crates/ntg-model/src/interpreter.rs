@@ -535,8 +535,7 @@ impl DemoInterpreter {
         if self.input_feeding {
             let mut state = self.start_state(&enc);
             let (mut logits, mut attention) = (Vec::new(), Vec::new());
-            for t in 0..len {
-                let x = embedded.clone().narrow(1, t, 1).reshape([batch as i32, -1]);
+            for x in crate::nn::unstack_steps(embedded) {
                 let (l, a, next) = self.fed_step(&enc, x, state);
                 logits.push(l);
                 attention.push(a);
