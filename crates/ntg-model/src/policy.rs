@@ -264,6 +264,32 @@ impl NtgPolicy {
             .collect())
     }
 
+    /// ℓ(n|o) as the graph executor over `graph` reads it:
+    /// [`NtgPolicy::node_probabilities`], unless every node from which an
+    /// action can follow in `graph` (a node with a successor, as
+    /// [`NtgPolicy::edge_probabilities_for`] scores them) has probability 0
+    /// in `f32`, because the localizer is sure beyond `f32`'s range of a
+    /// node without one (such as `<end>`). Then ℓ renormalised over those
+    /// nodes, computed in log space (0 elsewhere). The executor divides
+    /// by the mass of those nodes anyway, so this is the same action
+    /// distribution (as [`NtgPolicy::log_probabilities`] computes it);
+    /// from the underflowed one the executor would find no action at all.
+    pub fn executable_node_probabilities(
+        &self,
+        graph: &Ctg,
+        observation: &[f32],
+    ) -> Result<Vec<f32>> {
+        let scores = self.scores(observation)?;
+        let n = graph.num_nodes();
+        let acts: Vec<bool> = (0..n)
+            .map(|i| log_edge_row(graph, self.weights.as_ref(), &scores, i).is_some())
+            .collect();
+        Ok(renormalised_if_underflowed(
+            &log_node_probabilities(&scores, n),
+            &acts,
+        ))
+    }
+
     /// ε(·|n,o) as an `N × N` row-major matrix of probabilities over the
     /// successors of each node in `graph` (weighted by the soft-edge
     /// weights, if any).
@@ -400,6 +426,33 @@ fn log_node_probabilities(scores: &Scores, n: usize) -> Vec<f64> {
     }
 }
 
+/// `exp(log_node)` as `f32`, or, where that is 0 at every node `acts`
+/// marks while the log-probabilities of some are finite, the distribution
+/// renormalised over the marked nodes in log space (0 elsewhere); see
+/// [`NtgPolicy::executable_node_probabilities`].
+fn renormalised_if_underflowed(log_node: &[f64], acts: &[bool]) -> Vec<f32> {
+    let probabilities: Vec<f32> = log_node.iter().map(|l| l.exp() as f32).collect();
+    let kept: Vec<f64> = (0..log_node.len())
+        .filter(|&i| acts[i])
+        .map(|i| log_node[i])
+        .collect();
+    let norm = log_sum_exp(&kept);
+    let underflowed = norm > f64::NEG_INFINITY
+        && (0..log_node.len()).all(|i| !acts[i] || probabilities[i] == 0.0);
+    if !underflowed {
+        return probabilities;
+    }
+    (0..log_node.len())
+        .map(|i| {
+            if acts[i] {
+                (log_node[i] - norm).exp() as f32
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
 /// ln ε(·|from,o) over the successors of `from` in `graph` (−∞ elsewhere),
 /// or `None` if `from` has no successors. With soft-edge `weights`, each
 /// successor's logit is raised by `ln C` (successors of weight 0 dropped).
@@ -467,7 +520,8 @@ impl NodeScorer<[f32]> for &NtgPolicy {
                 right: self.graph.num_nodes(),
             });
         }
-        self.node_probabilities(observation).map_err(to_ctg_error)
+        self.executable_node_probabilities(graph, observation)
+            .map_err(to_ctg_error)
     }
 }
 
@@ -521,5 +575,55 @@ impl<O: ?Sized, F: Fn(&O) -> Vec<f32>> EdgeScorer<O> for &MappedPolicy<'_, F> {
     fn score_edges(&mut self, graph: &Ctg, observation: &O) -> ctg_graph::Result<Vec<f32>> {
         let row = (self.flatten)(observation);
         (&*self.policy).score_edges(graph, row.as_slice())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn log_softmax(logits: &[f64]) -> Vec<f64> {
+        let z = log_sum_exp(logits);
+        logits.iter().map(|l| l - z).collect()
+    }
+
+    /// The localizer sure, beyond `f32`'s range, of node 0, from which no
+    /// action follows: the executor gets the other nodes' probabilities
+    /// renormalised, in the ratio of their logits, not zeros.
+    #[test]
+    fn node_probabilities_underflowing_at_every_acting_node_are_renormalised_over_them() {
+        let log_node = log_softmax(&[200.0, 0.0, -5.0]);
+        let acts = [false, true, true];
+        assert_eq!(
+            log_node.iter().map(|l| l.exp() as f32).collect::<Vec<_>>()[1..],
+            [0.0, 0.0]
+        );
+        let p = renormalised_if_underflowed(&log_node, &acts);
+        assert_eq!(p[0], 0.0);
+        assert!((p[1] - 1.0 / (1.0 + (-5.0f32).exp())).abs() < 1e-6, "{p:?}");
+        assert!((p[1] + p[2] - 1.0).abs() < 1e-6);
+    }
+
+    /// Otherwise the probabilities are the plain ones, bit for bit, and no
+    /// node at all to act from stays no node.
+    #[test]
+    fn other_node_probabilities_are_left_as_they_are() {
+        let log_node = log_softmax(&[2.0, 0.0, -5.0]);
+        let plain: Vec<f32> = log_node.iter().map(|l| l.exp() as f32).collect();
+        assert_eq!(
+            renormalised_if_underflowed(&log_node, &[false, true, true]),
+            plain
+        );
+        let sure = log_softmax(&[200.0, 0.0, -5.0]);
+        let plain: Vec<f32> = sure.iter().map(|l| l.exp() as f32).collect();
+        assert_eq!(
+            renormalised_if_underflowed(&sure, &[false, false, false]),
+            plain
+        );
+        let only_end = [0.0, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        assert_eq!(
+            renormalised_if_underflowed(&only_end, &[false, true, true]),
+            [1.0, 0.0, 0.0]
+        );
     }
 }
