@@ -136,6 +136,33 @@ pub struct ThorAllLine {
     pub train_seconds: f64,
     /// Run folder.
     pub run: PathBuf,
+    /// Methods with a demo interpreter: per N (as `points`), the test
+    /// demos it transcribed exactly, of those it transcribed (`(exact,
+    /// of)`); empty for the others and in results written before it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub transcribed: Vec<(usize, usize)>,
+}
+
+/// Per point of `eval`, the episodes whose demo was transcribed exactly,
+/// of those with a transcription; empty when no episode has one.
+fn transcribed_per_n(eval: &crate::collect::CollectEval) -> Vec<(usize, usize)> {
+    let per_n: Vec<(usize, usize)> = eval
+        .points
+        .iter()
+        .map(|p| {
+            let exact: Vec<bool> = eval
+                .episodes
+                .iter()
+                .filter(|e| e.group == p.objects)
+                .filter_map(|e| e.transcription_exact())
+                .collect();
+            (exact.iter().filter(|&&x| x).count(), exact.len())
+        })
+        .collect();
+    if per_n.iter().all(|&(_, of)| of == 0) {
+        return Vec::new();
+    }
+    per_n
 }
 
 fn is_zero(seed: &u64) -> bool {
@@ -294,6 +321,7 @@ pub fn run(
                 p.objects, p.success.rate, p.success.ci_low, p.success.ci_high
             );
         }
+        let transcribed = transcribed_per_n(&eval);
         Ok(Some(ThorAllLine {
             method,
             seed,
@@ -302,6 +330,7 @@ pub fn run(
             selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
             train_seconds: run.epoch_seconds()?,
             run: dir,
+            transcribed,
         }))
     };
     let line = &line;
@@ -527,6 +556,26 @@ pub fn report_section(result: &ThorAllResult) -> String {
         }
         let _ = writeln!(s);
     }
+    let transcribing: Vec<&ThorAllLine> = result
+        .lines
+        .iter()
+        .filter(|l| !l.transcribed.is_empty())
+        .collect();
+    if !transcribing.is_empty() {
+        let _ = writeln!(
+            s,
+            "\n**The demo interpreter, per N.** Test demos transcribed exactly (the expert's action sequence, token for token):\n"
+        );
+        for line in transcribing {
+            let per_n: Vec<String> = line
+                .points
+                .iter()
+                .zip(&line.transcribed)
+                .map(|(p, &(exact, of))| format!("N = {}: {exact}/{of}", p.objects))
+                .collect();
+            let _ = writeln!(s, "- {}: {}", line_name(line), per_n.join(", "));
+        }
+    }
     let _ = writeln!(
         s,
         "\nPaper's trend: NTG well above the Flat Policy at every N, including N = 1, 3 and 5, never trained on.\n"
@@ -644,7 +693,30 @@ mod tests {
             selected_epoch: None,
             train_seconds: 0.0,
             run: PathBuf::new(),
+            transcribed: Vec::new(),
         }
+    }
+
+    /// The report gives, per N, how many test demos NTG's interpreter
+    /// transcribed exactly; the Flat Policy has no line.
+    #[test]
+    fn the_report_shows_the_interpreter_s_exact_transcriptions_per_n() {
+        let experiment = ThorAllExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let mut ntg = line(MethodId::Ntg, &[9, 9, 8, 7, 2], 10);
+        ntg.transcribed = vec![(10, 10), (9, 10), (9, 10), (10, 10), (2, 10)];
+        let result = ThorAllResult {
+            scale: experiment.profiles.get(Profile::Smoke).clone(),
+            train_objects: vec![2, 4],
+            lines: vec![ntg, line(MethodId::Flat, &[9, 5, 3, 2, 1], 10)],
+        };
+        let report = report_section(&result);
+        assert!(
+            report.contains(
+                "- NTG (ours): N = 1: 10/10, N = 2: 9/10, N = 3: 9/10, N = 4: 10/10, N = 5: 2/10"
+            ),
+            "{report}"
+        );
+        assert!(!report.contains("- Flat Policy: N = 1"), "{report}");
     }
 
     #[test]
