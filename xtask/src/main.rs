@@ -74,6 +74,13 @@ enum Task {
         /// Soak the release build of ntg (default: the dev build).
         #[arg(long)]
         release: bool,
+        /// Soak this ntg binary instead of building one. CI passes the one
+        /// its test step built (`target/debug/ntg`): `cargo build -p
+        /// ntg-trainer` resolves the dependencies' features without the
+        /// workspace's dev-dependencies, so it rebuilds burn and everything
+        /// above it (about 6 minutes of a CI run, measured).
+        #[arg(long, conflicts_with = "release")]
+        ntg: Option<PathBuf>,
         /// Working folder (replaced).
         #[arg(long, default_value = "target/soak")]
         work: PathBuf,
@@ -214,6 +221,7 @@ fn main() -> std::process::ExitCode {
             min_delay,
             max_delay,
             release,
+            ntg,
             work,
         } => {
             if !(min_delay.is_finite()
@@ -234,6 +242,7 @@ fn main() -> std::process::ExitCode {
                     min_delay: std::time::Duration::from_secs_f64(min_delay),
                     max_delay: std::time::Duration::from_secs_f64(max_delay),
                     release,
+                    ntg: ntg.map(|path| root.join(path)),
                 },
             )
         }

@@ -29,8 +29,10 @@ pub struct Soak {
     pub min_delay: Duration,
     /// Longest delay before a kill.
     pub max_delay: Duration,
-    /// Use the release build of `ntg` (else the dev build, which CI has).
+    /// Use the release build of `ntg` (else the dev build).
     pub release: bool,
+    /// Soak this `ntg` binary instead of building one.
+    pub ntg: Option<PathBuf>,
 }
 
 /// A small seeded generator (xorshift64*) for the kill delays: xtask stays
@@ -157,7 +159,11 @@ fn without_seconds(path: &Path) -> anyhow::Result<Vec<String>> {
 
 /// Runs the soak in `work` (created afresh) and prints its report.
 pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
-    let ntg = build_ntg(root, soak.release)?;
+    let ntg = match &soak.ntg {
+        Some(path) if path.is_file() => path.clone(),
+        Some(path) => bail!("--ntg {}: no such file (build it first)", path.display()),
+        None => build_ntg(root, soak.release)?,
+    };
     if work.exists() {
         std::fs::remove_dir_all(work).with_context(|| format!("removing {}", work.display()))?;
     }
