@@ -74,7 +74,8 @@ enum Task {
         /// Soak the release build of ntg (default: the dev build).
         #[arg(long)]
         release: bool,
-        /// Soak this ntg binary instead of building one. CI passes the one
+        /// Soak this ntg binary (a relative path is taken from the
+        /// workspace root, as `--work` is) instead of building one. CI passes the one
         /// its test step built (`target/debug/ntg`): `cargo build -p
         /// ntg-trainer` resolves the dependencies' features without the
         /// workspace's dev-dependencies, so it rebuilds burn and everything
