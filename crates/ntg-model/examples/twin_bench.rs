@@ -30,7 +30,11 @@
 //!   `state_step` on a rayon pool of 1 thread and the
 //!   `state_step_2_shards` step on a pool of 2, alternated step by step
 //!   in one process, so that both see the same machine (this VM's speed
-//!   drifts by 15% and more between runs a minute apart). Prints both
+//!   drifts by 15% and more between runs a minute apart). As in `ntg`
+//!   training on the whole machine, the pools' threads are pinned to cores
+//!   and the Adam step is a `ParallelOptimizer` of one part per thread
+//!   (both arms pinned, so the ratio is the shards' and the optimizer's,
+//!   not the pinning's). Prints both
 //!   medians and the speedup: the median over pairs of (1-thread time /
 //!   2-shard time), samples per second of the 2-shard step over the
 //!   1-thread one at the same batch;
@@ -74,8 +78,8 @@ use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
 use ctg_graph::{ActionId, Ctg, Vocabulary};
 use ntg_model::{
-    DemoBatch, EncoderConfig, FrameStageConfig, NtgModel, NtgPolicy, SOFT_EDGE_FLOOR,
-    adjacency_tensor, ids_tensor, rows_tensor, successor_mask,
+    DemoBatch, EncoderConfig, FrameStageConfig, NtgModel, NtgPolicy, ParallelOptimizer,
+    SOFT_EDGE_FLOOR, adjacency_tensor, ids_tensor, rows_tensor, successor_mask,
 };
 use serde_json::json;
 
@@ -290,6 +294,12 @@ fn adam_step<M: Module>(module: M, optim: &mut ModuleOptimizer, loss: Tensor<1>)
     optim.step(LR, module, grads)
 }
 
+/// [`adam_step`] with the trainer's optimizer.
+fn parallel_adam_step<M: Module>(module: M, optim: &mut ParallelOptimizer, loss: Tensor<1>) -> M {
+    let grads = GradientsParams::from_grads(loss.backward(), &module);
+    optim.step(LR, module, grads)
+}
+
 /// Times `row`; returns `(median ms, min ms, repeats, shape)`.
 fn bench_row(
     row: &str,
@@ -461,21 +471,24 @@ fn data_parallel(
         StateBatch::new(0..BATCH / 2, &device)?,
         StateBatch::new(BATCH / 2..BATCH, &device)?,
     ];
-    let pool = |threads| rayon::ThreadPoolBuilder::new().num_threads(threads).build();
+    // Both arms on pools whose threads are pinned to cores (as `ntg`'s pool
+    // is when it takes the whole machine: `ntg_model::init_thread_pool`).
+    let pool = |threads| ntg_model::pinned_pool_builder(threads).build();
     let (one, two) = (pool(1)?, pool(2)?);
     let (mut single, mut sharded) = (
         Some(NtgModel::new(config.clone(), &device)?),
         Some(NtgModel::new(config, &device)?),
     );
-    let (mut optim_single, mut optim_sharded): (ModuleOptimizer, ModuleOptimizer) =
-        (AdamConfig::new().init(), AdamConfig::new().init());
+    // The trainer's optimizer: Adam, split over the pool's threads.
+    let mut optim_single = ParallelOptimizer::new(1, || AdamConfig::new().init());
+    let mut optim_sharded = ParallelOptimizer::new(2, || AdamConfig::new().init());
     let sync = |d: &Device| d.sync().map_err(|e| format!("device sync: {e:?}"));
     let mut step_single = || -> Result<f64, Box<dyn Error>> {
         let start = Instant::now();
         one.install(|| -> Result<(), String> {
             let model = single.take().ok_or("model")?;
             let loss = state_loss(&model, &whole).map_err(|e| e.to_string())?;
-            single = Some(adam_step(model, &mut optim_single, loss));
+            single = Some(parallel_adam_step(model, &mut optim_single, loss));
             sync(&device)?;
             Ok(())
         })?;

@@ -58,6 +58,7 @@ mod matmul;
 mod model;
 pub mod nn;
 mod ntp;
+mod optimizer;
 mod parallel;
 mod policy;
 
@@ -86,7 +87,8 @@ pub use ntp::{
     ConditionedNtp, EncodedSpec, NtpBatch, NtpConfig, NtpCore, NtpDecision, NtpExample, NtpLoss,
     NtpNet, NtpOutput, ProgramCall, ProgramStack, StackFrame, StackStep, scope_from_logits,
 };
-pub use parallel::sharded_gradients;
+pub use optimizer::ParallelOptimizer;
+pub use parallel::{ThreadPoolInfo, init_thread_pool, pinned_pool_builder, sharded_gradients};
 pub use policy::{MappedPolicy, NtgPolicy};
 
 #[cfg(test)]

@@ -69,6 +69,85 @@ where
     Ok((accumulator.grads(), values))
 }
 
+/// What [`init_thread_pool`] set up.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ThreadPoolInfo {
+    /// Threads in rayon's global pool.
+    pub threads: usize,
+    /// Whether each worker thread was pinned to a core of its own.
+    pub pinned: bool,
+}
+
+/// The cores this process may run on (its CPU affinity), in order.
+fn allowed_cores() -> Vec<core_affinity::CoreId> {
+    core_affinity::get_core_ids().unwrap_or_default()
+}
+
+/// A rayon pool builder of `threads` threads whose worker `i` is pinned to
+/// the `i`-th core this process may run on, when there are at least
+/// `threads` such cores (otherwise the threads are left to the scheduler).
+///
+/// Why pin: on the 2-vCPU machine this project is measured on, the two
+/// shards of a data-parallel step ran 8-12% slower each than one shard
+/// alone while unpinned threads moved between the vCPUs; pinned, the
+/// two-shard state step's speedup over one thread rose from ~1.62 to
+/// ~1.73 (`docs/results/speed-2026-11-27.md`, session 33).
+pub fn pinned_pool_builder(threads: usize) -> rayon::ThreadPoolBuilder {
+    let cores = allowed_cores();
+    let builder = rayon::ThreadPoolBuilder::new().num_threads(threads);
+    if threads == 0 || cores.len() < threads {
+        return builder;
+    }
+    builder.start_handler(move |i| {
+        // A refused pin leaves the thread where the scheduler puts it.
+        let _ = core_affinity::set_for_current(cores[i]);
+    })
+}
+
+/// Builds rayon's global pool, on which burn's CPU backend computes and
+/// the trainer runs its data-parallel shards and rollouts:
+/// `RAYON_NUM_THREADS` threads (default: the cores this process may use),
+/// each pinned to a core of its own when the pool takes every such core
+/// and there are at least two (see [`pinned_pool_builder`]). A pool smaller
+/// than the machine is not pinned, so two processes of one thread each
+/// (two runs side by side) are not put on the same core.
+/// `NTG_PIN_THREADS=0` turns pinning off. If the global pool already
+/// exists, it is left as it is (and reported unpinned).
+pub fn init_thread_pool() -> ThreadPoolInfo {
+    let cores = allowed_cores();
+    let machine = if cores.is_empty() {
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    } else {
+        cores.len()
+    };
+    let threads = std::env::var("RAYON_NUM_THREADS")
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(machine);
+    let pin = threads >= 2
+        && threads == cores.len()
+        && !matches!(
+            std::env::var("NTG_PIN_THREADS").as_deref().map(str::trim),
+            Ok("0")
+        );
+    let builder = if pin {
+        pinned_pool_builder(threads)
+    } else {
+        rayon::ThreadPoolBuilder::new().num_threads(threads)
+    };
+    match builder.build_global() {
+        Ok(()) => ThreadPoolInfo {
+            threads,
+            pinned: pin,
+        },
+        Err(_) => ThreadPoolInfo {
+            threads: rayon::current_num_threads(),
+            pinned: false,
+        },
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -26,9 +26,9 @@ use std::path::Path;
 
 use anyhow::{Context, bail};
 use burn::module::Module;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor};
-use ntg_model::{EdgeCounts, FlatPolicy, NtgModel, load_optimizer, save_optimizer};
+use ntg_model::{EdgeCounts, FlatPolicy, NtgModel, ParallelOptimizer};
 use rand::seq::SliceRandom;
 use rand::{RngCore, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -310,7 +310,10 @@ where
         bail!("training needs an autodiff device (`device.autodiff()`), got {device:?}");
     }
     let _writer = run.lock()?;
-    let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
+    // Adam, its update split across the pool's threads (bit-identical to
+    // one optimizer; the state file is the same either way).
+    let mut optimizer =
+        ParallelOptimizer::new(rayon::current_num_threads(), || AdamConfig::new().init());
     let ckpt = run.checkpoint_dir();
     let progress_path = ckpt.join("progress.json");
     // A kill leaves the checkpoint and `best/` whole (see `replace_dir`),
@@ -322,7 +325,8 @@ where
         let progress: Progress = RunDir::read_json(&progress_path)?;
         model = M::load_from(&ckpt, device)
             .with_context(|| format!("resuming from {}", ckpt.display()))?;
-        optimizer = load_optimizer(optimizer, ckpt.join("optimizer.bpk"))
+        optimizer = optimizer
+            .load(ckpt.join("optimizer.bpk"))
             .with_context(|| format!("resuming from {}", ckpt.display()))?;
         start = progress.epochs_done;
     }
@@ -389,7 +393,7 @@ where
         }
         replace_dir(&ckpt, |dir| {
             model.save_to(dir)?;
-            save_optimizer(&optimizer, dir.join("optimizer.bpk"))?;
+            optimizer.save(dir.join("optimizer.bpk"))?;
             RunDir::write_json(
                 &dir.join("progress.json"),
                 &Progress {

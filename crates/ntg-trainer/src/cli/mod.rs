@@ -140,6 +140,9 @@ pub fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    // rayon's global pool, its threads pinned to cores when it takes the
+    // whole machine (see `ntg_model::init_thread_pool`).
+    ntg_model::init_thread_pool();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
