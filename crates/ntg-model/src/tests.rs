@@ -12,16 +12,18 @@ use rand_chacha::ChaCha8Rng;
 use crate::nn::{to_vec, to_vec_int};
 use crate::*;
 
-/// The CPU device under test: burn-ndarray when `NTG_TEST_BACKEND=ndarray`
-/// or the `ndarray` feature is on (so CI runs these tests on both CPU
-/// backends without building burn twice: tests always link burn-ndarray,
-/// see the dev-dependencies), flex otherwise.
+/// The CPU device under test: flex, or burn-ndarray when
+/// `NTG_TEST_BACKEND=ndarray` in a build with the `ndarray` feature
+/// (`NTG_TEST_BACKEND=ndarray cargo test -p ntg-model --features ndarray`:
+/// the same tests on the other CPU backend). Asking for ndarray in a build
+/// without the feature fails loudly rather than testing flex instead.
 pub(crate) fn device() -> Device {
-    if cfg!(feature = "ndarray") || std::env::var("NTG_TEST_BACKEND").as_deref() == Ok("ndarray") {
-        #[allow(deprecated)] // burn-ndarray is deprecated upstream, still supported here
-        Device::ndarray()
-    } else {
-        BackendKind::Flex.device().unwrap()
+    match std::env::var("NTG_TEST_BACKEND").as_deref() {
+        Ok("ndarray") => BackendKind::NdArray.device().expect(
+            "NTG_TEST_BACKEND=ndarray needs the `ndarray` feature: cargo test -p ntg-model --features ndarray",
+        ),
+        Ok("flex") | Err(_) => BackendKind::Flex.device().unwrap(),
+        Ok(other) => panic!("NTG_TEST_BACKEND={other}: expected flex or ndarray"),
     }
 }
 
@@ -1025,7 +1027,9 @@ fn config_validation_catches_inconsistency() {
     assert!(BackendKind::available().contains(&BackendKind::Flex));
 }
 
-/// The two CPU backends (tests always link both) agree on the same weights.
+/// The two CPU backends agree on the same weights (a build with the
+/// `ndarray` feature: `cargo test -p ntg-model --features ndarray`).
+#[cfg(feature = "ndarray")]
 #[test]
 fn flex_and_ndarray_agree() {
     let flex = BackendKind::Flex.device().unwrap();

@@ -16,12 +16,15 @@ use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+/// flex, or burn-ndarray when `NTG_TEST_BACKEND=ndarray` in a build with
+/// the `ndarray` feature (see `src/tests.rs`).
 fn device() -> Device {
-    if cfg!(feature = "ndarray") || std::env::var("NTG_TEST_BACKEND").as_deref() == Ok("ndarray") {
-        #[allow(deprecated)] // burn-ndarray is deprecated upstream, still supported here
-        Device::ndarray()
-    } else {
-        BackendKind::Flex.device().unwrap()
+    match std::env::var("NTG_TEST_BACKEND").as_deref() {
+        Ok("ndarray") => BackendKind::NdArray.device().expect(
+            "NTG_TEST_BACKEND=ndarray needs the `ndarray` feature: cargo test -p ntg-model --features ndarray",
+        ),
+        Ok("flex") | Err(_) => BackendKind::Flex.device().unwrap(),
+        Ok(other) => panic!("NTG_TEST_BACKEND={other}: expected flex or ndarray"),
     }
 }
 
