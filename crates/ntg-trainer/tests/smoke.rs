@@ -49,7 +49,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
             seed: 0,
             token_dropout: 0.0,
             cosine_decay: false,
-            shards: 1,
+            shards: 2,
             gcn_from_other_demo: false,
         },
     };

@@ -354,8 +354,124 @@ pub struct NtpExpPoint {
     /// (`detector_stage/held_out.json`), where the run has a detector.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detector: Option<crate::method::detector::DetectorHeldOut>,
+    /// How its training went: validation success per validated epoch and
+    /// the last epoch's training accuracies (absent where the run folder
+    /// has no validation scores).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub curve: Option<TrainingCurve>,
     /// Run folder.
     pub run: PathBuf,
+}
+
+/// A run's training curve as the report shows it: whether the method was
+/// still improving when its training stopped (issue 16's under-training
+/// check of a baseline far below the paper).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainingCurve {
+    /// `(epoch from 0, success on the validation tasks)`, in epoch order.
+    pub validation: Vec<(usize, f64)>,
+    /// The last epoch's training accuracies: every `*_accuracy` value of
+    /// the last line of `metrics.jsonl`, named without the suffix.
+    pub last_accuracies: std::collections::BTreeMap<String, f64>,
+    /// Epochs the run trained.
+    pub epochs_trained: usize,
+}
+
+impl TrainingCurve {
+    /// The curve of `run`, from its `validation.jsonl` and `metrics.jsonl`;
+    /// `None` without validation scores.
+    pub fn of(run: &RunDir) -> anyhow::Result<Option<TrainingCurve>> {
+        let path = run.validation_path();
+        if !path.is_file() {
+            return Ok(None);
+        }
+        let mut validation: Vec<(usize, f64)> =
+            crate::run_dir::read_jsonl::<crate::fit::ValidationRecord>(&path)?
+                .into_iter()
+                .map(|r| (r.epoch, r.score.success))
+                .collect();
+        if validation.is_empty() {
+            return Ok(None);
+        }
+        validation.sort_by_key(|&(epoch, _)| epoch);
+        let metrics: Vec<serde_json::Value> = if run.metrics_path().is_file() {
+            crate::run_dir::read_jsonl(&run.metrics_path())?
+        } else {
+            Vec::new()
+        };
+        let last_accuracies = metrics
+            .last()
+            .and_then(|m| m.as_object())
+            .map(|m| {
+                m.iter()
+                    .filter_map(|(k, v)| {
+                        Some((k.strip_suffix("_accuracy")?.to_owned(), v.as_f64()?))
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        Ok(Some(TrainingCurve {
+            validation,
+            last_accuracies,
+            epochs_trained: metrics.len(),
+        }))
+    }
+
+    /// The best validation score's epoch (the first of equals).
+    pub fn best_epoch(&self) -> usize {
+        let mut best = self.validation[0];
+        for &v in &self.validation[1..] {
+            if v.1 > best.1 {
+                best = v;
+            }
+        }
+        best.0
+    }
+
+    /// Whether the best validation score came at the last validated epoch:
+    /// still improving when training stopped.
+    pub fn still_rising(&self) -> bool {
+        self.validation
+            .last()
+            .is_some_and(|&(epoch, _)| epoch == self.best_epoch())
+    }
+
+    /// One line of the report: validation success by epoch (from 1), the
+    /// verdict, and the last epoch's training accuracies.
+    pub fn describe(&self) -> String {
+        let scores = self
+            .validation
+            .iter()
+            .map(|(epoch, success)| format!("{}: {success:.2}", epoch + 1))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let verdict = if self.still_rising() {
+            "best at the last validated epoch: still improving when training stopped".to_owned()
+        } else {
+            let last = self.validation.last().map_or(0, |v| v.0);
+            format!(
+                "best at epoch {} of the {} validated up to epoch {}",
+                self.best_epoch() + 1,
+                self.validation.len(),
+                last + 1
+            )
+        };
+        let accuracies = self
+            .last_accuracies
+            .iter()
+            .map(|(name, a)| format!("{} {a:.3}", name.replace('_', " ")))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let mut line = format!("validation success by epoch {scores} ({verdict})");
+        if !accuracies.is_empty() {
+            let _ = write!(
+                line,
+                "; training accuracy at its last epoch ({}): {accuracies}",
+                self.epochs_trained
+            );
+        }
+        line
+    }
 }
 
 fn is_zero(seed: &u64) -> bool {
@@ -552,6 +668,7 @@ fn run_point(
         transcription: TranscriptionSplit::of(&result.tasks),
         seen: seen_success(&run, method)?,
         detector: detector_held_out(&run)?,
+        curve: TrainingCurve::of(&run)?,
         run: dir,
     }))
 }
@@ -943,6 +1060,11 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
     );
     bullet_list(
         &mut s,
+        "**Training curves of the baselines.** Each baseline at its largest number of training tasks: its success on the validation tasks at each validated epoch (from 1) and its training accuracies at its last epoch. A score far below the paper's with a curve still rising at its last epoch would point to under-training; a flat curve with high training accuracy, to what the method learns from its training tasks:",
+        baseline_curve_lines(points),
+    );
+    bullet_list(
+        &mut s,
         "**The detector of NTP (Detector).** Its mean position error on held-out frames of training-side tasks, frames it was neither trained nor selected on (state units; beside it, the error of always answering the training frames' mean state), and its gripper accuracy:",
         points
             .iter()
@@ -972,6 +1094,35 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
         seed_spread(points),
     );
     s
+}
+
+/// One line per baseline point at its curve's largest number of training
+/// tasks (every seed there): its [`TrainingCurve`].
+pub(crate) fn baseline_curve_lines(points: &[NtpExpPoint]) -> Vec<String> {
+    let largest = |p: &NtpExpPoint| {
+        points
+            .iter()
+            .filter(|q| {
+                (q.method, q.recipe, q.ablation, q.obs) == (p.method, p.recipe, p.ablation, p.obs)
+            })
+            .map(|q| q.train_tasks)
+            .max()
+    };
+    points
+        .iter()
+        .filter(|p| !p.method.is_ntg() && largest(p) == Some(p.train_tasks))
+        .filter_map(|p| {
+            let curve = p.curve.as_ref()?;
+            Some(format!(
+                "{} ({:?}, {} tasks; test {:.3}): {}",
+                row_name(p),
+                p.obs,
+                p.train_tasks,
+                p.success.rate,
+                curve.describe()
+            ))
+        })
+        .collect()
 }
 
 /// The success rates of a point's `seeds`.
@@ -1281,6 +1432,83 @@ mod tests {
     }
 
     #[test]
+    fn a_baseline_s_training_curve_is_read_from_its_run_and_reported_at_its_largest_point() {
+        let tmp = tempfile::tempdir().unwrap();
+        let run = RunDir::create(&tmp.path().join("run")).unwrap();
+        for (epoch, success) in [(1, 0.05), (3, 0.12), (5, 0.10)] {
+            RunDir::append_jsonl(
+                &run.validation_path(),
+                &serde_json::json!({"epoch": epoch, "success": success, "goal_fraction": 0.3}),
+            )
+            .unwrap();
+        }
+        for epoch in 0..6 {
+            run.append_metrics(&serde_json::json!({
+                "epoch": epoch, "loss": 1.0, "seconds": 2.0,
+                "program_accuracy": 0.5 + 0.08 * epoch as f64, "scope_accuracy": 0.25,
+            }))
+            .unwrap();
+        }
+        let curve = TrainingCurve::of(&run).unwrap().unwrap();
+        assert_eq!(curve.validation, [(1, 0.05), (3, 0.12), (5, 0.10)]);
+        assert_eq!(curve.best_epoch(), 3);
+        assert!(!curve.still_rising());
+        assert_eq!(curve.epochs_trained, 6);
+        assert_eq!(
+            curve.describe(),
+            "validation success by epoch 2: 0.05, 4: 0.12, 6: 0.10 (best at epoch 4 of the 3 validated up to epoch 6); \
+             training accuracy at its last epoch (6): program 0.900, scope 0.250"
+        );
+        let rising = TrainingCurve {
+            validation: vec![(0, 0.1), (1, 0.2)],
+            ..curve.clone()
+        };
+        assert!(rising.still_rising());
+        assert!(
+            rising
+                .describe()
+                .contains("still improving when training stopped")
+        );
+        // No validation scores: no curve.
+        let bare = RunDir::create(&tmp.path().join("bare")).unwrap();
+        assert_eq!(TrainingCurve::of(&bare).unwrap(), None);
+
+        // The report lists baselines at their curve's largest point only.
+        let point = |method, n| NtpExpPoint {
+            method,
+            ablation: Variant::Full,
+            recipe: Recipe::Paper,
+            obs: ObsKind::Vid,
+            seed: 0,
+            train_tasks: n,
+            demos_per_task: 100,
+            epochs: 6,
+            selected_epoch: None,
+            permute_objects: false,
+            success: SuccessRate::new(1, 10),
+            goal_fraction: 0.5,
+            train_seconds: 1.0,
+            transcription: None,
+            seen: None,
+            detector: None,
+            curve: Some(curve.clone()),
+            run: PathBuf::new(),
+        };
+        let points = [
+            point(MethodId::Ntp, 100),
+            point(MethodId::Ntp, 500),
+            point(MethodId::Ntg, 500),
+        ];
+        let lines = baseline_curve_lines(&points);
+        assert_eq!(lines.len(), 1);
+        assert!(
+            lines[0].starts_with(
+                "NTP (Vid, 500 tasks; test 0.100): validation success by epoch 2: 0.05"
+            )
+        );
+    }
+
+    #[test]
     fn transcription_lines_show_the_runs_that_kept_it() {
         let rate = |s, n| SuccessRate::new(s, n);
         let mut points = vec![NtpExpPoint {
@@ -1304,6 +1532,7 @@ mod tests {
             }),
             seen: None,
             detector: None,
+            curve: None,
             run: PathBuf::new(),
         }];
         points.push(NtpExpPoint {
@@ -1342,6 +1571,7 @@ mod tests {
             transcription: None,
             seen: None,
             detector: None,
+            curve: None,
             run: PathBuf::new(),
         };
         let (state, vid) = (ObsKind::State, ObsKind::Vid);
@@ -1409,6 +1639,7 @@ mod tests {
             transcription: None,
             seen: None,
             detector: None,
+            curve: None,
             run: PathBuf::from(format!("run{seed}")),
         };
         let points = vec![point(0, 20), point(1, 40), point(2, 30)];
