@@ -368,8 +368,8 @@ pub struct NtpExpPoint {
 /// check of a baseline far below the paper).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainingCurve {
-    /// `(epoch from 0, success on the validation tasks)`, in epoch order.
-    pub validation: Vec<(usize, f64)>,
+    /// Its scores on the validation tasks, in epoch order.
+    pub validation: Vec<crate::fit::ValidationRecord>,
     /// The last epoch's training accuracies: every `*_accuracy` value of
     /// the last line of `metrics.jsonl`, named without the suffix.
     pub last_accuracies: std::collections::BTreeMap<String, f64>,
@@ -378,22 +378,20 @@ pub struct TrainingCurve {
 }
 
 impl TrainingCurve {
-    /// The curve of `run`, from its `validation.jsonl` and `metrics.jsonl`;
-    /// `None` without validation scores.
-    pub fn of(run: &RunDir) -> anyhow::Result<Option<TrainingCurve>> {
+    /// The curve of `run` (trained with `method`), from its
+    /// `validation.jsonl` and `metrics.jsonl`; `None` without validation
+    /// scores. Heads a method does not train are left out (NTP Flat logs
+    /// a scope accuracy of 0: it has no scopes).
+    pub fn of(run: &RunDir, method: MethodId) -> anyhow::Result<Option<TrainingCurve>> {
         let path = run.validation_path();
         if !path.is_file() {
             return Ok(None);
         }
-        let mut validation: Vec<(usize, f64)> =
-            crate::run_dir::read_jsonl::<crate::fit::ValidationRecord>(&path)?
-                .into_iter()
-                .map(|r| (r.epoch, r.score.success))
-                .collect();
+        let mut validation: Vec<crate::fit::ValidationRecord> = crate::run_dir::read_jsonl(&path)?;
         if validation.is_empty() {
             return Ok(None);
         }
-        validation.sort_by_key(|&(epoch, _)| epoch);
+        validation.sort_by_key(|r| r.epoch);
         let metrics: Vec<serde_json::Value> = if run.metrics_path().is_file() {
             crate::run_dir::read_jsonl(&run.metrics_path())?
         } else {
@@ -407,6 +405,7 @@ impl TrainingCurve {
                     .filter_map(|(k, v)| {
                         Some((k.strip_suffix("_accuracy")?.to_owned(), v.as_f64()?))
                     })
+                    .filter(|(head, _)| !(method == MethodId::NtpFlat && head == "scope"))
                     .collect()
             })
             .unwrap_or_default();
@@ -417,52 +416,71 @@ impl TrainingCurve {
         }))
     }
 
-    /// The best validation score's epoch (the first of equals).
+    /// The best validation score's epoch, as training selects it (success,
+    /// then goals met; the first of equals).
     pub fn best_epoch(&self) -> usize {
         let mut best = self.validation[0];
-        for &v in &self.validation[1..] {
-            if v.1 > best.1 {
-                best = v;
+        for r in &self.validation[1..] {
+            if r.score.beats(&best.score) {
+                best = *r;
             }
         }
-        best.0
+        best.epoch
     }
 
-    /// Whether the best validation score came at the last validated epoch:
-    /// still improving when training stopped.
-    pub fn still_rising(&self) -> bool {
-        self.validation
-            .last()
-            .is_some_and(|&(epoch, _)| epoch == self.best_epoch())
+    /// Mean validation success over the last third of the validated epochs
+    /// and over the third before it (`None` with fewer than two scores):
+    /// a curve still rising when training stopped has the first clearly
+    /// above the second.
+    pub fn last_thirds(&self) -> Option<(f64, f64)> {
+        let n = self.validation.len();
+        let w = n / 3;
+        if w == 0 {
+            return None;
+        }
+        let mean = |rs: &[crate::fit::ValidationRecord]| {
+            rs.iter().map(|r| r.score.success).sum::<f64>() / rs.len() as f64
+        };
+        Some((
+            mean(&self.validation[n - w..]),
+            mean(&self.validation[n - 2 * w..n - w]),
+        ))
     }
 
     /// One line of the report: validation success by epoch (from 1), the
-    /// verdict, and the last epoch's training accuracies.
+    /// best epoch, the last two thirds' means, and the last epoch's
+    /// training accuracies.
     pub fn describe(&self) -> String {
         let scores = self
             .validation
             .iter()
-            .map(|(epoch, success)| format!("{}: {success:.2}", epoch + 1))
+            .map(|r| format!("{}: {:.2}", r.epoch + 1, r.score.success))
             .collect::<Vec<_>>()
             .join(", ");
-        let verdict = if self.still_rising() {
-            "best at the last validated epoch: still improving when training stopped".to_owned()
-        } else {
-            let last = self.validation.last().map_or(0, |v| v.0);
-            format!(
-                "best at epoch {} of the {} validated up to epoch {}",
-                self.best_epoch() + 1,
-                self.validation.len(),
-                last + 1
-            )
-        };
+        let mut line = format!(
+            "validation success by epoch {scores}; best at epoch {}",
+            self.best_epoch() + 1
+        );
+        if self
+            .validation
+            .last()
+            .is_some_and(|r| r.epoch == self.best_epoch())
+        {
+            line.push_str(", the last validated");
+        }
+        if let Some((last, before)) = self.last_thirds() {
+            let w = self.validation.len() / 3;
+            let _ = write!(
+                line,
+                "; mean of the last {w} scores {last:.3}, of the {w} before {before:.3}"
+            );
+        }
         let accuracies = self
             .last_accuracies
             .iter()
             .map(|(name, a)| format!("{} {a:.3}", name.replace('_', " ")))
             .collect::<Vec<_>>()
             .join(", ");
-        let mut line = format!("validation success by epoch {scores} ({verdict})");
         if !accuracies.is_empty() {
             let _ = write!(
                 line,
@@ -668,7 +686,7 @@ fn run_point(
         transcription: TranscriptionSplit::of(&result.tasks),
         seen: seen_success(&run, method)?,
         detector: detector_held_out(&run)?,
-        curve: TrainingCurve::of(&run)?,
+        curve: TrainingCurve::of(&run, method)?,
         run: dir,
     }))
 }
@@ -1060,7 +1078,7 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
     );
     bullet_list(
         &mut s,
-        "**Training curves of the baselines.** Each baseline at its largest number of training tasks: its success on the validation tasks at each validated epoch (from 1) and its training accuracies at its last epoch. A score far below the paper's with a curve still rising at its last epoch would point to under-training; a flat curve with high training accuracy, to what the method learns from its training tasks:",
+        "**Training curves of the baselines.** Each baseline at its largest number of training tasks: its success on the validation tasks at each validated epoch (from 1) and its training accuracies at its last epoch. A curve whose last third of scores is clearly above the third before it was still rising when training stopped (under-training); a flat one with high training accuracy points to what the method learns from its training tasks, not to too few steps:",
         baseline_curve_lines(points),
     );
     bullet_list(
@@ -1449,29 +1467,44 @@ mod tests {
             }))
             .unwrap();
         }
-        let curve = TrainingCurve::of(&run).unwrap().unwrap();
-        assert_eq!(curve.validation, [(1, 0.05), (3, 0.12), (5, 0.10)]);
+        assert_eq!(
+            TrainingCurve::of(&run, MethodId::NtpFlat)
+                .unwrap()
+                .unwrap()
+                .last_accuracies
+                .keys()
+                .collect::<Vec<_>>(),
+            ["program"]
+        );
+        let curve = TrainingCurve::of(&run, MethodId::Ntp).unwrap().unwrap();
+        let scores: Vec<(usize, f64)> = curve
+            .validation
+            .iter()
+            .map(|r| (r.epoch, r.score.success))
+            .collect();
+        assert_eq!(scores, [(1, 0.05), (3, 0.12), (5, 0.10)]);
         assert_eq!(curve.best_epoch(), 3);
-        assert!(!curve.still_rising());
+        assert_eq!(curve.last_thirds(), Some((0.10, 0.12)));
         assert_eq!(curve.epochs_trained, 6);
         assert_eq!(
             curve.describe(),
-            "validation success by epoch 2: 0.05, 4: 0.12, 6: 0.10 (best at epoch 4 of the 3 validated up to epoch 6); \
+            "validation success by epoch 2: 0.05, 4: 0.12, 6: 0.10; best at epoch 4; \
+             mean of the last 1 scores 0.100, of the 1 before 0.120; \
              training accuracy at its last epoch (6): program 0.900, scope 0.250"
         );
-        let rising = TrainingCurve {
-            validation: vec![(0, 0.1), (1, 0.2)],
-            ..curve.clone()
-        };
-        assert!(rising.still_rising());
+        // Equal success: the one with more goals met is the better, as
+        // training selects it; at the last validated epoch, the line says so.
+        let mut tied = curve.clone();
+        tied.validation[2].score.success = 0.12;
+        tied.validation[2].score.goal_fraction = 0.4;
+        assert_eq!(tied.best_epoch(), 5);
         assert!(
-            rising
-                .describe()
-                .contains("still improving when training stopped")
+            tied.describe()
+                .contains("best at epoch 6, the last validated;")
         );
         // No validation scores: no curve.
         let bare = RunDir::create(&tmp.path().join("bare")).unwrap();
-        assert_eq!(TrainingCurve::of(&bare).unwrap(), None);
+        assert_eq!(TrainingCurve::of(&bare, MethodId::Ntp).unwrap(), None);
 
         // The report lists baselines at their curve's largest point only.
         let point = |method, n| NtpExpPoint {
