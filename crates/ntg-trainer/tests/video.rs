@@ -38,9 +38,13 @@ fn config() -> BlocksRunConfig {
     video.encoder.batch_size = 32;
     video.encoder.learning_rate = 2e-3;
     video.demos_per_renaming = 0;
+    // Both stages in two data-parallel shards, as `ntg train` trains (and
+    // so on both of CI's cores).
+    video.encoder.shards = 2;
     c.optim = OptimConfig {
         batch_size: 8,
         learning_rate: 3e-3,
+        shards: 2,
         ..c.optim
     };
     c
