@@ -132,8 +132,9 @@ pub fn reproduce(
             .unwrap_or_else(|_| Err(anyhow::anyhow!("figs. ablation (b) and thor_all panicked")));
         (front, side)
     });
-    let (points, ablation_points) = front?;
+    let (mut points, ablation_points) = front?;
     let (ablation_b, thor_all) = side?;
+    ntp_exp::evaluate_seen(&mut points, plan, ntp_exp::SEEN_CHECK_TRAIN_TASKS)?;
     let structure = crate::experiment::structure::run(&points, plan)?;
     let trace_sorting = match ablation_b.iter().find(|p| p.ablation.is_full()) {
         Some(p) if crate::record::is_restored(&p.run) => {

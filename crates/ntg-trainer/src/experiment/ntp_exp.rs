@@ -691,6 +691,86 @@ fn run_point(
     }))
 }
 
+/// The index in `points` of each curve's point with the most training
+/// tasks (a curve: method, recipe, input and seed; the whole model only),
+/// in the order the curves first appear.
+pub(crate) fn largest_of_each_curve(points: &[NtpExpPoint]) -> Vec<usize> {
+    let mut largest: Vec<usize> = Vec::new();
+    for (i, p) in points
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| p.ablation.is_full())
+    {
+        let curve = |q: &NtpExpPoint| (q.method, q.recipe, q.obs, q.seed);
+        match largest.iter().position(|&j| curve(&points[j]) == curve(p)) {
+            Some(k) if points[largest[k]].train_tasks < p.train_tasks => largest[k] = i,
+            Some(_) => {}
+            None => largest.push(i),
+        }
+    }
+    largest
+}
+
+/// Training tasks from which a baseline's largest point is also scored on
+/// its own training tasks ([`evaluate_seen`]): the paper's largest, where
+/// issue 16 compares the baselines with the paper's values.
+pub const SEEN_CHECK_TRAIN_TASKS: usize = 1000;
+
+/// Training tasks scored by [`evaluate_seen`] (at most the run's own).
+pub const SEEN_CHECK_TASKS: usize = 200;
+
+/// Scores each baseline curve's largest point (every seed) with at least
+/// `min_train_tasks` training tasks on [`SEEN_CHECK_TASKS`] of its own
+/// training tasks, with demos and scenes it never trained on (`ntg eval
+/// --split seen`, cached in `eval/seen-METHOD-N.json` and added to the
+/// run's record), unless it has such a score: whether a baseline far below
+/// the paper does what it was trained on. A run restored from its record
+/// without that evaluation has no weights and is left out.
+pub fn evaluate_seen(
+    points: &mut [NtpExpPoint],
+    plan: &Plan<'_>,
+    min_train_tasks: usize,
+) -> anyhow::Result<()> {
+    for i in largest_of_each_curve(points) {
+        let p = &points[i];
+        if p.method.is_ntg() || p.train_tasks < min_train_tasks || p.seen.is_some() {
+            continue;
+        }
+        if crate::record::is_restored(&p.run) {
+            eprintln!(
+                "seen tasks [{}]: not in its record, and it has no weights: left out",
+                p.run.display()
+            );
+            continue;
+        }
+        let n = SEEN_CHECK_TASKS.min(p.train_tasks);
+        let run = RunDir::open(&p.run)?;
+        let flags = crate::domain::EvalFlags {
+            device: crate::spec::DeviceKind::Cpu,
+            run: p.run.clone(),
+            test_tasks: n,
+            variant: Variant::Full,
+            edge_threshold: None,
+            split: crate::domain::EvalSplit::Seen,
+        };
+        let file = format!("seen-{}-{n}.json", p.method.name());
+        let result: blocks::EvalResult = run.cached_eval(&file, || {
+            blocks::evaluate_run(&run, &flags).map(|(_, result)| result)
+        })?;
+        plan.finish(&p.run)?;
+        eprintln!(
+            "seen tasks [{}]: success {:.3} ({:.3}-{:.3}) on {n} of its training tasks (unseen: {:.3})",
+            p.run.display(),
+            result.success.rate,
+            result.success.ci_low,
+            result.success.ci_high,
+            p.success.rate
+        );
+        points[i].seen = Some(result.success);
+    }
+    Ok(())
+}
+
 /// The score of `run`'s detector on held-out frames, where it has one.
 fn detector_held_out(
     run: &RunDir,
@@ -1403,6 +1483,19 @@ mod tests {
         assert_eq!(
             run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 2)).unwrap(),
             points
+        );
+        // The seen-task check scores it on its own training tasks (at most
+        // as many as it has), once.
+        let mut checked = points.clone();
+        evaluate_seen(&mut checked, &Plan::train_all(&runs, 1), 3).unwrap();
+        assert_eq!(checked, points, "below the threshold: nothing scored");
+        evaluate_seen(&mut checked, &Plan::train_all(&runs, 1), 2).unwrap();
+        assert_eq!(checked[0].seen.unwrap().trials, 2);
+        assert!(p.run.join("eval").join("seen-ntp-2.json").is_file());
+        assert_eq!(
+            run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap(),
+            checked,
+            "the point reads its seen score back"
         );
         // Methods the figure has not are refused before anything runs:
         // the Flat Policy, NTP (Detector) on states.

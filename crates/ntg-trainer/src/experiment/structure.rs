@@ -55,19 +55,9 @@ fn is_zero(seed: &u64) -> bool {
 /// record holds that evaluation; the evaluations made here are added to
 /// the runs' records (`plan`).
 pub fn run(points: &[NtpExpPoint], plan: &Plan<'_>) -> anyhow::Result<Vec<StructurePoint>> {
-    let mut largest: Vec<&NtpExpPoint> = Vec::new();
-    for p in points.iter().filter(|p| p.ablation.is_full()) {
-        let same = |q: &&NtpExpPoint| {
-            (q.method, q.recipe, q.obs, q.seed) == (p.method, p.recipe, p.obs, p.seed)
-        };
-        match largest.iter().position(same) {
-            Some(i) if largest[i].train_tasks < p.train_tasks => largest[i] = p,
-            Some(_) => {}
-            None => largest.push(p),
-        }
-    }
+    let largest = crate::experiment::ntp_exp::largest_of_each_curve(points);
     let mut scored = Vec::new();
-    for p in largest {
+    for p in largest.into_iter().map(|i| &points[i]) {
         let run = RunDir::open(&p.run)?;
         let n = p.success.trials;
         let flags = EvalFlags {
