@@ -284,6 +284,21 @@ pub struct EvalFlags {
     pub split: EvalSplit,
 }
 
+impl EvalFlags {
+    /// `ntg eval --run RUN --test-tasks N --split SPLIT` with every other
+    /// flag at its default (the whole model, on the CPU).
+    pub fn of_run(run: &std::path::Path, test_tasks: usize, split: EvalSplit) -> EvalFlags {
+        EvalFlags {
+            device: crate::spec::DeviceKind::Cpu,
+            run: run.to_path_buf(),
+            test_tasks,
+            variant: Variant::Full,
+            edge_threshold: None,
+            split,
+        }
+    }
+}
+
 /// Task sets `ntg eval` can use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum EvalSplit {

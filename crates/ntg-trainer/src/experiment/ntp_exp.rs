@@ -745,14 +745,7 @@ pub fn evaluate_seen(
         }
         let n = SEEN_CHECK_TASKS.min(p.train_tasks);
         let run = RunDir::open(&p.run)?;
-        let flags = crate::domain::EvalFlags {
-            device: crate::spec::DeviceKind::Cpu,
-            run: p.run.clone(),
-            test_tasks: n,
-            variant: Variant::Full,
-            edge_threshold: None,
-            split: crate::domain::EvalSplit::Seen,
-        };
+        let flags = crate::domain::EvalFlags::of_run(&p.run, n, crate::domain::EvalSplit::Seen);
         let file = format!("seen-{}-{n}.json", p.method.name());
         let result: blocks::EvalResult = run.cached_eval(&file, || {
             blocks::evaluate_run(&run, &flags).map(|(_, result)| result)

@@ -60,14 +60,7 @@ pub fn run(points: &[NtpExpPoint], plan: &Plan<'_>) -> anyhow::Result<Vec<Struct
     for p in largest.into_iter().map(|i| &points[i]) {
         let run = RunDir::open(&p.run)?;
         let n = p.success.trials;
-        let flags = EvalFlags {
-            device: crate::spec::DeviceKind::Cpu,
-            run: p.run.clone(),
-            test_tasks: n,
-            variant: crate::method::ntg::Variant::Full,
-            edge_threshold: None,
-            split: EvalSplit::Structure,
-        };
+        let flags = EvalFlags::of_run(&p.run, n, EvalSplit::Structure);
         let who = if p.method.is_ntg() {
             "full"
         } else {
