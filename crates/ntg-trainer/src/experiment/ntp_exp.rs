@@ -736,21 +736,10 @@ pub fn evaluate_seen(
         if p.method.is_ntg() || p.train_tasks < min_train_tasks || p.seen.is_some() {
             continue;
         }
-        if crate::record::is_restored(&p.run) {
-            eprintln!(
-                "seen tasks [{}]: not in its record, and it has no weights: left out",
-                p.run.display()
-            );
-            continue;
-        }
         let n = SEEN_CHECK_TASKS.min(p.train_tasks);
-        let run = RunDir::open(&p.run)?;
-        let flags = crate::domain::EvalFlags::of_run(&p.run, n, crate::domain::EvalSplit::Seen);
-        let file = format!("seen-{}-{n}.json", p.method.name());
-        let result: blocks::EvalResult = run.cached_eval(&file, || {
-            blocks::evaluate_run(&run, &flags).map(|(_, result)| result)
-        })?;
-        plan.finish(&p.run)?;
+        let Some(result) = evaluate_point(p, crate::domain::EvalSplit::Seen, n, plan)? else {
+            continue;
+        };
         eprintln!(
             "seen tasks [{}]: success {:.3} ({:.3}-{:.3}) on {n} of its training tasks (unseen: {:.3})",
             p.run.display(),
@@ -762,6 +751,44 @@ pub fn evaluate_seen(
         points[i].seen = Some(result.success);
     }
     Ok(())
+}
+
+/// Scores `p`'s run on `n` tasks of `split` (what `ntg eval --split`
+/// computes), cached in `eval/{split}-{full|METHOD}-{n}.json` and added to
+/// the run's record; `None` for a run restored from its record without
+/// that evaluation (it has no weights), saying so.
+pub(crate) fn evaluate_point(
+    p: &NtpExpPoint,
+    split: crate::domain::EvalSplit,
+    n: usize,
+    plan: &Plan<'_>,
+) -> anyhow::Result<Option<blocks::EvalResult>> {
+    let run = RunDir::open(&p.run)?;
+    let who = if p.method.is_ntg() {
+        "full"
+    } else {
+        p.method.name()
+    };
+    let name = match split {
+        crate::domain::EvalSplit::Test => "test",
+        crate::domain::EvalSplit::Validation => "validation",
+        crate::domain::EvalSplit::Seen => "seen",
+        crate::domain::EvalSplit::Structure => "structure",
+    };
+    let file = format!("{name}-{who}-{n}.json");
+    if crate::record::is_restored(&p.run) && !run.eval_dir().join(&file).is_file() {
+        eprintln!(
+            "{name} split [{}]: not in its record, and it has no weights: left out",
+            p.run.display()
+        );
+        return Ok(None);
+    }
+    let flags = crate::domain::EvalFlags::of_run(&p.run, n, split);
+    let result = run.cached_eval(&file, || {
+        blocks::evaluate_run(&run, &flags).map(|(_, result)| result)
+    })?;
+    plan.finish(&p.run)?;
+    Ok(Some(result))
 }
 
 /// The score of `run`'s detector on held-out frames, where it has one.

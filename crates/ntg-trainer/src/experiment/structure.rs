@@ -9,12 +9,11 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
-use crate::blocks::{EvalResult, Recipe};
-use crate::domain::{EvalFlags, EvalSplit};
+use crate::blocks::Recipe;
+use crate::domain::EvalSplit;
 use crate::experiment::Plan;
 use crate::experiment::ntp_exp::{NtpExpPoint, curve_name};
 use crate::method::MethodId;
-use crate::run_dir::RunDir;
 use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
 
@@ -58,26 +57,12 @@ pub fn run(points: &[NtpExpPoint], plan: &Plan<'_>) -> anyhow::Result<Vec<Struct
     let largest = crate::experiment::ntp_exp::largest_of_each_curve(points);
     let mut scored = Vec::new();
     for p in largest.into_iter().map(|i| &points[i]) {
-        let run = RunDir::open(&p.run)?;
         let n = p.success.trials;
-        let flags = EvalFlags::of_run(&p.run, n, EvalSplit::Structure);
-        let who = if p.method.is_ntg() {
-            "full"
-        } else {
-            p.method.name()
-        };
-        let file = format!("structure-{who}-{n}.json");
-        if crate::record::is_restored(&p.run) && !run.eval_dir().join(&file).is_file() {
-            eprintln!(
-                "structure split [{}]: not in its record, and it has no weights: left out",
-                p.run.display()
-            );
+        let Some(result) =
+            crate::experiment::ntp_exp::evaluate_point(p, EvalSplit::Structure, n, plan)?
+        else {
             continue;
-        }
-        let result: EvalResult = run.cached_eval(&file, || {
-            crate::blocks::evaluate_run(&run, &flags).map(|(_, result)| result)
-        })?;
-        plan.finish(&p.run)?;
+        };
         eprintln!(
             "structure split [{}]: success {:.3} ({:.3}-{:.3}) on {n} tasks (standard test tasks: {:.3})",
             p.run.display(),
