@@ -134,6 +134,22 @@ impl ActionDistribution {
         ActionId::new(best)
     }
 
+    /// The most probable action, an exact tie between several broken by
+    /// `uniform`, a number in `[0, 1)` drawn by the caller: of the `k` tied
+    /// actions (in id order) the `⌊uniform·k⌋`-th. Where a policy has a
+    /// constant term (an ablated edge classifier is uniform over a node's
+    /// successors) ties are the rule, and [`ActionDistribution::most_likely`]
+    /// would always take the lowest id: an artefact of how the vocabulary is
+    /// numbered, not a choice of the policy.
+    pub fn most_likely_breaking_ties(&self, uniform: f64) -> ActionId {
+        let best = self.probabilities[self.most_likely().index()];
+        let tied: Vec<usize> = (0..self.probabilities.len())
+            .filter(|&i| self.probabilities[i] == best)
+            .collect();
+        let k = ((uniform.clamp(0.0, 1.0) * tied.len() as f64) as usize).min(tied.len() - 1);
+        ActionId::new(tied[k])
+    }
+
     /// Samples an action given `uniform`, a number in `[0, 1)` drawn by the
     /// caller (this crate has no random number generator).
     pub fn sample(&self, uniform: f64) -> ActionId {
@@ -436,6 +452,31 @@ mod tests {
             .unwrap();
         assert_eq!(argmax.probability(b), 0.5);
         assert_eq!(argmax.probability(Vocabulary::END), 0.0);
+    }
+
+    /// At `a` a uniform edge scorer ties `b` and `c`: the greedy choice
+    /// always takes the lower id, the tie-breaking one takes each for half
+    /// of `[0, 1)`; an untied distribution ignores the number.
+    #[test]
+    fn exact_ties_are_broken_by_the_callers_number() {
+        let (v, g) = setup();
+        let (a, b, c) = (v.id("a").unwrap(), v.id("b").unwrap(), v.id("c").unwrap());
+        let exec = GraphExecutor::new(g);
+        let mut at_a = OracleNodeScorer(|_: &()| a);
+        let tied = exec
+            .action_distribution(&mut at_a, &mut UniformEdgeScorer, &())
+            .unwrap();
+        assert_eq!(tied.most_likely(), b.min(c));
+        let picks: Vec<ActionId> = [0.0, 0.25, 0.49, 0.5, 0.75, 0.999, 1.0]
+            .iter()
+            .map(|&u| tied.most_likely_breaking_ties(u))
+            .collect();
+        assert_eq!(picks, [b, b, b, c, c, c, c]);
+        let mut to_c = OracleEdgeScorer(|_: &()| c);
+        let sure = exec.action_distribution(&mut at_a, &mut to_c, &()).unwrap();
+        for u in [0.0, 0.5, 0.99] {
+            assert_eq!(sure.most_likely_breaking_ties(u), c);
+        }
     }
 
     #[test]

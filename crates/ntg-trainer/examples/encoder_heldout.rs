@@ -252,6 +252,7 @@ fn decisions(run: &str, tasks: usize) -> anyhow::Result<()> {
                 seed + EPISODE_SEED_OFFSET,
             )?;
             let keyframes = episode.keyframes();
+            let mut ties = ntg_trainer::method::Ties::for_episode(seed + EPISODE_SEED_OFFSET);
             let actions = episode.actions();
             for (s, row) in keyframes.observations().iter().enumerate() {
                 let expected = actions
@@ -261,7 +262,7 @@ fn decisions(run: &str, tasks: usize) -> anyhow::Result<()> {
                 let name = |a: ctg_graph::ActionId| vocab.name(a).unwrap_or("?").to_owned();
                 let done: Vec<String> = actions[..s].iter().map(|&a| name(a)).collect();
                 let case = situation(&done, &name(expected));
-                let chosen = agent.act(row, &actions[..s])?;
+                let chosen = agent.act(row, &actions[..s], &mut ties)?;
                 let order_free = matches!(case, "first action" | "next pick after a drop");
                 let right = chosen == expected
                     || (order_free && valid_picks(task, &done).contains(&name(chosen)));

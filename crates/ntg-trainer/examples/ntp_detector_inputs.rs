@@ -76,6 +76,7 @@ fn main() -> anyhow::Result<()> {
             for (o, slot) in outcome[d].iter_mut().enumerate() {
                 let agent = TrainedPolicy::condition(&model.ntp, demo_rows, domain.vocabulary())?;
                 let (mut observation, _) = env.reset(seeds.rollout + i as u64)?;
+                let mut ties = ntg_trainer::method::Ties::for_episode(seeds.rollout + i as u64);
                 let mut taken = Vec::new();
                 loop {
                     let truth = observation.state().to_vec();
@@ -90,7 +91,7 @@ fn main() -> anyhow::Result<()> {
                     } else {
                         truth
                     };
-                    let action = agent.act(&row, &taken)?;
+                    let action = agent.act(&row, &taken, &mut ties)?;
                     taken.push(action);
                     let step = env.step(action)?;
                     let done = step.is_done();

@@ -155,7 +155,10 @@ pub fn trace_task(
         .with_context(|| format!("creating {}", frames_dir.display()))?;
     let mut frames = Vec::new();
     let mut steps = Vec::new();
-    let (mut observation, _) = env.reset(ROLLOUT_SEED_BASE + index as u64)?;
+    let rollout_seed = ROLLOUT_SEED_BASE + index as u64;
+    let (mut observation, _) = env.reset(rollout_seed)?;
+    // The same tie-breaking as the evaluation's episode.
+    let mut ties = crate::method::Ties::for_episode(rollout_seed);
     let (success, truncated) = loop {
         let row = featurize(&observation, obs);
         let mapped = policy.mapped(|o: &BlocksObservation| featurize(o, obs));
@@ -164,7 +167,7 @@ pub fn trace_task(
         let node_p = policy.node_probabilities(&row)?;
         let edge_p = policy.edge_probabilities_for(policy.graph(), &row)?;
         let node = dist.localized_node();
-        let action = dist.most_likely();
+        let action = dist.most_likely_breaking_ties(ties.draw());
         let frame = observation
             .frame()
             .context("the environment returned no frame with rendering on")?

@@ -578,10 +578,11 @@ pub fn run_episode_observed<D: Domain>(
         .with_context(|| format!("demo of task {name}"))?;
     let agent = model.condition(&rows, domain.vocabulary())?;
     let (mut observation, _) = env.reset(episode.rollout_seed)?;
+    let mut ties = crate::method::Ties::for_episode(episode.rollout_seed);
     let mut trace = Vec::new();
     loop {
         let action = agent
-            .act(&domain.featurize(&observation), &trace)
+            .act(&domain.featurize(&observation), &trace, &mut ties)
             .with_context(|| format!("rollout of task {name}"))?;
         trace.push(action);
         let step = env.step(action)?;

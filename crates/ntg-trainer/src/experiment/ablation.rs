@@ -248,7 +248,7 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
     }
     let _ = writeln!(
         s,
-        "\nEach variant is trained as the variant (the missing part's loss trains nothing; without the GCN the edge classifier learns on the GCN's task-independent initial node embeddings, the ones it gets when it acts) and selected on validation tasks like the whole model. Without the demo interpreter the task graph starts fully connected; without the node localizer or the edge classifier its term of the policy is a constant (uniform over nodes, over the node's successors). {recipe_note}\n\nThe paper's trend (its fig. 5(a), no numbers in the text), checked on these runs:\n"
+        "\nEach variant is trained as the variant (the missing part's loss trains nothing; without the GCN the edge classifier learns on the GCN's task-independent initial node embeddings, the ones it gets when it acts) and selected on validation tasks like the whole model. Without the demo interpreter the task graph starts fully connected; without the node localizer or the edge classifier its term of the policy is a constant (uniform over nodes, over the node's successors), and the greedy policy breaks the exact ties that leaves between actions at random, seeded by the episode (taking the lowest action id instead, as before 2026-11-29, loops: a pick's successors include the pick itself, the retry of a slipped grasp). {recipe_note}\n\nThe paper's trend (its fig. 5(a), no numbers in the text), checked on these runs:\n"
     );
     for line in trend_checks(points) {
         let _ = writeln!(s, "- {line}");

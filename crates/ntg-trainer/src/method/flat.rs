@@ -209,7 +209,12 @@ struct FlatAgent {
 }
 
 impl Agent for FlatAgent {
-    fn act(&self, row: &[f32], executed: &[ActionId]) -> anyhow::Result<ActionId> {
+    fn act(
+        &self,
+        row: &[f32],
+        executed: &[ActionId],
+        _: &mut crate::method::Ties,
+    ) -> anyhow::Result<ActionId> {
         let m = self
             .memory
             .then(|| executed_actions(self.num_nodes, executed));

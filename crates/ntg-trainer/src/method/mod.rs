@@ -57,13 +57,37 @@ pub trait TrainedPolicy: Send + Sync {
 /// A trained model of any method.
 pub type Model = Box<dyn TrainedPolicy>;
 
+/// The numbers that break exact ties between equally probable actions in
+/// one episode: a generator seeded from the episode's rollout seed, so an
+/// episode replays exactly. Only a policy with a constant term ties (NTG
+/// without its edge classifier is uniform over a node's successors); the
+/// others never draw.
+pub struct Ties(rand_chacha::ChaCha8Rng);
+
+impl Ties {
+    /// The tie-breaker of the episode rolled out from `rollout_seed`.
+    pub fn for_episode(rollout_seed: u64) -> Self {
+        use rand::SeedableRng;
+        Self(rand_chacha::ChaCha8Rng::seed_from_u64(
+            rollout_seed ^ 0x7135_B2EA_C0DE,
+        ))
+    }
+
+    /// The next number in `[0, 1)`.
+    pub fn draw(&mut self) -> f64 {
+        use rand::Rng;
+        self.0.random()
+    }
+}
+
 /// A model conditioned on one demonstration: a reactive policy over
 /// observation rows, the same for every domain.
 pub trait Agent {
     /// The greedy next action for the observation row `row`, the agent
     /// having taken `executed` so far in the episode (read only by policies
-    /// with an execution memory).
-    fn act(&self, row: &[f32], executed: &[ActionId]) -> anyhow::Result<ActionId>;
+    /// with an execution memory); an exact tie between the most probable
+    /// actions is broken with a number from `ties`.
+    fn act(&self, row: &[f32], executed: &[ActionId], ties: &mut Ties) -> anyhow::Result<ActionId>;
     /// What the method read from the demo as its action sequence (NTG's
     /// demo interpreter), if anything.
     fn transcription(&self) -> &[ActionId] {

@@ -739,9 +739,16 @@ impl TrainedPolicy for NtgModel {
 
 /// NTG's agent: the graph executor over the demo's completed task graph.
 impl Agent for NtgPolicy {
-    fn act(&self, row: &[f32], executed: &[ActionId]) -> anyhow::Result<ActionId> {
+    fn act(
+        &self,
+        row: &[f32],
+        executed: &[ActionId],
+        ties: &mut crate::method::Ties,
+    ) -> anyhow::Result<ActionId> {
         self.set_executed(executed);
-        Ok(self.action_distribution(row)?.most_likely())
+        Ok(self
+            .action_distribution(row)?
+            .most_likely_breaking_ties(ties.draw()))
     }
     fn transcription(&self) -> &[ActionId] {
         self.demo_actions()

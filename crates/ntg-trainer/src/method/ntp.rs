@@ -648,7 +648,12 @@ struct NtpAgent {
 }
 
 impl Agent for NtpAgent {
-    fn act(&self, row: &[f32], _: &[ActionId]) -> anyhow::Result<ActionId> {
+    fn act(
+        &self,
+        row: &[f32],
+        _: &[ActionId],
+        _: &mut crate::method::Ties,
+    ) -> anyhow::Result<ActionId> {
         let step = self.stack.borrow_mut().step(&self.core, row)?;
         Ok(match step {
             StackStep::Act { program, argument } => self

@@ -118,12 +118,17 @@ struct DetectorAgent {
 }
 
 impl Agent for DetectorAgent {
-    fn act(&self, row: &[f32], executed: &[ActionId]) -> anyhow::Result<ActionId> {
+    fn act(
+        &self,
+        row: &[f32],
+        executed: &[ActionId],
+        ties: &mut crate::method::Ties,
+    ) -> anyhow::Result<ActionId> {
         let estimated = self
             .detector
             .predict_rows(&[row])
             .context("the detector on an observed frame")?;
-        self.agent.act(&estimated[0], executed)
+        self.agent.act(&estimated[0], executed, ties)
     }
     fn explain(&self) -> Option<String> {
         self.agent.explain()

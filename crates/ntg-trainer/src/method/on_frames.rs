@@ -188,9 +188,14 @@ pub struct FramesAgent {
 }
 
 impl Agent for FramesAgent {
-    fn act(&self, row: &[f32], executed: &[ActionId]) -> anyhow::Result<ActionId> {
+    fn act(
+        &self,
+        row: &[f32],
+        executed: &[ActionId],
+        ties: &mut crate::method::Ties,
+    ) -> anyhow::Result<ActionId> {
         let embedded = encode_rows(&self.frames, &[row.to_vec()])?;
-        self.agent.act(&embedded[0], executed)
+        self.agent.act(&embedded[0], executed, ties)
     }
     fn transcription(&self) -> &[ActionId] {
         self.agent.transcription()
