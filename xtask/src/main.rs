@@ -43,7 +43,7 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Task {
     /// Regenerate the paper's figures, their numbers (results.json) and the
-    /// report under docs/figures/<profile>/ (paper: docs/figures/).
+    /// report under `docs/figures/<profile>/` (paper: `docs/figures/`).
     ReproduceFigures {
         /// How much compute to spend.
         #[arg(long, value_enum, default_value_t = Profile::Quick)]

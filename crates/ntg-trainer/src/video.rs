@@ -616,7 +616,8 @@ pub fn embedding_dataset(
     Ok(dataset)
 }
 
-/// Everything [`train_stages`] needs from the domain.
+/// Everything the video stages ([`train_encoder`], [`embeddings`]) need
+/// from the domain.
 pub struct VideoRun<'a> {
     /// The domain's vocabulary.
     pub vocabulary: &'a Vocabulary,

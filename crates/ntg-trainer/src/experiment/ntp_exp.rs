@@ -94,7 +94,7 @@ pub struct PanelScale {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub recipe: Option<Recipe>,
     /// The detector's settings of the panel's NTP (Detector) runs, over
-    /// [`DetectorSettings::default`].
+    /// [`DetectorSettings::default`](crate::method::detector::DetectorSettings::default).
     #[serde(default)]
     pub detector: toml::Table,
     /// NTG trained whole and without each of these parts at every point
