@@ -23,6 +23,7 @@
 //! error, not a silent restart.
 
 use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, bail};
 use burn::module::Module;
@@ -35,6 +36,78 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::run_dir::{RunDir, drop_lines_from_epoch, recover_dir, replace_dir};
+
+/// Jobs of [`crate::experiment`]'s runner training or evaluating in this
+/// process now, and how many have started: an epoch's process CPU time is
+/// its run's own only if no other job ran at any moment of it.
+static JOBS_RUNNING: AtomicUsize = AtomicUsize::new(0);
+static JOBS_STARTED: AtomicUsize = AtomicUsize::new(0);
+
+/// One job of the experiment runner, counted while it lives (see
+/// [`JOBS_RUNNING`]).
+pub(crate) struct RunningJob(());
+
+impl RunningJob {
+    /// Counts a job starting now.
+    pub(crate) fn start() -> Self {
+        JOBS_STARTED.fetch_add(1, Ordering::SeqCst);
+        JOBS_RUNNING.fetch_add(1, Ordering::SeqCst);
+        RunningJob(())
+    }
+}
+
+impl Drop for RunningJob {
+    fn drop(&mut self) {
+        JOBS_RUNNING.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// Ticks per second of the times in `/proc/PID/stat` (the kernel's fixed
+/// user-space `USER_HZ`).
+const PROC_TICKS_PER_SECOND: f64 = 100.0;
+
+/// The CPU time this process has used (user and system, every thread), in
+/// ticks of 1/100 s, from `/proc/self/stat`. `None` off Linux or if it
+/// cannot be read.
+fn process_cpu_ticks() -> Option<u64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    cpu_ticks_of_stat(&stat)
+}
+
+/// `utime + stime` of a `/proc/PID/stat` line, in ticks. The command name
+/// (field 2, in parentheses) may hold spaces: fields are counted from after
+/// its closing parenthesis (field 3 first).
+fn cpu_ticks_of_stat(stat: &str) -> Option<u64> {
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i)?.parse::<u64>().ok();
+    // Fields 14 and 15 of proc(5): utime, stime.
+    Some(ticks(11)? + ticks(12)?)
+}
+
+/// Measures an epoch's CPU time when it is its run's alone.
+struct EpochCpuClock(Option<(u64, usize)>);
+
+impl EpochCpuClock {
+    fn start() -> Self {
+        let alone = JOBS_RUNNING.load(Ordering::SeqCst) <= 1;
+        EpochCpuClock(
+            alone
+                .then(|| Some((process_cpu_ticks()?, JOBS_STARTED.load(Ordering::SeqCst))))
+                .flatten(),
+        )
+    }
+
+    /// The process's CPU seconds since `start`, or `None` if another job
+    /// of this process ran meanwhile (or the time cannot be read).
+    fn seconds(&self) -> Option<f64> {
+        let (ticks, started) = self.0?;
+        let alone = JOBS_RUNNING.load(Ordering::SeqCst) <= 1
+            && JOBS_STARTED.load(Ordering::SeqCst) == started;
+        let spent = process_cpu_ticks()?.checked_sub(ticks)?;
+        alone.then_some(spent as f64 / PROC_TICKS_PER_SECOND)
+    }
+}
 
 /// The paper's Adam learning rate (block stacking's [`Recipe::Paper`], and
 /// the default of the other domains' `ntg train`).
@@ -339,6 +412,7 @@ where
     let total_steps = steps_per_epoch * optim.epochs;
     for epoch in start..optim.epochs {
         let started = std::time::Instant::now();
+        let cpu_clock = EpochCpuClock::start();
         let mut rng = epoch_rng(optim.seed, epoch);
         let mut order: Vec<usize> = (0..num_examples).collect();
         order.shuffle(&mut rng);
@@ -360,6 +434,7 @@ where
             bail!("training diverged at epoch {epoch} (loss {loss})");
         }
         let metrics = step.epoch_metrics(epoch, &means, &edges, started.elapsed().as_secs_f32());
+        let cpu_seconds = cpu_clock.seconds();
         let validate_now =
             |every: usize| (epoch + 1) % every.max(1) == 0 || epoch + 1 == optim.epochs;
         let mut validation = None;
@@ -387,7 +462,7 @@ where
         }
         // Log, then checkpoint: a run killed in between redoes the epoch
         // and drops its lines first.
-        run.append_metrics(&metrics)?;
+        run.append_metrics(&with_cpu_seconds(&metrics, cpu_seconds)?)?;
         if let Some(record) = validation {
             RunDir::append_jsonl(&run.validation_path(), &record)?;
         }
@@ -414,6 +489,21 @@ where
         });
     }
     Ok(model)
+}
+
+/// `metrics` as its `metrics.jsonl` line: with `cpu_seconds` (the
+/// process's CPU time over the epoch's steps, every thread, where the run
+/// had the process to itself) beside the method's own fields, whose
+/// `seconds` is wall time.
+fn with_cpu_seconds(
+    metrics: &impl Serialize,
+    cpu_seconds: Option<f64>,
+) -> anyhow::Result<serde_json::Value> {
+    let mut line = serde_json::to_value(metrics)?;
+    if let (Some(cpu), Some(fields)) = (cpu_seconds, line.as_object_mut()) {
+        fields.insert("cpu_seconds".into(), serde_json::json!(cpu));
+    }
+    Ok(line)
 }
 
 /// One step's gradients, values and edge counts on `batch`: on the calling
@@ -591,6 +681,46 @@ mod tests {
             // The same shard count gives the same bits.
             assert_eq!(run(shards).0, sharded);
         }
+    }
+
+    /// utime 1234 and stime 66 ticks: 13 s, counted after the command
+    /// name however many spaces and parentheses it holds.
+    #[test]
+    fn cpu_time_is_read_after_the_command_name() {
+        let stat = "4242 (ntg (x) y) R 1 4242 4242 0 -1 4194304 100 0 0 0 1234 66 0 0 20 0 3 0";
+        assert_eq!(cpu_ticks_of_stat(stat), Some(1300));
+        assert_eq!(cpu_ticks_of_stat("4242 (ntg) R 1"), None);
+        assert_eq!(cpu_ticks_of_stat("garbage"), None);
+        if cfg!(target_os = "linux") {
+            assert!(process_cpu_ticks().is_some(), "/proc/self/stat on Linux");
+        }
+    }
+
+    /// The CPU time joins the method's fields; without it the line is the
+    /// method's alone. An epoch during which another job ran has none.
+    #[test]
+    fn a_metrics_line_gets_the_cpu_time_where_there_is_one() {
+        #[derive(Serialize)]
+        struct Line {
+            epoch: usize,
+            seconds: f32,
+        }
+        let line = Line {
+            epoch: 3,
+            seconds: 2.5,
+        };
+        assert_eq!(
+            with_cpu_seconds(&line, Some(1.25)).unwrap(),
+            serde_json::json!({"epoch": 3, "seconds": 2.5, "cpu_seconds": 1.25})
+        );
+        assert_eq!(
+            with_cpu_seconds(&line, None).unwrap(),
+            serde_json::json!({"epoch": 3, "seconds": 2.5})
+        );
+        let clock = EpochCpuClock(Some((0, JOBS_STARTED.load(Ordering::SeqCst))));
+        let other = RunningJob::start();
+        assert_eq!(clock.seconds(), None);
+        drop(other);
     }
 
     #[test]

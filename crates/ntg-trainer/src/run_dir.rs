@@ -5,7 +5,11 @@
 //! runs/NAME/
 //!   config.json      the run's configuration (written once, checked on resume)
 //!   dataset/         the demonstration cache (see `dataset`)
-//!   metrics.jsonl    one JSON object per line, appended as training goes
+//!   metrics.jsonl    one JSON object per epoch, appended as training goes:
+//!                    the method's fields, `seconds` (wall time of the
+//!                    epoch's steps) and, where the run had its process to
+//!                    itself (Linux), `cpu_seconds` (the process's CPU time
+//!                    over those steps, every thread)
 //!   checkpoint/      latest weights, optimiser state and progress
 //!   validation.jsonl per epoch, the score on the validation tasks (if any)
 //!   best/            the weights of the epoch that scored best on them,

@@ -50,7 +50,9 @@ fn metrics_without_time(run: &RunDir) -> Vec<serde_json::Value> {
         .lines()
         .map(|l| {
             let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
-            v.as_object_mut().unwrap().remove("seconds");
+            let fields = v.as_object_mut().unwrap();
+            fields.remove("seconds");
+            fields.remove("cpu_seconds");
             v
         })
         .collect()

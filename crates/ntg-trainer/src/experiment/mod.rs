@@ -350,7 +350,10 @@ pub(crate) fn in_parallel<T: Send>(
                     let next = queue.lock().unwrap_or_else(|e| e.into_inner()).next();
                     let Some((index, job)) = next else { break };
                     let result = match &pool {
-                        Ok(pool) => pool.install(job),
+                        Ok(pool) => {
+                            let _running = crate::fit::RunningJob::start();
+                            pool.install(job)
+                        }
                         Err(e) => Err(anyhow::anyhow!("could not start a run's threads: {e}")),
                     };
                     if result.is_err() {
