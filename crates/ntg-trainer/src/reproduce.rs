@@ -253,19 +253,59 @@ fn weights_needed(what: &str, run: &Path) -> (String, String) {
 
 /// `(runs, core-hours)` of training epochs of the rollout figures' runs,
 /// each run once (a run linked into two figures has the same epoch times).
-fn training_compute(results: &Results) -> (usize, f64) {
-    let seconds = results
+/// The rollout figures' training compute: how many runs, their summed
+/// wall seconds of training epochs, and, over the runs whose every epoch
+/// recorded its CPU time (`RunDir::epoch_cpu_seconds`), how many, their
+/// CPU seconds and their wall seconds. A run reused by two figures (a
+/// link to the same folder's results) counts once: runs are told apart by
+/// their wall seconds.
+struct TrainingCompute {
+    runs: usize,
+    wall: f64,
+    with_cpu: usize,
+    cpu: f64,
+    wall_of_cpu_runs: f64,
+}
+
+fn training_compute(results: &Results) -> TrainingCompute {
+    let runs = results
         .ntp_exp
         .iter()
         .chain(&results.ablation)
-        .map(|p| p.train_seconds)
-        .chain(results.ablation_b.iter().map(|p| p.train_seconds))
-        .chain(results.thor_all.lines.iter().map(|l| l.train_seconds));
-    let mut unique: Vec<u64> = seconds.map(f64::to_bits).collect();
-    unique.sort_unstable();
-    unique.dedup();
-    let total: f64 = unique.iter().map(|&b| f64::from_bits(b)).sum();
-    (unique.len(), total / 3600.0)
+        .map(|p| (p.train_seconds, &p.run))
+        .chain(results.ablation_b.iter().map(|p| (p.train_seconds, &p.run)))
+        .chain(
+            results
+                .thor_all
+                .lines
+                .iter()
+                .map(|l| (l.train_seconds, &l.run)),
+        );
+    let mut unique: Vec<(u64, &std::path::PathBuf)> = runs
+        .map(|(seconds, run)| (seconds.to_bits(), run))
+        .collect();
+    unique.sort_unstable_by_key(|&(bits, _)| bits);
+    unique.dedup_by_key(|&mut (bits, _)| bits);
+    let mut compute = TrainingCompute {
+        runs: unique.len(),
+        wall: 0.0,
+        with_cpu: 0,
+        cpu: 0.0,
+        wall_of_cpu_runs: 0.0,
+    };
+    for (bits, run) in unique {
+        let wall = f64::from_bits(bits);
+        compute.wall += wall;
+        let cpu = RunDir::open(run)
+            .ok()
+            .and_then(|dir| dir.epoch_cpu_seconds().ok().flatten());
+        if let Some(cpu) = cpu {
+            compute.with_cpu += 1;
+            compute.cpu += cpu;
+            compute.wall_of_cpu_runs += wall;
+        }
+    }
+    compute
 }
 
 /// The report section that puts each run's outcome beside the same run's
@@ -303,10 +343,20 @@ fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
             "Measured on 2 CPU cores shared with other jobs."
         }
     );
-    let (runs, hours) = training_compute(results);
+    let compute = training_compute(results);
+    let cpu_note = match compute.with_cpu {
+        0 => String::new(),
+        n => format!(
+            " Wall time overstates compute where a run shared its cores: {n} of these runs recorded the CPU time of their epochs (`cpu_seconds`), {:.1} CPU core-hours against {:.1} hours of wall time for the same runs.",
+            compute.cpu / 3600.0,
+            compute.wall_of_cpu_runs / 3600.0
+        ),
+    };
     let _ = writeln!(
         s,
-        "**Compute.** The rollout figures' {runs} runs took {hours:.1} core-hours of training epochs (each run's own epoch times, summed; a run shared by two figures counted once; evaluation and fig. jigsaws not included).{}\n",
+        "**Compute.** The rollout figures' {} runs took {:.1} core-hours of training epochs (each run's own epoch times, summed; a run shared by two figures counted once; evaluation and fig. jigsaws not included).{cpu_note}{}\n",
+        compute.runs,
+        compute.wall / 3600.0,
         match results.runs_missing {
             0 => String::new(),
             n => format!(

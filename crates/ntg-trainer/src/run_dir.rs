@@ -244,6 +244,39 @@ impl RunDir {
         struct Seconds {
             seconds: f64,
         }
+        let mut total = 0.0;
+        for file in self.metrics_files()? {
+            let lines: Vec<Seconds> = read_jsonl(&file)?;
+            total += lines.iter().map(|l| l.seconds).sum::<f64>();
+        }
+        Ok(total)
+    }
+
+    /// The CPU seconds of the run's training epochs (every stage's
+    /// `metrics.jsonl`, as [`RunDir::epoch_seconds`]), if every epoch line
+    /// recorded them (`cpu_seconds`, see [`crate::fit`]); `None` if any
+    /// did not, or there are none.
+    pub fn epoch_cpu_seconds(&self) -> anyhow::Result<Option<f64>> {
+        #[derive(serde::Deserialize)]
+        struct Cpu {
+            cpu_seconds: Option<f64>,
+        }
+        let mut total = 0.0;
+        let mut lines = 0;
+        for file in self.metrics_files()? {
+            for line in read_jsonl::<Cpu>(&file)? {
+                let Some(cpu) = line.cpu_seconds else {
+                    return Ok(None);
+                };
+                total += cpu;
+                lines += 1;
+            }
+        }
+        Ok((lines > 0).then_some(total))
+    }
+
+    /// The run's `metrics.jsonl` and those of its stages (subfolders).
+    fn metrics_files(&self) -> anyhow::Result<Vec<PathBuf>> {
         let mut files = vec![self.metrics_path()];
         let entries = std::fs::read_dir(&self.root)
             .with_context(|| format!("reading {}", self.root.display()))?;
@@ -253,12 +286,7 @@ impl RunDir {
                 files.push(stage);
             }
         }
-        let mut total = 0.0;
-        for file in files {
-            let lines: Vec<Seconds> = read_jsonl(&file)?;
-            total += lines.iter().map(|l| l.seconds).sum::<f64>();
-        }
-        Ok(total)
+        Ok(files)
     }
 
     /// Takes the run's writer lock (`train.lock`, holding this process's
@@ -663,6 +691,22 @@ mod tests {
         );
         std::fs::write(run.metrics_path(), "{\"seconds\": 1.5}\n{\"seconds\": 2}\n").unwrap();
         assert_eq!(run.epoch_seconds().unwrap(), 3.5);
+        // CPU time only where every epoch, of every stage, recorded it.
+        assert_eq!(run.epoch_cpu_seconds().unwrap(), None);
+        std::fs::write(
+            run.metrics_path(),
+            "{\"seconds\": 1.5, \"cpu_seconds\": 1.25}\n{\"seconds\": 2, \"cpu_seconds\": 1}\n",
+        )
+        .unwrap();
+        assert_eq!(run.epoch_cpu_seconds().unwrap(), Some(2.25));
+        std::fs::create_dir(run.root().join("stage_a")).unwrap();
+        std::fs::write(
+            run.root().join("stage_a/metrics.jsonl"),
+            "{\"seconds\": 4}\n",
+        )
+        .unwrap();
+        assert_eq!(run.epoch_seconds().unwrap(), 7.5);
+        assert_eq!(run.epoch_cpu_seconds().unwrap(), None);
     }
 
     #[test]
