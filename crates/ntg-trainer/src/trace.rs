@@ -159,7 +159,11 @@ pub fn trace_task(
     let (mut observation, _) = env.reset(rollout_seed)?;
     // The same tie-breaking as the evaluation's episode.
     let mut ties = crate::method::Ties::for_episode(rollout_seed);
+    // What the agent has done so far, as the evaluation tells the policy
+    // (read by an execution memory or a node taken from it).
+    let mut executed: Vec<ActionId> = Vec::new();
     let (success, truncated) = loop {
+        policy.set_executed(&executed);
         let row = featurize(&observation, obs);
         let mapped = policy.mapped(|o: &BlocksObservation| featurize(o, obs));
         let (mut nodes, mut edges) = (&mapped, &mapped);
@@ -177,6 +181,7 @@ pub fn trace_task(
             &frames_dir.join(format!("step_{:03}.png", steps.len())),
         )?;
         frames.push(frame);
+        executed.push(action);
         let step = env.step(action)?;
         steps.push(TraceStep {
             step: steps.len(),
