@@ -142,19 +142,24 @@ fn without_param_ids(mut bytes: Vec<u8>) -> Vec<u8> {
     bytes
 }
 
-/// `metrics.jsonl`-style lines with their `"seconds"` fields removed.
-fn without_seconds(path: &Path) -> anyhow::Result<Vec<String>> {
+/// The JSON lines of a `metrics.jsonl`-style file with their clock fields
+/// (`seconds`, wall; `cpu_seconds`, process CPU) removed: the only fields a
+/// killed-and-resumed run may differ in.
+fn without_clock_fields(path: &Path) -> anyhow::Result<Vec<serde_json::Value>> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    Ok(text
-        .lines()
-        .map(|line| {
-            line.split(',')
-                .filter(|field| !field.contains("\"seconds\""))
-                .collect::<Vec<_>>()
-                .join(",")
+    text.lines()
+        .enumerate()
+        .map(|(i, line)| {
+            let mut value: serde_json::Value = serde_json::from_str(line)
+                .with_context(|| format!("{} line {}: not JSON", path.display(), i + 1))?;
+            if let Some(fields) = value.as_object_mut() {
+                fields.remove("seconds");
+                fields.remove("cpu_seconds");
+            }
+            Ok(value)
         })
-        .collect())
+        .collect()
 }
 
 /// Runs the soak in `work` (created afresh) and prints its report.
@@ -268,7 +273,8 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
         }
     }
     for file in ["metrics.jsonl", "validation.jsonl"] {
-        if without_seconds(&straight.join(file))? != without_seconds(&soaked.join(file))? {
+        if without_clock_fields(&straight.join(file))? != without_clock_fields(&soaked.join(file))?
+        {
             problems.push(format!(
                 "{file} differs (times aside) from the uninterrupted run's"
             ));
