@@ -19,7 +19,7 @@ const MI_OPTION_PURGE_DELAY: libmimalloc_sys::mi_option_t = 15;
 /// By default mimalloc returns freed pages to the kernel a second later; a
 /// training step frees and reallocates the same large buffers at every
 /// operation, so the kernel zeroed the same (transparent huge) pages again
-/// and again: 12-15% of the paper-profile runs' CPU time was system time
+/// and again: 12-17% of the paper-profile runs' CPU time was system time
 /// (`clear_page_erms`, page faults). Keeping the pages measured 6-13%
 /// faster on an object-collection video run, same losses to the last digit
 /// (docs/results/speed-2026-11-29.md); the resident size stays at the
