@@ -370,6 +370,89 @@ impl DemoDataset {
         Ok(dataset)
     }
 
+    /// Like [`DemoDataset::load_or_build`] for a dataset of one demo per
+    /// `(task, seed)` of `pairs`, in that order, whose build is long
+    /// (stage B's encoding of 100,000 videos takes most of an hour on one
+    /// core): built `part_len` pairs at a time by `build_part`, each part
+    /// saved as it is done in `DIR.parts/NNNNN/`, so a build that is killed
+    /// resumes after its last whole part. The whole is then saved in `dir`
+    /// and the parts removed. Parts are independent (`build_part` of a
+    /// slice gives the same demos whatever the slices), so the result is
+    /// the one [`DemoDataset::load_or_build`] would give. Up to `part_len`
+    /// pairs are built in one go, with no parts.
+    pub fn load_or_build_in_parts(
+        dir: &Path,
+        pairs: &[(usize, u64)],
+        part_len: usize,
+        mut build_part: impl FnMut(&[(usize, u64)], &str) -> anyhow::Result<Self>,
+    ) -> anyhow::Result<Self> {
+        ensure!(
+            part_len > 0,
+            "parts of a dataset must hold at least one demo"
+        );
+        if pairs.len() <= part_len {
+            return Self::load_or_build(dir, || build_part(pairs, ""));
+        }
+        if dir.join("index.json").is_file() {
+            return Self::load(dir);
+        }
+        let parts_dir = dir.with_extension("parts");
+        let num_parts = pairs.len().div_ceil(part_len);
+        let mut whole: Option<DemoDataset> = None;
+        for (k, part_pairs) in pairs.chunks(part_len).enumerate() {
+            let part_dir = parts_dir.join(format!("{k:05}"));
+            let part = if part_dir.join("index.json").is_file() {
+                let part = Self::load(&part_dir)?;
+                let holds: Vec<(usize, u64)> =
+                    part.demos.iter().map(|d| (d.task, d.seed)).collect();
+                ensure!(
+                    holds == part_pairs,
+                    "{}: a part holding other demos than this build's part {k} \
+                     (built with other settings?); remove {} to build again",
+                    part_dir.display(),
+                    parts_dir.display()
+                );
+                part
+            } else {
+                let part = build_part(part_pairs, &format!(" {}/{num_parts}", k + 1))?;
+                part.save(&part_dir)?;
+                part
+            };
+            match &mut whole {
+                None => whole = Some(part),
+                Some(w) => w
+                    .append(part)
+                    .with_context(|| format!("joining {}", part_dir.display()))?,
+            }
+        }
+        let whole = whole.context("no parts")?;
+        whole.save(dir)?;
+        fs::remove_dir_all(&parts_dir)
+            .with_context(|| format!("removing {}", parts_dir.display()))?;
+        Ok(whole)
+    }
+
+    /// Appends every demonstration of `other`, which must have the same
+    /// vocabulary, row size and storage.
+    pub fn append(&mut self, other: DemoDataset) -> anyhow::Result<()> {
+        ensure!(
+            self.vocab == other.vocab && self.obs_dim == other.obs_dim,
+            "datasets of different vocabularies or row sizes"
+        );
+        let offset = self.num_rows();
+        match (&mut self.obs, other.obs) {
+            (ObsBuffer::F32(a), ObsBuffer::F32(b)) => a.extend_from_slice(&b),
+            (ObsBuffer::U8(a), ObsBuffer::U8(b)) => a.extend_from_slice(&b),
+            _ => bail!("datasets of different storage (f32 and u8)"),
+        }
+        self.demos
+            .extend(other.demos.into_iter().map(|d| DemoEntry {
+                first_row: d.first_row + offset,
+                ..d
+            }));
+        Ok(())
+    }
+
     /// Reads a dataset written by [`DemoDataset::save`], checking that the
     /// index and the observation file agree.
     pub fn load(dir: &Path) -> anyhow::Result<Self> {
@@ -599,12 +682,17 @@ mod tests {
     use ctg_graph::symbolic::{SequenceExpert, SequenceTask};
 
     fn dataset(dtype: ObsDtype) -> DemoDataset {
+        let pairs: Vec<(usize, u64)> = (0..3).flat_map(|t| [(t, 1), (t, 2)]).collect();
+        dataset_of(&pairs, dtype)
+    }
+
+    /// Demos of `pairs` (tasks 0..3, any seeds).
+    fn dataset_of(pairs: &[(usize, u64)], dtype: ObsDtype) -> DemoDataset {
         let vocab = Vocabulary::new(["a", "b", "c"]).unwrap();
         let tasks = ["a b", "c a b c", "b"];
-        let pairs: Vec<(usize, u64)> = (0..3).flat_map(|t| [(t, 1), (t, 2)]).collect();
         let v = vocab.clone();
         generate(
-            &pairs,
+            pairs,
             |t| Ok(SequenceTask::new(v.clone(), v.parse_sequence(tasks[t])?)),
             || SequenceExpert,
             |o| vec![o.step as f32 / 10.0, o.last.index() as f32 / 10.0],
@@ -691,6 +779,65 @@ mod tests {
         fs::create_dir(failing.path().join("observations.bin")).unwrap();
         assert!(ds.save(failing.path()).is_err());
         assert!(!failing.path().join("index.json").exists());
+    }
+
+    #[test]
+    fn a_build_in_parts_resumes_after_its_last_whole_part() {
+        let pairs: Vec<(usize, u64)> = (0..3).flat_map(|t| [(t, 1), (t, 2), (t, 3)]).collect();
+        let whole = dataset_of(&pairs, ObsDtype::F32);
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("embeddings");
+        // A build killed in its third part of four (pairs 4-5) keeps the
+        // first two.
+        let mut built = Vec::new();
+        let err = DemoDataset::load_or_build_in_parts(&target, &pairs, 2, |part, _| {
+            built.push(part.to_vec());
+            anyhow::ensure!(built.len() < 3, "killed");
+            Ok(dataset_of(part, ObsDtype::F32))
+        })
+        .unwrap_err();
+        assert_eq!(err.to_string(), "killed");
+        assert!(!target.join("index.json").exists());
+        assert!(target.with_extension("parts").join("00001").is_dir());
+        // Resumed: parts 0 and 1 are read back, the rest built.
+        let mut rebuilt = Vec::new();
+        let resumed = DemoDataset::load_or_build_in_parts(&target, &pairs, 2, |part, _| {
+            rebuilt.push(part.to_vec());
+            Ok(dataset_of(part, ObsDtype::F32))
+        })
+        .unwrap();
+        assert_eq!(
+            rebuilt,
+            [
+                pairs[4..6].to_vec(),
+                pairs[6..8].to_vec(),
+                pairs[8..].to_vec()
+            ]
+        );
+        assert_eq!(resumed, whole, "the same dataset as built in one go");
+        assert_eq!(DemoDataset::load(&target).unwrap(), whole);
+        assert!(!target.with_extension("parts").exists(), "parts removed");
+        let cached =
+            DemoDataset::load_or_build_in_parts(&target, &pairs, 2, |_, _| panic!("cached"))
+                .unwrap();
+        assert_eq!(cached, whole);
+        // A part of other demos (another build's) is an error naming it.
+        let other = dir.path().join("other");
+        dataset_of(&pairs[2..4], ObsDtype::F32)
+            .save(&other.with_extension("parts").join("00000"))
+            .unwrap();
+        let err = DemoDataset::load_or_build_in_parts(&other, &pairs, 2, |part, _| {
+            Ok(dataset_of(part, ObsDtype::F32))
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("00000") && err.contains("other demos"),
+            "{err}"
+        );
+        // Appending a dataset of other storage is refused.
+        let mut f32s = dataset_of(&pairs[..1], ObsDtype::F32);
+        assert!(f32s.append(dataset_of(&pairs[1..2], ObsDtype::U8)).is_err());
     }
 
     #[test]

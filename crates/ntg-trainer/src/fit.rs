@@ -479,16 +479,57 @@ where
         on_epoch(&metrics);
     }
     if selection.is_some()
-        && let Some(best) = selected_epoch(run)?
+        && let Some(selected) = selected_model(run, device)?
     {
-        return M::load_from(&run.best_dir(), device).with_context(|| {
+        return Ok(selected);
+    }
+    Ok(model)
+}
+
+/// The weights in `run`'s `best/`, if validation selected an epoch.
+fn selected_model<M: TrainedModel>(run: &RunDir, device: &Device) -> anyhow::Result<Option<M>> {
+    let Some(best) = selected_epoch(run)? else {
+        return Ok(None);
+    };
+    M::load_from(&run.best_dir(), device)
+        .with_context(|| {
             format!(
                 "loading the weights of epoch {} selected on validation tasks",
                 best.epoch
             )
-        });
+        })
+        .map(Some)
+}
+
+/// What [`fit`] would return for `run` if its checkpoint has `epochs`
+/// epochs done, read from the run folder alone (no dataset, no step): the
+/// epoch selected on validation when `selecting` (fit called with a
+/// [`Selection`]) and one was, else the checkpoint's. `None` while epochs
+/// remain.
+pub fn finished_model<M: TrainedModel>(
+    run: &RunDir,
+    epochs: usize,
+    selecting: bool,
+    device: &Device,
+) -> anyhow::Result<Option<M>> {
+    let _writer = run.lock()?;
+    let ckpt = run.checkpoint_dir();
+    recover_dir(&ckpt)?;
+    recover_dir(&run.best_dir())?;
+    let progress_path = ckpt.join("progress.json");
+    if !progress_path.is_file() {
+        return Ok(None);
     }
-    Ok(model)
+    let progress: Progress = RunDir::read_json(&progress_path)?;
+    if progress.epochs_done < epochs {
+        return Ok(None);
+    }
+    if selecting && let Some(selected) = selected_model(run, device)? {
+        return Ok(Some(selected));
+    }
+    M::load_from(&ckpt, device)
+        .with_context(|| format!("reading the model in {}", ckpt.display()))
+        .map(Some)
 }
 
 /// `metrics` as its `metrics.jsonl` line: with `cpu_seconds` (the
@@ -680,6 +721,108 @@ mod tests {
             }
             // The same shard count gives the same bits.
             assert_eq!(run(shards).0, sharded);
+        }
+    }
+
+    /// A linear model saved as its values in JSON.
+    impl TrainedModel for burn::nn::Linear {
+        fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
+            let values = |t: Tensor<2>| t.into_data().try_to_vec::<f32>().unwrap();
+            let bias = self.bias.as_ref().unwrap().val().unsqueeze::<2>();
+            std::fs::create_dir_all(dir)?;
+            let json = serde_json::to_vec(&(values(self.weight.val()), values(bias)))?;
+            Ok(std::fs::write(dir.join("linear.json"), json)?)
+        }
+        fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
+            use burn::module::Param;
+            let (w, b): (Vec<f32>, Vec<f32>) =
+                serde_json::from_slice(&std::fs::read(dir.join("linear.json"))?)?;
+            let mut linear = LinearConfig::new(3, 1).init(device);
+            linear.weight =
+                Param::from_tensor(Tensor::from_data(TensorData::new(w, [3, 1]), device));
+            linear.bias = Some(Param::from_tensor(Tensor::from_data(
+                TensorData::new(b, [1]),
+                device,
+            )));
+            Ok(linear)
+        }
+    }
+
+    #[test]
+    fn a_finished_run_gives_fit_s_model_without_its_data() {
+        let device = ntg_model::cpu_device().autodiff();
+        let step = LeastSquares {
+            device: device.clone(),
+        };
+        let optim = OptimConfig {
+            epochs: 3,
+            batch_size: 2,
+            learning_rate: 0.1,
+            seed: 0,
+            token_dropout: 0.0,
+            cosine_decay: false,
+            gcn_from_other_demo: false,
+            shards: 1,
+        };
+        let values = |m: &burn::nn::Linear| m.weight.val().into_data().try_to_vec::<f32>().unwrap();
+        for selecting in [false, true] {
+            let dir = tempfile::tempdir().unwrap();
+            let run = RunDir::create(&dir.path().join("run")).unwrap();
+            let unfinished = |run: &RunDir| {
+                finished_model::<burn::nn::Linear>(run, optim.epochs, selecting, &device).unwrap()
+            };
+            assert!(unfinished(&run).is_none(), "nothing trained yet");
+            // Validation scores epoch 1 best of the three.
+            let mut scores = [0.2, 0.9, 0.5].into_iter();
+            let mut validator = |_: &burn::nn::Linear| {
+                Ok(ValidationScore {
+                    success: scores.next().unwrap(),
+                    goal_fraction: 0.0,
+                })
+            };
+            fn selection(
+                selecting: bool,
+                validator: &mut dyn Validator<burn::nn::Linear>,
+            ) -> Option<Selection<'_, burn::nn::Linear>> {
+                selecting.then_some(Selection {
+                    validator,
+                    every: 1,
+                })
+            }
+            let two = OptimConfig {
+                epochs: 2,
+                ..optim.clone()
+            };
+            let init = LinearConfig::new(3, 1).init(&device);
+            fit(
+                init.clone(),
+                &step,
+                &two,
+                &run,
+                &device,
+                selection(selecting, &mut validator),
+                |_| {},
+            )
+            .unwrap();
+            assert!(unfinished(&run).is_none(), "2 of 3 epochs done");
+            let fitted = fit(
+                init,
+                &step,
+                &optim,
+                &run,
+                &device,
+                selection(selecting, &mut validator),
+                |_| {},
+            )
+            .unwrap();
+            let read = unfinished(&run).expect("finished");
+            assert_eq!(values(&read), values(&fitted), "selecting: {selecting}");
+            let last = burn::nn::Linear::load_from(&run.checkpoint_dir(), &device).unwrap();
+            assert_eq!(
+                values(&fitted) != values(&last),
+                selecting,
+                "selecting: {selecting}"
+            );
         }
     }
 

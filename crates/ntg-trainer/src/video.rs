@@ -18,8 +18,9 @@
 //! - **Stage B**: the encoder is frozen and every training demo's frames
 //!   are encoded once into an embedding cache (`embeddings/`, a dataset of
 //!   video demos whose rows are `Enc(o)`; frames are re-rendered from
-//!   their seeds, never stored). The demo interpreter (every frame of the
-//!   video), the GCN, the localizer and the edge classifier (the keyframes:
+//!   their seeds, never stored; saved in parts as the encoding goes, so a
+//!   killed one resumes: [`embeddings`]). The demo interpreter (every
+//!   frame of the video), the GCN, the localizer and the edge classifier (the keyframes:
 //!   the scene after each action, what the policy sees when it acts) are
 //!   an `NtgModel` over embedding rows, trained by NTG's own step through
 //!   [`crate::fit::fit`] at the state path's speed ([`OnFramesStep`]); the
@@ -39,7 +40,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::{DemoDataset, ObsDtype, progress_bar};
 use crate::fit::{
-    OptimConfig, Selection, StepContext, StepReport, TrainStep, ValidationScore, fit, scalar,
+    OptimConfig, Selection, StepContext, StepReport, TrainStep, ValidationScore, finished_model,
+    fit, scalar,
 };
 use crate::method::ntg::{next_is_retry, task_graphs};
 pub use crate::method::on_frames::{OnFrames, OnFramesStep, VideoNtgModel, encode_rows};
@@ -591,9 +593,20 @@ pub fn embedding_dataset(
     record: VideoRecorder<'_>,
     net: &FrameStageNet,
 ) -> anyhow::Result<DemoDataset> {
+    encode_videos(vocab, pairs, record, net, "encoding")
+}
+
+/// [`embedding_dataset`], its progress bar labelled `what`.
+fn encode_videos(
+    vocab: &Vocabulary,
+    pairs: &[(usize, u64)],
+    record: VideoRecorder<'_>,
+    net: &FrameStageNet,
+    what: &str,
+) -> anyhow::Result<DemoDataset> {
     let net = net.valid();
     let mut dataset = DemoDataset::from_videos(vocab.clone(), net.encoder.out_dim(), [])?;
-    record_in_chunks(pairs, record, "encoding", |videos| {
+    record_in_chunks(pairs, record, what, |videos| {
         // One video per thread at a time, each in the batches it would have
         // alone: the embeddings do not depend on the number of threads.
         let encoded = videos
@@ -657,6 +670,15 @@ pub fn train_encoder(
         seed: video.seed,
     };
     let dir = RunDir::open_or_create(&run.root().join(STAGE_A_DIR), &config)?;
+    // A finished stage A (a resumed stage B) needs none of its data.
+    let selecting = video
+        .validation
+        .as_ref()
+        .is_some_and(|v| !v.pairs.is_empty());
+    if let Some(net) = finished_model::<FrameStageNet>(&dir, stage.epochs, selecting, device)? {
+        eprintln!("stage A: done; encoder read from {}", dir.root().display());
+        return Ok(net);
+    }
     let demos = stage.demos.min(video.pairs.len());
     let frames = DemoDataset::load_or_build(&dir.dataset_dir(), || {
         frame_dataset(
@@ -750,18 +772,35 @@ struct StageAConfig {
     seed: u64,
 }
 
+/// Videos encoded per saved part of stage B's embedding cache: a killed
+/// encoding resumes after its last whole part (about 2 minutes of one core
+/// for block stacking's videos, of ~45 for 100,000 of them).
+pub const EMBEDDING_PART_VIDEOS: usize = 4096;
+
 /// Stage B's data: every training video of `video` encoded once with the
 /// frozen encoder of `frames`, cached in `run/embeddings/` (built on the
-/// first call, read back afterwards).
+/// first call, in parts of [`EMBEDDING_PART_VIDEOS`] videos saved as they
+/// are done; read back afterwards).
 pub fn embeddings(
     run: &RunDir,
     video: &VideoRun<'_>,
     frames: &FrameStageNet,
 ) -> anyhow::Result<DemoDataset> {
     let started = std::time::Instant::now();
-    let embeddings = DemoDataset::load_or_build(&run.root().join(EMBEDDINGS_DIR), || {
-        embedding_dataset(video.vocabulary, &video.pairs, video.record, frames)
-    })?;
+    let embeddings = DemoDataset::load_or_build_in_parts(
+        &run.root().join(EMBEDDINGS_DIR),
+        &video.pairs,
+        EMBEDDING_PART_VIDEOS,
+        |pairs, part| {
+            encode_videos(
+                video.vocabulary,
+                pairs,
+                video.record,
+                frames,
+                &format!("encoding{part}"),
+            )
+        },
+    )?;
     eprintln!(
         "stage B: {} demo videos, {} frames encoded ({:.0}s)",
         embeddings.demos().len(),
