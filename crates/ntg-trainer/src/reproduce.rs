@@ -251,20 +251,19 @@ fn weights_needed(what: &str, run: &Path) -> (String, String) {
     )
 }
 
-/// `(runs, core-hours)` of training epochs of the rollout figures' runs,
-/// each run once (a run linked into two figures has the same epoch times).
 /// The rollout figures' training compute: how many runs, their summed
-/// wall seconds of training epochs, and, over the runs whose every epoch
-/// recorded its CPU time (`RunDir::epoch_cpu_seconds`), how many, their
-/// CPU seconds and their wall seconds. A run reused by two figures (a
-/// link to the same folder's results) counts once: runs are told apart by
-/// their wall seconds.
+/// core-seconds of training epochs (`train_seconds`:
+/// `RunDir::epoch_compute_seconds`), and over the epochs that recorded
+/// their CPU time (`RunDir::recorded_cpu_seconds`): in how many runs, their
+/// CPU seconds and their wall seconds. A run reused by two figures (a link
+/// to the same folder's results) counts once: runs are told apart by their
+/// seconds.
 struct TrainingCompute {
     runs: usize,
-    wall: f64,
+    core_seconds: f64,
     with_cpu: usize,
     cpu: f64,
-    wall_of_cpu_runs: f64,
+    wall_of_cpu_epochs: f64,
 }
 
 fn training_compute(results: &Results) -> TrainingCompute {
@@ -288,21 +287,20 @@ fn training_compute(results: &Results) -> TrainingCompute {
     unique.dedup_by_key(|&mut (bits, _)| bits);
     let mut compute = TrainingCompute {
         runs: unique.len(),
-        wall: 0.0,
+        core_seconds: 0.0,
         with_cpu: 0,
         cpu: 0.0,
-        wall_of_cpu_runs: 0.0,
+        wall_of_cpu_epochs: 0.0,
     };
     for (bits, run) in unique {
-        let wall = f64::from_bits(bits);
-        compute.wall += wall;
-        let cpu = RunDir::open(run)
+        compute.core_seconds += f64::from_bits(bits);
+        let recorded = RunDir::open(run)
             .ok()
-            .and_then(|dir| dir.epoch_cpu_seconds().ok().flatten());
-        if let Some(cpu) = cpu {
+            .and_then(|dir| dir.recorded_cpu_seconds().ok().flatten());
+        if let Some((cpu, wall)) = recorded {
             compute.with_cpu += 1;
             compute.cpu += cpu;
-            compute.wall_of_cpu_runs += wall;
+            compute.wall_of_cpu_epochs += wall;
         }
     }
     compute
@@ -347,16 +345,16 @@ fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
     let cpu_note = match compute.with_cpu {
         0 => String::new(),
         n => format!(
-            " Wall time overstates compute where a run shared its cores: {n} of these runs recorded the CPU time of their epochs (`cpu_seconds`), {:.1} CPU core-hours against {:.1} hours of wall time for the same runs.",
+            " {n} of these runs recorded the CPU time of (some of) their epochs (`cpu_seconds`): {:.1} CPU core-hours, which took {:.1} hours of wall time (wall time overstates compute where a run shared its core).",
             compute.cpu / 3600.0,
-            compute.wall_of_cpu_runs / 3600.0
+            compute.wall_of_cpu_epochs / 3600.0
         ),
     };
     let _ = writeln!(
         s,
-        "**Compute.** The rollout figures' {} runs took {:.1} core-hours of training epochs (each run's own epoch times, summed; a run shared by two figures counted once; evaluation and fig. jigsaws not included).{cpu_note}{}\n",
+        "**Compute.** The rollout figures' {} runs took {:.1} core-hours of training epochs (each epoch's CPU time where its run recorded it, else its wall time; each run's own, summed; a run shared by two figures counted once; evaluation and fig. jigsaws not included). The tables' training time is the same measure, per run.{cpu_note}{}\n",
         compute.runs,
-        compute.wall / 3600.0,
+        compute.core_seconds / 3600.0,
         match results.runs_missing {
             0 => String::new(),
             n => format!(

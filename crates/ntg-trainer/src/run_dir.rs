@@ -252,27 +252,51 @@ impl RunDir {
         Ok(total)
     }
 
-    /// The CPU seconds of the run's training epochs (every stage's
-    /// `metrics.jsonl`, as [`RunDir::epoch_seconds`]), if every epoch line
-    /// recorded them (`cpu_seconds`, see [`crate::fit`]); `None` if any
-    /// did not, or there are none.
-    pub fn epoch_cpu_seconds(&self) -> anyhow::Result<Option<f64>> {
+    /// Over the run's training epochs that recorded their CPU time
+    /// (`cpu_seconds`, see [`crate::fit`]; every stage's `metrics.jsonl`,
+    /// as [`RunDir::epoch_seconds`]): `(CPU seconds, wall seconds)` of
+    /// those epochs, or `None` if no epoch recorded it.
+    pub fn recorded_cpu_seconds(&self) -> anyhow::Result<Option<(f64, f64)>> {
         #[derive(serde::Deserialize)]
-        struct Cpu {
+        struct Line {
+            seconds: f64,
+            cpu_seconds: Option<f64>,
+        }
+        let (mut cpu, mut wall, mut lines) = (0.0, 0.0, 0);
+        for file in self.metrics_files()? {
+            for line in read_jsonl::<Line>(&file)? {
+                if let Some(c) = line.cpu_seconds {
+                    cpu += c;
+                    wall += line.seconds;
+                    lines += 1;
+                }
+            }
+        }
+        Ok((lines > 0).then_some((cpu, wall)))
+    }
+
+    /// Core-seconds of the run's training epochs (every stage's
+    /// `metrics.jsonl`, as [`RunDir::epoch_seconds`]): each epoch's CPU
+    /// time where it recorded one (`cpu_seconds`: the run alone in its
+    /// process), else its wall time (`seconds`; a run of `ntg reproduce`
+    /// trains on one thread, so its wall time is its core time unless
+    /// something else shared the core). What the reports give as a run's
+    /// training time: wall time alone overstates runs that shared their
+    /// core with other work (the paper profile's lanes, at a low priority,
+    /// beside builds and tests).
+    pub fn epoch_compute_seconds(&self) -> anyhow::Result<f64> {
+        #[derive(serde::Deserialize)]
+        struct Line {
+            seconds: f64,
             cpu_seconds: Option<f64>,
         }
         let mut total = 0.0;
-        let mut lines = 0;
         for file in self.metrics_files()? {
-            for line in read_jsonl::<Cpu>(&file)? {
-                let Some(cpu) = line.cpu_seconds else {
-                    return Ok(None);
-                };
-                total += cpu;
-                lines += 1;
+            for line in read_jsonl::<Line>(&file)? {
+                total += line.cpu_seconds.unwrap_or(line.seconds);
             }
         }
-        Ok((lines > 0).then_some(total))
+        Ok(total)
     }
 
     /// The run's `metrics.jsonl` and those of its stages (subfolders).
@@ -691,14 +715,14 @@ mod tests {
         );
         std::fs::write(run.metrics_path(), "{\"seconds\": 1.5}\n{\"seconds\": 2}\n").unwrap();
         assert_eq!(run.epoch_seconds().unwrap(), 3.5);
-        // CPU time only where every epoch, of every stage, recorded it.
-        assert_eq!(run.epoch_cpu_seconds().unwrap(), None);
+        assert_eq!(run.recorded_cpu_seconds().unwrap(), None);
+        assert_eq!(run.epoch_compute_seconds().unwrap(), 3.5);
         std::fs::write(
             run.metrics_path(),
             "{\"seconds\": 1.5, \"cpu_seconds\": 1.25}\n{\"seconds\": 2, \"cpu_seconds\": 1}\n",
         )
         .unwrap();
-        assert_eq!(run.epoch_cpu_seconds().unwrap(), Some(2.25));
+        assert_eq!(run.recorded_cpu_seconds().unwrap(), Some((2.25, 3.5)));
         std::fs::create_dir(run.root().join("stage_a")).unwrap();
         std::fs::write(
             run.root().join("stage_a/metrics.jsonl"),
@@ -706,7 +730,10 @@ mod tests {
         )
         .unwrap();
         assert_eq!(run.epoch_seconds().unwrap(), 7.5);
-        assert_eq!(run.epoch_cpu_seconds().unwrap(), None);
+        // Only the epochs that recorded CPU time count for it.
+        assert_eq!(run.recorded_cpu_seconds().unwrap(), Some((2.25, 3.5)));
+        // Compute: CPU time where an epoch recorded it, else wall time.
+        assert_eq!(run.epoch_compute_seconds().unwrap(), 2.25 + 4.0);
     }
 
     #[test]

@@ -380,7 +380,10 @@ pub struct SortingPoint {
     pub success: SuccessRate,
     /// Mean fraction of objects in their bins at the end.
     pub goal_fraction: f64,
-    /// Seconds of training epochs.
+    /// Core-seconds of training epochs
+    /// ([`crate::run_dir::RunDir::epoch_compute_seconds`]: CPU time where
+    /// recorded, else wall time; from the run's metrics, so a reused run
+    /// reports its original cost).
     pub train_seconds: f64,
     /// Run folder.
     pub run: PathBuf,
@@ -451,7 +454,7 @@ pub fn run_b(
                     selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
                     success: result.success,
                     goal_fraction: result.goal_fraction,
-                    train_seconds: run.epoch_seconds()?,
+                    train_seconds: run.epoch_compute_seconds()?,
                     run: dir,
                 }))
             }) as crate::experiment::Job<'_, _>

@@ -337,8 +337,10 @@ pub struct NtpExpPoint {
     /// Mean fraction of each unseen task's goal constraints met at the end.
     #[serde(default)]
     pub goal_fraction: f64,
-    /// Seconds spent in training epochs (summed from the run's
-    /// `metrics.jsonl`, so reused runs report their original cost).
+    /// Core-seconds of training epochs
+    /// ([`crate::run_dir::RunDir::epoch_compute_seconds`]: CPU time where
+    /// recorded, else wall time; from the run's metrics, so a reused run
+    /// reports its original cost).
     pub train_seconds: f64,
     /// NTG: the test demos its interpreter transcribed exactly, and success
     /// on those and on the others (absent where the evaluation did not
@@ -659,7 +661,7 @@ fn run_point(
         }
     })?;
     plan.finish(&dir)?;
-    let train_seconds = run.epoch_seconds()?;
+    let train_seconds = run.epoch_compute_seconds()?;
     eprintln!(
         "  [{name}] success on {} unseen tasks: {:.3} ({:.3}-{:.3}); goals met {:.3}{}",
         scale.test_tasks,

@@ -131,8 +131,10 @@ pub struct ThorAllLine {
     /// evaluated; absent when the run did not validate (the last epoch).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub selected_epoch: Option<usize>,
-    /// Seconds spent in training epochs (summed from the run's
-    /// `metrics.jsonl`, so a reused run reports its original cost).
+    /// Core-seconds of training epochs
+    /// ([`crate::run_dir::RunDir::epoch_compute_seconds`]: CPU time where
+    /// recorded, else wall time; from the run's metrics, so a reused run
+    /// reports its original cost).
     pub train_seconds: f64,
     /// Run folder.
     pub run: PathBuf,
@@ -328,7 +330,7 @@ pub fn run(
             memory: variant.memory,
             points: eval.points,
             selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
-            train_seconds: run.epoch_seconds()?,
+            train_seconds: run.epoch_compute_seconds()?,
             run: dir,
             transcribed,
         }))
