@@ -393,10 +393,15 @@ impl DemoDataset {
         if pairs.len() <= part_len {
             return Self::load_or_build(dir, || build_part(pairs, ""));
         }
+        let parts_dir = dir.with_extension("parts");
         if dir.join("index.json").is_file() {
+            // Parts a kill left after the whole was saved.
+            if parts_dir.exists() {
+                fs::remove_dir_all(&parts_dir)
+                    .with_context(|| format!("removing {}", parts_dir.display()))?;
+            }
             return Self::load(dir);
         }
-        let parts_dir = dir.with_extension("parts");
         let num_parts = pairs.len().div_ceil(part_len);
         let mut whole: Option<DemoDataset> = None;
         for (k, part_pairs) in pairs.chunks(part_len).enumerate() {
@@ -821,6 +826,10 @@ mod tests {
             DemoDataset::load_or_build_in_parts(&target, &pairs, 2, |_, _| panic!("cached"))
                 .unwrap();
         assert_eq!(cached, whole);
+        // Parts left by a kill after the whole was saved are removed.
+        fs::create_dir_all(target.with_extension("parts").join("00000")).unwrap();
+        DemoDataset::load_or_build_in_parts(&target, &pairs, 2, |_, _| panic!("cached")).unwrap();
+        assert!(!target.with_extension("parts").exists());
         // A part of other demos (another build's) is an error naming it.
         let other = dir.path().join("other");
         dataset_of(&pairs[2..4], ObsDtype::F32)
