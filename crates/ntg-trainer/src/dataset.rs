@@ -402,35 +402,31 @@ impl DemoDataset {
             }
             return Self::load(dir);
         }
-        let num_parts = pairs.len().div_ceil(part_len);
-        let mut whole: Option<DemoDataset> = None;
-        for (k, part_pairs) in pairs.chunks(part_len).enumerate() {
-            let part_dir = parts_dir.join(format!("{k:05}"));
-            let part = if part_dir.join("index.json").is_file() {
-                let part = Self::load(&part_dir)?;
-                let holds: Vec<(usize, u64)> =
-                    part.demos.iter().map(|d| (d.task, d.seed)).collect();
-                ensure!(
-                    holds == part_pairs,
-                    "{}: a part holding other demos than this build's part {k} \
-                     (built with other settings?); remove {} to build again",
-                    part_dir.display(),
-                    parts_dir.display()
-                );
-                part
-            } else {
-                let part = build_part(part_pairs, &format!(" {}/{num_parts}", k + 1))?;
-                part.save(&part_dir)?;
-                part
-            };
-            match &mut whole {
-                None => whole = Some(part),
-                Some(w) => w
-                    .append(part)
-                    .with_context(|| format!("joining {}", part_dir.display()))?,
-            }
+        let mut parts = build_in_parts(
+            &parts_dir,
+            pairs,
+            part_len,
+            |part_dir| {
+                Ok(part_dir
+                    .join("index.json")
+                    .is_file()
+                    .then(|| Self::load(part_dir))
+                    .transpose()?)
+            },
+            |part: &Self, part_pairs| {
+                part.demos
+                    .iter()
+                    .map(|d| (d.task, d.seed))
+                    .eq(part_pairs.iter().copied())
+            },
+            &mut build_part,
+            |part, part_dir| part.save(part_dir),
+        )?
+        .into_iter();
+        let mut whole = parts.next().context("no parts")?;
+        for part in parts {
+            whole.append(part)?;
         }
-        let whole = whole.context("no parts")?;
         whole.save(dir)?;
         fs::remove_dir_all(&parts_dir)
             .with_context(|| format!("removing {}", parts_dir.display()))?;
@@ -532,6 +528,53 @@ impl DemoDataset {
             demos: index.demos,
         })
     }
+}
+
+/// The parts of a long build of one item per `(task, seed)` of `pairs`, in
+/// order, `part_len` pairs each (see
+/// [`DemoDataset::load_or_build_in_parts`]): part `k` is read back from
+/// `parts_dir/NNNNN/` by `read` (`None`: absent, or not usable, such as
+/// another encoder's) if it was saved there and `holds` its pairs, else
+/// built by `build` (given its pairs and a label such as " 3/25" for its
+/// progress bar) and saved there by `save` before the next starts. A saved
+/// part of other pairs is an error naming it.
+pub(crate) fn build_in_parts<T>(
+    parts_dir: &Path,
+    pairs: &[(usize, u64)],
+    part_len: usize,
+    mut read: impl FnMut(&Path) -> anyhow::Result<Option<T>>,
+    holds: impl Fn(&T, &[(usize, u64)]) -> bool,
+    mut build: impl FnMut(&[(usize, u64)], &str) -> anyhow::Result<T>,
+    mut save: impl FnMut(&T, &Path) -> anyhow::Result<()>,
+) -> anyhow::Result<Vec<T>> {
+    ensure!(
+        part_len > 0,
+        "parts of a dataset must hold at least one item"
+    );
+    let num_parts = pairs.len().div_ceil(part_len);
+    let mut parts = Vec::with_capacity(num_parts);
+    for (k, part_pairs) in pairs.chunks(part_len).enumerate() {
+        let part_dir = parts_dir.join(format!("{k:05}"));
+        let part = match read(&part_dir)? {
+            Some(part) => {
+                ensure!(
+                    holds(&part, part_pairs),
+                    "{}: a part holding other items than this build's part {k} \
+                     (built with other settings?); remove {} to build again",
+                    part_dir.display(),
+                    parts_dir.display()
+                );
+                part
+            }
+            None => {
+                let part = build(part_pairs, &format!(" {}/{num_parts}", k + 1))?;
+                save(&part, &part_dir)?;
+                part
+            }
+        };
+        parts.push(part);
+    }
+    Ok(parts)
 }
 
 /// A progress bar for `len` items of work. On a terminal the bars of work
@@ -841,7 +884,7 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(
-            err.contains("00000") && err.contains("other demos"),
+            err.contains("00000") && err.contains("other items"),
             "{err}"
         );
         // Appending a dataset of other storage is refused.

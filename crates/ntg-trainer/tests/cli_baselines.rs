@@ -40,6 +40,19 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
     args.extend_from_slice(extra);
     let (code, _, err) = ntg(&args);
     assert_eq!(code, 0, "{method}: {err}");
+    // Resumed when finished, a run reads its stages back (their frames
+    // are not recorded again).
+    args.push("--resume");
+    let (code, _, resumed) = ntg(&args);
+    assert_eq!(code, 0, "{method}: {resumed}");
+    let stage_done = match (method, obs) {
+        ("ntp-detector", _) => Some("detector: done"),
+        (_, "vid") => Some("stage A: done"),
+        _ => None,
+    };
+    if let Some(line) = stage_done {
+        assert!(resumed.contains(line), "{method}: {resumed}");
+    }
     // The recommended recipe renames the cubes of state rows (NTP
     // (Detector)'s NTP reads them too); on frames, stage A's videos.
     let config = json(&run.join("config.json"));
@@ -61,12 +74,12 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
         .windows(2)
         .any(|w| w == ["--encoder-keypoints", "false"]);
     assert_eq!(keypoints, on_videos && !keypoints_off, "{config}");
+    let on_estimates = config["detector"]["ntp_on_estimates"] == true;
     assert_eq!(
         run.join("ntp_frames/episodes.json").is_file(),
-        on_videos,
-        "{method}: NTP's encoded episodes are cached on videos, and only there"
+        on_videos || on_estimates,
+        "{method}: NTP's episodes are cached where they are frames' encodings or estimates"
     );
-    let on_estimates = config["detector"]["ntp_on_estimates"] == true;
     assert_eq!(
         on_estimates,
         method == "ntp-detector" && !extra.contains(&"--ntp-on-true-states"),

@@ -919,12 +919,24 @@ pub fn train_ntp_run(
         // episodes' frames, the rows it will be fed.
         Some(detector) if config.detector.as_ref().is_some_and(|d| d.ntp_on_estimates) => {
             let detector = burn::module::Module::valid(detector);
-            record_ntp_frames(
+            let estimate = |rows: &[Vec<f32>]| Ok(detector.predict_rows(rows)?);
+            // Cached (with the estimates of a fixed frame, so another
+            // detector's are never read), in parts: a resumed run reads it.
+            let probe = estimate(&[vec![0.5; obs_dim_frames()]])?.concat();
+            NtpDataset::load_or_build_in_parts(
+                &run.root().join(crate::method::ntp::NTP_FRAMES_DIR),
+                &probe,
                 &NtpDataset::pairs(tasks.len(), config.demos_per_task, TRAIN_SEED_BASE),
-                |t| tasks[t].clone(),
-                config.failures,
-                "NTP frames through the detector",
-                |rows| Ok(detector.predict_rows(rows)?),
+                crate::method::ntp::NTP_PART_EPISODES,
+                |pairs, part| {
+                    record_ntp_frames(
+                        pairs,
+                        |t| tasks[t].clone(),
+                        config.failures,
+                        &format!("NTP frames through the detector{part}"),
+                        estimate,
+                    )
+                },
             )?
         }
         _ => {
@@ -989,10 +1001,15 @@ fn train_ntp_video_run(
 ) -> anyhow::Result<Model> {
     with_video_run(config, |plan, video_run, validation| {
         let frames = crate::video::train_encoder(run, video_run, device)?;
-        let dataset = NtpDataset::load_or_build(
+        let dataset = NtpDataset::load_or_build_in_parts(
             &run.root().join(crate::method::ntp::NTP_FRAMES_DIR),
             &encoder_probe(&frames)?,
-            || ntp_video_dataset(plan, config, &frames),
+            &plan.pairs(config.demos_per_task),
+            crate::method::ntp::NTP_PART_EPISODES,
+            |pairs, part| {
+                let what = format!("NTP frames{part}");
+                ntp_video_dataset(plan, pairs, config.failures, &frames, &what)
+            },
         )?;
         let encoder = encoder(ObsKind::Vid, config.state_hidden_layers, false);
         let net = ntp_config(encoder, false, config.model_seed).init(device)?;
@@ -1019,20 +1036,24 @@ fn encoder_probe(frames: &ntg_model::FrameStageNet) -> anyhow::Result<Vec<f32>> 
     encoded.pop().context("the encoder gave no row")
 }
 
-/// NTP's training episodes on frames: every training demo of `plan`
-/// (virtual task, seed) recorded at the primitive level, its frame before
-/// each primitive and its last frame encoded by `frames`' frozen encoder.
+/// NTP's training episodes on frames: the training demos `pairs` of `plan`
+/// (virtual task, seed; `plan.pairs`) recorded at the primitive level
+/// (with the failure model if `failures`), each episode's frame before
+/// each primitive and its last frame encoded by `frames`' frozen encoder;
+/// the progress bar labelled `what`.
 pub fn ntp_video_dataset(
     plan: &VideoPlan,
-    config: &BlocksRunConfig,
+    pairs: &[(usize, u64)],
+    failures: bool,
     frames: &ntg_model::FrameStageNet,
+    what: &str,
 ) -> anyhow::Result<NtpDataset> {
     let net = burn::module::Module::valid(frames);
     record_ntp_frames(
-        &plan.pairs(config.demos_per_task),
+        pairs,
         |t| plan.task(t),
-        config.failures,
-        "NTP frames",
+        failures,
+        what,
         |rows| crate::method::on_frames::encode_rows(&net, rows),
     )
 }
@@ -1046,7 +1067,7 @@ fn record_ntp_frames(
     pairs: &[(usize, u64)],
     task: impl Fn(usize) -> StackTask + Sync,
     failures: bool,
-    what: &'static str,
+    what: &str,
     encode: impl Fn(&[Vec<f32>]) -> anyhow::Result<Vec<Vec<f32>>>,
 ) -> anyhow::Result<NtpDataset> {
     use rayon::prelude::*;
@@ -1130,14 +1151,16 @@ pub fn train_ntp_detector(
     let env = env_config(ObsKind::Vid, config.failures);
     let validation = validation_tasks_of(config.tasks.as_deref(), 2 * settings.validation_tasks)?;
     let (select, report) = validation.split_at(settings.validation_tasks);
-    let frames = DetectorFrames {
-        train: DetectorDataset::record_spread(tasks, settings.episodes, TRAIN_SEED_BASE, env)?,
-        select: DetectorDataset::record(select, 1, VALIDATION_DEMO_SEED_BASE, env)?,
-        report: DetectorDataset::record(report, 1, VALIDATION_DEMO_SEED_BASE + 1, env)?,
+    let frames = || {
+        Ok(DetectorFrames {
+            train: DetectorDataset::record_spread(tasks, settings.episodes, TRAIN_SEED_BASE, env)?,
+            select: DetectorDataset::record(select, 1, VALIDATION_DEMO_SEED_BASE, env)?,
+            report: DetectorDataset::record(report, 1, VALIDATION_DEMO_SEED_BASE + 1, env)?,
+        })
     };
     train_detector(
         run,
-        &frames,
+        frames,
         &settings,
         config.train_tasks,
         config.failures,

@@ -20,7 +20,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::evaluate::in_parallel;
 use crate::fit::{
-    OptimConfig, Selection, StepContext, StepReport, TrainStep, TrainedModel, ValidationScore, fit,
+    OptimConfig, Selection, StepContext, StepReport, TrainStep, TrainedModel, ValidationScore,
+    finished_model, fit,
 };
 use crate::run_dir::RunDir;
 
@@ -163,14 +164,15 @@ pub struct DetectorHeldOut {
 }
 
 /// Trains (or resumes, or reloads) the detector stage of the run `run`
-/// (folder [`DETECTOR_STAGE_DIR`]) on `frames`: the epoch whose position
-/// error on `frames.select` is lowest is kept, then scored on
-/// `frames.report` into `held_out.json`. `train_tasks` and `failures` are
+/// (folder [`DETECTOR_STAGE_DIR`]) on the frames `frames` records: the
+/// epoch whose position error on `select` is lowest is kept, then scored
+/// on `report` into `held_out.json`. A finished (and scored) stage is read
+/// back without recording any frame. `train_tasks` and `failures` are
 /// recorded in the stage's configuration.
 #[allow(clippy::too_many_arguments)]
 pub fn train_detector(
     run: &RunDir,
-    frames: &DetectorFrames,
+    frames: impl FnOnce() -> anyhow::Result<DetectorFrames>,
     settings: &DetectorSettings,
     train_tasks: usize,
     failures: bool,
@@ -192,6 +194,16 @@ pub fn train_detector(
         shards,
     };
     let dir = RunDir::open_or_create(&run.root().join(DETECTOR_STAGE_DIR), &stage)?;
+    // A finished stage (a resumed NTP run) needs none of its frames.
+    let selecting = settings.validation_tasks > 0;
+    let scored = !selecting || dir.root().join("held_out.json").is_file();
+    if scored
+        && let Some(net) = finished_model::<Detector>(&dir, settings.epochs, selecting, device)?
+    {
+        eprintln!("detector: done; read from {}", dir.root().display());
+        return Ok(net);
+    }
+    let frames = frames()?;
     let plain = device.clone().inner();
     let net = settings
         .net_config(frames.train.position_std(), seed)

@@ -181,6 +181,73 @@ impl NtpDataset {
         Ok(dataset)
     }
 
+    /// Like [`Self::load_or_build`] for the episodes of `pairs` (task index,
+    /// seed), in that order, whose build is long (100,000 episodes' frames
+    /// rendered and encoded): built `part_len` pairs at a time by
+    /// `build_part`, each part saved as it is done in `DIR.parts/NNNNN/`
+    /// (with the probe; a part of another encoder is built again), so a
+    /// killed build resumes after its last whole part. The whole is then
+    /// saved in `dir` and the parts removed. `build_part` of a slice gives
+    /// the same episodes whatever the slices. Up to `part_len` pairs are
+    /// built in one go, with no parts.
+    pub fn load_or_build_in_parts(
+        dir: &Path,
+        encoder_probe: &[f32],
+        pairs: &[(usize, u64)],
+        part_len: usize,
+        mut build_part: impl FnMut(&[(usize, u64)], &str) -> anyhow::Result<Self>,
+    ) -> anyhow::Result<Self> {
+        anyhow::ensure!(
+            part_len > 0,
+            "parts of a dataset must hold at least one episode"
+        );
+        if pairs.len() <= part_len {
+            return Self::load_or_build(dir, encoder_probe, || build_part(pairs, ""));
+        }
+        let parts_dir = dir.with_extension("parts");
+        if dir.join(EPISODES_FILE).is_file() {
+            match Self::load(dir, encoder_probe)? {
+                Some(cached) => {
+                    // Parts a kill left after the whole was saved.
+                    if parts_dir.exists() {
+                        std::fs::remove_dir_all(&parts_dir)
+                            .with_context(|| format!("removing {}", parts_dir.display()))?;
+                    }
+                    return Ok(cached);
+                }
+                None => eprintln!(
+                    "  {}: encoded by another frame encoder; encoding again",
+                    dir.display()
+                ),
+            }
+        }
+        let parts = crate::dataset::build_in_parts(
+            &parts_dir,
+            pairs,
+            part_len,
+            |part_dir| {
+                Ok(match part_dir.join(EPISODES_FILE).is_file() {
+                    true => Self::load(part_dir, encoder_probe)?,
+                    false => None,
+                })
+            },
+            |part: &Self, part_pairs| {
+                part.episodes
+                    .iter()
+                    .map(|e| e.task)
+                    .eq(part_pairs.iter().map(|&(t, _)| t))
+            },
+            &mut build_part,
+            |part, part_dir| part.save(part_dir, encoder_probe),
+        )?;
+        let episodes = parts.into_iter().flat_map(|p| p.episodes).collect();
+        let whole = Self::new(episodes);
+        whole.save(dir, encoder_probe)?;
+        std::fs::remove_dir_all(&parts_dir)
+            .with_context(|| format!("removing {}", parts_dir.display()))?;
+        Ok(whole)
+    }
+
     /// Writes the episodes to `dir` (`episodes.json`, `rows.bin` of
     /// little-endian `f32`), through a sibling `.partial` folder renamed
     /// into place.
@@ -282,6 +349,9 @@ impl NtpDataset {
 /// Folder of a video NTP run's encoded training episodes (see
 /// [`NtpDataset::load_or_build`]).
 pub const NTP_FRAMES_DIR: &str = "ntp_frames";
+/// Episodes per saved part of a video NTP run's episode cache
+/// ([`NtpDataset::load_or_build_in_parts`]).
+pub const NTP_PART_EPISODES: usize = 8192;
 const EPISODES_FILE: &str = "episodes.json";
 const ROWS_FILE: &str = "rows.bin";
 const EPISODES_FORMAT: &str = "ntg-rs ntp episodes v1";
@@ -728,6 +798,80 @@ mod tests {
         std::fs::write(&rows, &bytes[..bytes.len() - 4]).unwrap();
         let err = NtpDataset::load(&cache, &probe).unwrap_err().to_string();
         assert!(err.contains("rows.bin") && err.contains("bytes"), "{err}");
+    }
+
+    #[test]
+    fn an_episode_cache_built_in_parts_resumes_after_its_last_whole_part() {
+        let tasks = tasks(3);
+        let config = EnvConfig::state_only();
+        let build = |pairs: &[(usize, u64)]| {
+            NtpDataset::new(
+                pairs
+                    .iter()
+                    .map(|&(t, seed)| {
+                        let demo = demo(&tasks[t], seed, config);
+                        NtpEpisode {
+                            task: t,
+                            rows: demo
+                                .observations
+                                .iter()
+                                .map(|o| {
+                                    crate::domain::blocks::featurize(o, crate::spec::ObsKind::State)
+                                })
+                                .collect(),
+                            trace: demo.root,
+                        }
+                    })
+                    .collect(),
+            )
+        };
+        let pairs = NtpDataset::pairs(3, 2, 40);
+        let whole = build(&pairs);
+        let same = |a: &NtpDataset, b: &NtpDataset| {
+            a.episodes().len() == b.episodes().len()
+                && a.episodes()
+                    .iter()
+                    .zip(b.episodes())
+                    .all(|(a, b)| (a.task, &a.rows, &a.trace) == (b.task, &b.rows, &b.trace))
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let cache = dir.path().join(NTP_FRAMES_DIR);
+        let probe = [0.5_f32];
+        // Killed while building its second part of three.
+        let mut built = 0;
+        let err = NtpDataset::load_or_build_in_parts(&cache, &probe, &pairs, 2, |part, _| {
+            built += 1;
+            anyhow::ensure!(built < 2, "killed");
+            Ok(build(part))
+        })
+        .unwrap_err();
+        assert_eq!(err.to_string(), "killed");
+        let mut rebuilt = Vec::new();
+        let resumed = NtpDataset::load_or_build_in_parts(&cache, &probe, &pairs, 2, |part, _| {
+            rebuilt.push(part.to_vec());
+            Ok(build(part))
+        })
+        .unwrap();
+        assert_eq!(rebuilt, [pairs[2..4].to_vec(), pairs[4..].to_vec()]);
+        assert!(same(&resumed, &whole), "the episodes built in one go");
+        assert!(!cache.with_extension("parts").exists(), "parts removed");
+        let read =
+            NtpDataset::load_or_build_in_parts(&cache, &probe, &pairs, 2, |_, _| panic!("cached"))
+                .unwrap();
+        assert!(same(&read, &whole));
+        // Parts of another encoder are built again, not read.
+        let other = dir.path().join("other");
+        build(&pairs[..2])
+            .save(&other.with_extension("parts").join("00000"), &[0.0])
+            .unwrap();
+        let mut rebuilt = 0;
+        let fresh = NtpDataset::load_or_build_in_parts(&other, &probe, &pairs, 2, |part, _| {
+            rebuilt += 1;
+            Ok(build(part))
+        })
+        .unwrap();
+        assert_eq!(rebuilt, 3);
+        assert!(same(&fresh, &whole));
     }
 
     #[test]
