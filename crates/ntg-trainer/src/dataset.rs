@@ -407,11 +407,11 @@ impl DemoDataset {
             pairs,
             part_len,
             |part_dir| {
-                Ok(part_dir
+                part_dir
                     .join("index.json")
                     .is_file()
                     .then(|| Self::load(part_dir))
-                    .transpose()?)
+                    .transpose()
             },
             |part: &Self, part_pairs| {
                 part.demos
