@@ -191,7 +191,10 @@ pub fn reproduce(
         }
         for (figure, names) in by_figure {
             not_yet.push((
-                format!("fig. {figure}: {} runs not trained yet", names.len()),
+                match names.len() {
+                    1 => format!("fig. {figure}: 1 run not trained yet"),
+                    n => format!("fig. {figure}: {n} runs not trained yet"),
+                },
                 format!(
                     "left out of the figure and tables above: {}",
                     names.join(", ")
@@ -708,7 +711,7 @@ mod tests {
         assert!(empty.ntp_exp.is_empty() && empty.thor_all.lines.is_empty());
         assert_eq!(none.missing.lock().unwrap().len(), outcomes.len());
         assert!(
-            empty.not_yet[0].0.contains("runs not trained yet"),
+            empty.not_yet[0].0.contains("not trained yet"),
             "{:?}",
             empty.not_yet
         );
