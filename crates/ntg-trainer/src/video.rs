@@ -773,8 +773,9 @@ struct StageAConfig {
 }
 
 /// Videos encoded per saved part of stage B's embedding cache: a killed
-/// encoding resumes after its last whole part (about 2 minutes of one core
-/// for block stacking's videos, of ~45 for 100,000 of them).
+/// encoding resumes after its last whole part (about 2 minutes each for
+/// block stacking's videos on one core; 25 parts, 84 minutes in all, for
+/// ntp_exp-vid-1000's 100,000 beside another run).
 pub const EMBEDDING_PART_VIDEOS: usize = 4096;
 
 /// Stage B's data: every training video of `video` encoded once with the
