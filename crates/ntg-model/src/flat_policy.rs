@@ -715,6 +715,52 @@ mod tests {
         right as f32 / total as f32
     }
 
+    /// One Adam step (lr 5e-3) on `tasks` fresh task examples: the trained
+    /// policy and the step's loss.
+    fn train_step(
+        policy: FlatPolicy,
+        optimizer: &mut ModuleOptimizer,
+        rng: &mut ChaCha8Rng,
+        tasks: usize,
+        device: &Device,
+    ) -> (FlatPolicy, Tensor<1>) {
+        let examples: Vec<_> = (0..tasks).map(|_| task_example(rng)).collect();
+        let refs: Vec<FlatExample<'_, Vec<f32>>> = examples
+            .iter()
+            .map(|(d, q, t)| (&d[..], &q[..], &t[..]))
+            .collect();
+        let batch = FlatBatch::new(&refs, D, N, device).unwrap();
+        let loss = policy.loss(&batch).unwrap().loss;
+        let grads = GradientsParams::from_grads(loss.clone().backward(), &policy);
+        (optimizer.step(5e-3, policy, grads), loss)
+    }
+
+    /// Five training steps give bit-identical losses and parameters with
+    /// the fused GRU sequence and with composed steps.
+    #[test]
+    fn training_is_the_same_with_the_fused_gru_sequence() {
+        let train_dev = device().autodiff();
+        let train = |composed: bool| {
+            crate::nn::COMPOSED_GRU_ONLY.with(|c| c.set(composed));
+            let mut policy = config(7).init(&train_dev).unwrap();
+            let mut rng = ChaCha8Rng::seed_from_u64(12);
+            let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
+            let losses: Vec<_> = (0..5)
+                .map(|_| {
+                    let (trained, loss) =
+                        train_step(policy.clone(), &mut optimizer, &mut rng, 8, &train_dev);
+                    policy = trained;
+                    loss.into_data()
+                })
+                .collect();
+            crate::nn::COMPOSED_GRU_ONLY.with(|c| c.set(false));
+            let weights = to_vec(policy.enc_gru.hidden.weight.val()).unwrap();
+            let demo_input = to_vec(policy.enc_gru.input.weight.val()).unwrap();
+            (losses, weights, demo_input)
+        };
+        assert_eq!(train(false), train(true));
+    }
+
     #[test]
     fn learns_to_read_the_task_from_the_demo() {
         let dev = device();
@@ -725,15 +771,7 @@ mod tests {
         let before = accuracy(&policy.valid(), &held_out);
         let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
         for _ in 0..300 {
-            let examples: Vec<_> = (0..16).map(|_| task_example(&mut rng)).collect();
-            let refs: Vec<FlatExample<'_, Vec<f32>>> = examples
-                .iter()
-                .map(|(d, q, t)| (&d[..], &q[..], &t[..]))
-                .collect();
-            let batch = FlatBatch::new(&refs, D, N, &train_dev).unwrap();
-            let loss = policy.loss(&batch).unwrap();
-            let grads = GradientsParams::from_grads(loss.loss.backward(), &policy);
-            policy = optimizer.step(5e-3, policy, grads);
+            policy = train_step(policy, &mut optimizer, &mut rng, 16, &train_dev).0;
         }
         let after = accuracy(&policy.valid(), &held_out);
         eprintln!("flat policy accuracy on unseen tasks: {before} -> {after}");

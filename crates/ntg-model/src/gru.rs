@@ -52,7 +52,7 @@ fn gates(xr: f32, xz: f32, xn: f32, hr: f32, hz: f32, hn: f32) -> (f32, f32, f32
 }
 
 /// Rows per rayon task for rows of `width` elements.
-fn rows_per_task(width: usize) -> usize {
+pub(crate) fn rows_per_task(width: usize) -> usize {
     (CHUNK / width.max(1)).max(1)
 }
 
@@ -76,7 +76,7 @@ fn split3_mut(row: &mut [f32], n: usize) -> (&mut [f32], &mut [f32], &mut [f32])
 /// One row of the forward loop: `out` `[H]` from `x`, `hp` `[3H]`, `h`
 /// `[H]` and the row's mask value.
 #[inline(always)]
-fn forward_row(x: &[f32], hp: &[f32], h: &[f32], m: Option<f32>, out: &mut [f32]) {
+pub(crate) fn forward_row(x: &[f32], hp: &[f32], h: &[f32], m: Option<f32>, out: &mut [f32]) {
     let n = out.len();
     let ((xr, xz, xn), (hr, hz, hn)) = (split3(x, n), split3(hp, n));
     let (h, out) = (&h[..n], &mut out[..n]);
@@ -116,7 +116,7 @@ fn forward_rows(x: &[f32], hp: &[f32], h: &[f32], m: Option<&[f32]>, hidden: usi
 /// the output gradient `g` (`[H]`).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn backward_row(
+pub(crate) fn backward_row(
     x: &[f32],
     hp: &[f32],
     h: &[f32],
@@ -368,7 +368,7 @@ pub fn gru_gates(
 }
 
 /// The gates as separate tensor operations (every backend but `flex`).
-fn composite_gates(x_proj: Tensor<2>, h_proj: Tensor<2>, h: Tensor<2>) -> Tensor<2> {
+pub(crate) fn composite_gates(x_proj: Tensor<2>, h_proj: Tensor<2>, h: Tensor<2>) -> Tensor<2> {
     let hd = h.dims()[1];
     let x_rz = x_proj.clone().narrow(1, 0, 2 * hd);
     let h_rz = h_proj.clone().narrow(1, 0, 2 * hd);

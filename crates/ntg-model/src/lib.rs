@@ -52,6 +52,7 @@ mod flat_policy;
 mod frame_stage;
 mod gcn;
 mod gru;
+mod gru_sequence;
 mod interpreter;
 mod localizer;
 mod matmul;

@@ -160,9 +160,48 @@ impl GruCell {
         mask: Option<Tensor<2>>,
     ) -> (Tensor<3>, Tensor<2>) {
         let [batch, steps, _] = x.dims();
-        let device = x.device();
+        let x_proj = self.project_input(x);
+        if let (true, Some(bias)) = (
+            steps > 0 && crate::gru_sequence::fused_available(&x_proj) && !composed_only(),
+            &self.hidden.bias,
+        ) {
+            let device = x_proj.device();
+            let h0 = h0.unwrap_or_else(|| Tensor::zeros([batch, self.d_hidden], &device));
+            let states = crate::gru_sequence::gru_sequence(
+                x_proj,
+                h0,
+                self.hidden.weight.val(),
+                bias.val(),
+                mask,
+            );
+            // Both outputs are cut from the sequence's output, so that the
+            // gradients of all the states' uses are summed before the final
+            // state's is added to them, as burn sums them for composed
+            // steps (where the states' uses meet in their stack): the same
+            // float sums, the same bits.
+            let last = states
+                .clone()
+                .narrow(1, steps - 1, 1)
+                .reshape([batch, self.d_hidden]);
+            return (states.narrow(1, 0, steps), last);
+        }
+        self.forward_sequence_composed(x_proj, h0, mask)
+    }
+
+    /// [`GruCell::forward_sequence`] from the input projections `[B, T, 3H]`
+    /// as a loop of steps, each a node of its own under autodiff: what
+    /// backends without the fused sequence run (and the reference the
+    /// fused one is tested against).
+    pub(crate) fn forward_sequence_composed(
+        &self,
+        x_proj: Tensor<3>,
+        h0: Option<Tensor<2>>,
+        mask: Option<Tensor<2>>,
+    ) -> (Tensor<3>, Tensor<2>) {
+        let [batch, steps, _] = x_proj.dims();
+        let device = x_proj.device();
         let mut h = h0.unwrap_or_else(|| Tensor::zeros([batch, self.d_hidden], &device));
-        let projected = unstack_steps(self.project_input(x));
+        let projected = unstack_steps(x_proj);
         let mut outputs = Vec::with_capacity(steps);
         for (t, xt) in projected.into_iter().enumerate() {
             let h_proj = self.hidden.forward(h.clone());
@@ -176,6 +215,21 @@ impl GruCell {
         }
         (Tensor::stack(outputs, 1), h)
     }
+}
+
+#[cfg(test)]
+thread_local! {
+    /// Set by tests to run [`GruCell::forward_sequence`] as composed steps
+    /// on this thread (to compare whole models against the fused sequence).
+    pub(crate) static COMPOSED_GRU_ONLY: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Whether this thread runs GRU sequences as composed steps (tests only).
+fn composed_only() -> bool {
+    #[cfg(test)]
+    return COMPOSED_GRU_ONLY.with(|c| c.get());
+    #[cfg(not(test))]
+    false
 }
 
 /// The steps of a sequence `x` `[B, T, D]` as `T` tensors `[B, D]`, in
