@@ -470,6 +470,19 @@ fn protocol(sc: &ThorAllScale) -> &'static str {
     }
 }
 
+/// "seed 0", or "seeds 0, 1, 2": the seeds the figure's lines were trained
+/// with (each line names its own where there are several).
+fn seeds_phrase(lines: &[ThorAllLine]) -> String {
+    let mut seeds: Vec<u64> = lines.iter().map(|l| l.seed).collect();
+    seeds.sort_unstable();
+    seeds.dedup();
+    let list: Vec<String> = seeds.iter().map(u64::to_string).collect();
+    match list.len() {
+        0 | 1 => format!("seed {}", list.first().map_or("0", String::as_str)),
+        _ => format!("seeds {}", list.join(", ")),
+    }
+}
+
 /// The report section of fig. "thor_all" (Markdown).
 pub fn report_section(result: &ThorAllResult) -> String {
     use std::fmt::Write as _;
@@ -483,7 +496,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
     };
     let _ = writeln!(
         s,
-        "Input: **the {}**{}. Trained on N = {:?} only: {} training-side tasks per N × {} demos, batch {}, Adam at {} (NTG: {} epochs, the rate decaying per step along a half cosine to a tenth; Flat Policy: {} epochs at a constant rate; each the setting under which it trained well), seed 0. Tested on {} episodes per N (tasks from the held-out side of the split; the conditioning demo and the rollout are different scenes).\n\nProtocol (both methods, see `ntg_trainer::collect`): {} each training demo is imitated while conditioned on *another* demo of its task (the Flat Policy attends over it; NTG's GCN completes its path, whose `NE_gcn` the edge classifier reads), as at test time; NTG's demo interpreter {} and also learns from one random contiguous stretch of each demo.\n",
+        "Input: **the {}**{}. Trained on N = {:?} only: {} training-side tasks per N × {} demos, batch {}, Adam at {} (NTG: {} epochs, the rate decaying per step along a half cosine to a tenth; Flat Policy: {} epochs at a constant rate; each the setting under which it trained well), {}. Tested on {} episodes per N (tasks from the held-out side of the split; the conditioning demo and the rollout are different scenes).\n\nProtocol (both methods, see `ntg_trainer::collect`): {} each training demo is imitated while conditioned on *another* demo of its task (the Flat Policy attends over it; NTG's GCN completes its path, whose `NE_gcn` the edge classifier reads), as at test time; NTG's demo interpreter {} and also learns from one random contiguous stretch of each demo.\n",
         obs_name(sc.obs),
         if sc.obs == ObsKind::State {
             ", not the 64×64 frames: the frame encoders are too slow to train on 2 CPU cores within this profile's budget (`ntg train --domain collect --obs vid` trains on frames)"
@@ -497,6 +510,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
         sc.learning_rate,
         sc.ntg_epochs,
         sc.flat_epochs,
+        seeds_phrase(&result.lines),
         sc.test_episodes,
         protocol(sc),
         match sc.obs {
@@ -719,6 +733,19 @@ mod tests {
             "{report}"
         );
         assert!(!report.contains("- Flat Policy: N = 1"), "{report}");
+        assert!(report.contains("trained well), seed 0. Tested"), "{report}");
+        // With more seeds the protocol names them all.
+        let mut seeded = result.clone();
+        for seed in [2, 1] {
+            let mut more = line(MethodId::Flat, &[9, 5, 3, 2, 1], 10);
+            more.seed = seed;
+            seeded.lines.push(more);
+        }
+        let report = report_section(&seeded);
+        assert!(
+            report.contains("trained well), seeds 0, 1, 2. Tested"),
+            "{report}"
+        );
     }
 
     #[test]
