@@ -260,6 +260,7 @@ impl Im2colKernels for Flex {
         if let Some(phases) = phase_layout(g) {
             let (x, image) = (values(&x), g.channels * g.height * g.width);
             let len = phases.image_len();
+            // Zero: `split` writes the images, the padding keeps these zeros.
             let mut xq = vec![0.0f32; g.batch * len];
             xq.par_chunks_mut(len)
                 .zip(x.par_chunks(image))

@@ -85,11 +85,16 @@ impl Phases {
         ((i % s) * s + b) * self.g.channels * self.plane + c * self.plane + (i / s) * self.row
     }
 
-    /// Writes image `x` (`[C, H, W]`) into `out` (`image_len` values, the
-    /// padding zero).
+    /// Writes image `x` (`[C, H, W]`) into `out` (`image_len` values),
+    /// which must be zero: only the image's values are written, so the
+    /// padding keeps the zeros of the caller's freshly allocated buffer
+    /// (zeroing it again here cost one more pass over the whole layout).
     pub(crate) fn split(&self, x: &[f32], out: &mut [f32]) {
         let (g, s) = (self.g, self.g.stride);
-        out.fill(0.0);
+        debug_assert!(
+            out.iter().all(|&v| v == 0.0),
+            "split into a non-zero buffer"
+        );
         for (c, plane) in x.chunks(g.height * g.width).enumerate() {
             for (i, row) in plane.chunks(g.width).enumerate() {
                 for b in 0..s {
