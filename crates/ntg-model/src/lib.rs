@@ -49,6 +49,7 @@ mod edge;
 mod encoder;
 mod error;
 mod flat_policy;
+pub mod float_mode;
 mod frame_stage;
 mod gcn;
 mod gru;
@@ -76,6 +77,9 @@ pub use flat_policy::{
     ConditionedFlatPolicy, FlatBatch, FlatExample, FlatOutput, FlatPolicy, FlatPolicyConfig,
     executed_actions,
 };
+pub use float_mode::{
+    apply_float_mode, flush_subnormals_on_this_thread, flushes_subnormals, init_float_mode,
+};
 pub use frame_stage::{FrameStageConfig, FrameStageLoss, FrameStageNet};
 pub use gcn::{EdgeCounts, GcnOutput, GraphCompletionConfig, GraphCompletionNet, PairMlp};
 pub use interpreter::{DemoInterpreter, DemoInterpreterConfig, InterpreterOutput, LossOutput};
@@ -89,7 +93,9 @@ pub use ntp::{
     NtpNet, NtpOutput, ProgramCall, ProgramStack, StackFrame, StackStep, scope_from_logits,
 };
 pub use optimizer::ParallelOptimizer;
-pub use parallel::{ThreadPoolInfo, init_thread_pool, pinned_pool_builder, sharded_gradients};
+pub use parallel::{
+    ThreadPoolInfo, compute_pool_builder, init_thread_pool, pinned_pool_builder, sharded_gradients,
+};
 pub use policy::{MappedPolicy, NtgPolicy};
 
 #[cfg(test)]

@@ -17,6 +17,7 @@ use burn::tensor::Tensor;
 use rayon::prelude::*;
 
 use crate::ModelError;
+use crate::float_mode::{apply_float_mode, init_float_mode};
 
 /// The gradients of `Σ_i loss_i` over `shards` shards, where
 /// `shard(replica, i)` returns shard `i`'s loss (weighted as the caller
@@ -76,6 +77,9 @@ pub struct ThreadPoolInfo {
     pub threads: usize,
     /// Whether each worker thread was pinned to a core of its own.
     pub pinned: bool,
+    /// Whether the process flushes subnormal floats to zero
+    /// ([`crate::float_mode`]).
+    pub flush_subnormals: bool,
 }
 
 /// The cores this process may run on (its CPU affinity), in order.
@@ -94,14 +98,25 @@ fn allowed_cores() -> Vec<core_affinity::CoreId> {
 /// ~1.73 (`docs/results/speed-2026-11-27.md`, session 33).
 pub fn pinned_pool_builder(threads: usize) -> rayon::ThreadPoolBuilder {
     let cores = allowed_cores();
-    let builder = rayon::ThreadPoolBuilder::new().num_threads(threads);
     if threads == 0 || cores.len() < threads {
-        return builder;
+        return compute_pool_builder(threads);
     }
-    builder.start_handler(move |i| {
-        // A refused pin leaves the thread where the scheduler puts it.
-        let _ = core_affinity::set_for_current(cores[i]);
-    })
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .start_handler(move |i| {
+            apply_float_mode();
+            // A refused pin leaves the thread where the scheduler puts it.
+            let _ = core_affinity::set_for_current(cores[i]);
+        })
+}
+
+/// A rayon pool builder of `threads` threads that compute in the process's
+/// float mode ([`crate::float_mode`]); use it for every pool that runs
+/// tensor work.
+pub fn compute_pool_builder(threads: usize) -> rayon::ThreadPoolBuilder {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .start_handler(|_| apply_float_mode())
 }
 
 /// Builds rayon's global pool, on which burn's CPU backend computes and
@@ -113,7 +128,12 @@ pub fn pinned_pool_builder(threads: usize) -> rayon::ThreadPoolBuilder {
 /// (two runs side by side) are not put on the same core.
 /// `NTG_PIN_THREADS=0` turns pinning off. If the global pool already
 /// exists, it is left as it is (and reported unpinned).
+///
+/// First it chooses the process's float mode ([`init_float_mode`]: flush
+/// subnormals unless `NTG_FLUSH_SUBNORMALS=0`) and applies it to the
+/// calling thread and to the pool's workers.
 pub fn init_thread_pool() -> ThreadPoolInfo {
+    let flush_subnormals = init_float_mode();
     let cores = allowed_cores();
     let machine = if cores.is_empty() {
         std::thread::available_parallelism().map_or(1, |n| n.get())
@@ -134,16 +154,18 @@ pub fn init_thread_pool() -> ThreadPoolInfo {
     let builder = if pin {
         pinned_pool_builder(threads)
     } else {
-        rayon::ThreadPoolBuilder::new().num_threads(threads)
+        compute_pool_builder(threads)
     };
     match builder.build_global() {
         Ok(()) => ThreadPoolInfo {
             threads,
             pinned: pin,
+            flush_subnormals,
         },
         Err(_) => ThreadPoolInfo {
             threads: rayon::current_num_threads(),
             pinned: false,
+            flush_subnormals,
         },
     }
 }

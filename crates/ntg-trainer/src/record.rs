@@ -163,6 +163,42 @@ impl RunRecord {
         evals(self) == evals(other)
     }
 
+    /// The stretches of training its `sessions.jsonl` lists (lines that do
+    /// not parse are left out).
+    pub fn sessions(&self) -> Vec<Session> {
+        self.files
+            .get("sessions.jsonl")
+            .and_then(Value::as_array)
+            .map(|lines| {
+                lines
+                    .iter()
+                    .filter_map(|l| serde_json::from_value(l.clone()).ok())
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// Why a rerun in this process might not repeat the record although
+    /// the code is the same: its training ran with another float mode than
+    /// this process's (`ntg_model::float_mode`). `None` when every
+    /// stretch ran in this process's mode.
+    pub fn float_mode_note(&self) -> Option<String> {
+        let now = ntg_model::flushes_subnormals();
+        let sessions = self.sessions();
+        let other = sessions
+            .iter()
+            .filter(|s| s.flushed_subnormals() != now)
+            .count();
+        (other > 0).then(|| {
+            let (then, value) = if now { ("kept", "0") } else { ("flushed", "1") };
+            format!(
+                "{other} of its {} training stretches {then} subnormal floats, which this \
+                 process does not (NTG_FLUSH_SUBNORMALS={value} reruns it in that mode)",
+                sessions.len()
+            )
+        })
+    }
+
     /// A short summary of its evaluations ("eval/full-1000.json: 921/1000").
     pub fn summary(&self) -> String {
         self.files
@@ -189,6 +225,18 @@ pub struct Session {
     pub commit: String,
     /// The CPU and thread count.
     pub machine: String,
+    /// Whether the process flushed subnormal floats to zero
+    /// (`ntg_model::float_mode`); absent in lines written before the
+    /// mode existed, whose binaries kept them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flush_subnormals: Option<bool>,
+}
+
+impl Session {
+    /// Whether this stretch flushed subnormals (absent: it did not).
+    pub fn flushed_subnormals(&self) -> bool {
+        self.flush_subnormals.unwrap_or(false)
+    }
 }
 
 /// Notes in `run`'s `sessions.jsonl` that training starts (or resumes) at
@@ -200,6 +248,7 @@ pub fn note_session(run: &RunDir, from_epoch: usize) -> anyhow::Result<()> {
             from_epoch,
             commit: commit(),
             machine: machine(),
+            flush_subnormals: Some(ntg_model::flushes_subnormals()),
         },
     )
 }
@@ -409,6 +458,40 @@ mod tests {
         let mut other = back.clone();
         other.files.get_mut("eval/full-2.json").unwrap()["tasks"][1]["success"] = true.into();
         assert!(!back.same_outcomes(&other));
+    }
+
+    #[test]
+    fn a_record_names_training_stretches_of_another_float_mode() {
+        // Tests run without `init_float_mode`: subnormals kept.
+        assert!(!ntg_model::flushes_subnormals());
+        let record = |lines: &str| RunRecord {
+            format: FORMAT,
+            run: "r".into(),
+            commit: String::new(),
+            machine: String::new(),
+            files: BTreeMap::from([(
+                "sessions.jsonl".to_string(),
+                serde_json::from_str(lines).unwrap(),
+            )]),
+        };
+        // Lines from before the mode existed kept subnormals.
+        let old = r#"[{"from_epoch": 0, "commit": "a", "machine": "m"}]"#;
+        assert_eq!(record(old).float_mode_note(), None);
+        let mixed = r#"[{"from_epoch": 0, "commit": "a", "machine": "m"},
+            {"from_epoch": 3, "commit": "b", "machine": "m", "flush_subnormals": true}]"#;
+        let note = record(mixed).float_mode_note().unwrap();
+        assert!(
+            note.starts_with("1 of its 2 training stretches flushed"),
+            "{note}"
+        );
+        assert!(note.contains("NTG_FLUSH_SUBNORMALS=1"), "{note}");
+        // A new line says which mode it ran in.
+        let tmp = tempfile::tempdir().unwrap();
+        let run = RunDir::create(&tmp.path().join("r")).unwrap();
+        note_session(&run, 0).unwrap();
+        let text = std::fs::read_to_string(tmp.path().join("r/sessions.jsonl")).unwrap();
+        let line: Session = serde_json::from_str(text.trim()).unwrap();
+        assert_eq!(line.flush_subnormals, Some(false));
     }
 
     #[test]

@@ -116,6 +116,7 @@ pub fn reproduce(
     // run (its longest) takes its place first.
     let (front, side) = std::thread::scope(|scope| {
         let side = scope.spawn(|| {
+            ntg_model::apply_float_mode();
             plan.slots.wait_for_a_start();
             let ablation_b = ablation::run_b(&ablation_b_file, profile, plan)?;
             let thor_all = thor_all::run(&thor_all_file, profile, plan)?;
@@ -582,7 +583,14 @@ pub fn reproduce_only(
                             if record.same_outcomes(&now) {
                                 format!("matches {} (every episode)", path.display())
                             } else {
-                                format!("DIFFERS from {}: {}", path.display(), record.summary())
+                                let why = record
+                                    .float_mode_note()
+                                    .map_or_else(String::new, |n| format!(" ({n})"));
+                                format!(
+                                    "DIFFERS from {}: {}{why}",
+                                    path.display(),
+                                    record.summary()
+                                )
                             }
                         }
                         None => format!("no record before: written to {}", path.display()),

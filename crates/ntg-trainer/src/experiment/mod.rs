@@ -341,8 +341,8 @@ pub(crate) fn in_parallel<T: Send>(
     std::thread::scope(|scope| {
         for _ in 0..slots.count().min(count) {
             scope.spawn(|| {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads_per_job)
+                ntg_model::apply_float_mode();
+                let pool = ntg_model::compute_pool_builder(threads_per_job)
                     .thread_name(|i| format!("run-worker-{i}"))
                     .build();
                 while !failed.load(Ordering::SeqCst) {
