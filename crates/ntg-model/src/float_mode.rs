@@ -15,7 +15,7 @@
 //!
 //! Flushing can change results where a tiny value decides something (a
 //! ReLU's mask reads a subnormal as zero): of the quick profile's results
-//! one line changed (the object-collection NTG line of fig. thor_all), all
+//! one line changed (fig. thor_all's Flat Policy with memory), all
 //! others repeated. So each run's `sessions.jsonl` notes the mode every
 //! stretch of its training ran in.
 //!
