@@ -240,8 +240,12 @@ impl Session {
 }
 
 /// Notes in `run`'s `sessions.jsonl` that training starts (or resumes) at
-/// epoch `from_epoch` here.
+/// epoch `from_epoch` here, warning on stderr when earlier stretches ran
+/// in another float mode ([`mixed_float_mode_warning`]).
 pub fn note_session(run: &RunDir, from_epoch: usize) -> anyhow::Result<()> {
+    if let Some(warning) = mixed_float_mode_warning(run, ntg_model::flushes_subnormals())? {
+        eprintln!("warning: {warning}");
+    }
     RunDir::append_jsonl(
         &run.root().join("sessions.jsonl"),
         &Session {
@@ -251,6 +255,34 @@ pub fn note_session(run: &RunDir, from_epoch: usize) -> anyhow::Result<()> {
             flush_subnormals: Some(ntg_model::flushes_subnormals()),
         },
     )
+}
+
+/// What to tell a user who resumes `run` in float mode `flushing`
+/// (`ntg_model::float_mode`) when stretches before ran in the other: the
+/// run will mix them, and no single-mode rerun can repeat it.
+pub fn mixed_float_mode_warning(run: &RunDir, flushing: bool) -> anyhow::Result<Option<String>> {
+    let path = run.root().join("sessions.jsonl");
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let sessions: Vec<Session> = crate::run_dir::read_jsonl(&path)?;
+    let other = sessions
+        .iter()
+        .filter(|s| s.flushed_subnormals() != flushing)
+        .count();
+    Ok((other > 0).then(|| {
+        let (then, now, value) = if flushing {
+            ("kept", "flushes", "0")
+        } else {
+            ("flushed", "keeps", "1")
+        };
+        format!(
+            "{}: {other} earlier training stretch(es) {then} subnormal floats and this process {now} \
+             them, so the run mixes the two modes; NTG_FLUSH_SUBNORMALS={value} resumes it in its \
+             earlier mode",
+            run.root().display()
+        )
+    }))
 }
 
 /// Whether the run folder `dir` was restored from a record (it has no
@@ -492,6 +524,13 @@ mod tests {
         let text = std::fs::read_to_string(tmp.path().join("r/sessions.jsonl")).unwrap();
         let line: Session = serde_json::from_str(text.trim()).unwrap();
         assert_eq!(line.flush_subnormals, Some(false));
+        // Resuming it in the other mode is warned about, in its own not.
+        assert_eq!(mixed_float_mode_warning(&run, false).unwrap(), None);
+        let warning = mixed_float_mode_warning(&run, true).unwrap().unwrap();
+        assert!(warning.contains("NTG_FLUSH_SUBNORMALS=0"), "{warning}");
+        // A folder without sessions has nothing to mix.
+        let fresh = RunDir::create(&tmp.path().join("fresh")).unwrap();
+        assert_eq!(mixed_float_mode_warning(&fresh, true).unwrap(), None);
     }
 
     #[test]
