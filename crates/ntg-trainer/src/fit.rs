@@ -294,6 +294,13 @@ impl ValidationScore {
     pub fn beats(&self, other: &ValidationScore) -> bool {
         (self.success, self.goal_fraction) > (other.success, other.goal_fraction)
     }
+
+    /// Whether no score can beat `self`: every validation task completed
+    /// and every goal met. Training stops at a selected epoch with such a
+    /// score ([`fit`]), since ties keep the earlier epoch.
+    pub fn is_perfect(&self) -> bool {
+        self.success >= 1.0 && self.goal_fraction >= 1.0
+    }
 }
 
 /// One line of `validation.jsonl`, and the contents of `best/selection.json`.
@@ -343,6 +350,29 @@ pub fn selected_epoch(run: &RunDir) -> anyhow::Result<Option<ValidationRecord>> 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct Progress {
     epochs_done: usize,
+    /// Training stopped before its last epoch because the selected epoch's
+    /// validation score was perfect (absent in older checkpoints: false).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    stopped_early: bool,
+}
+
+impl Progress {
+    /// Whether a run of `epochs` epochs has nothing left to train.
+    fn finished(&self, epochs: usize) -> bool {
+        self.stopped_early || self.epochs_done >= epochs
+    }
+}
+
+/// Whether the run folder `run` holds a checkpoint with nothing left to
+/// train for `epochs` epochs: all of them done, or training stopped early
+/// at a perfect validation score (see [`fit`]). False without a checkpoint.
+pub fn training_finished(run: &Path, epochs: usize) -> anyhow::Result<bool> {
+    let path = run.join("checkpoint").join("progress.json");
+    if !path.is_file() {
+        return Ok(false);
+    }
+    let progress: Progress = RunDir::read_json(&path)?;
+    Ok(progress.finished(epochs))
 }
 
 /// The generator of epoch `epoch`: seeded by `(seed, epoch)` alone.
@@ -358,7 +388,10 @@ pub fn epoch_rng(seed: u64, epoch: usize) -> ChaCha8Rng {
 /// a run killed in between redoes the epoch and finds `best/` untouched or
 /// holding this very epoch), the score logged to `validation.jsonl`, the
 /// best epoch's weights kept in `best/` (ties keep the earlier) and
-/// returned instead of the last.
+/// returned instead of the last. Once the selected epoch's score is
+/// perfect ([`ValidationScore::is_perfect`]) no later epoch can be
+/// selected, so training stops there (the checkpoint says so, and a
+/// resumed run trains nothing): the same selected model, fewer epochs.
 pub fn fit<M, S>(
     mut model: M,
     step: &S,
@@ -394,6 +427,7 @@ where
     recover_dir(&ckpt)?;
     recover_dir(&run.best_dir())?;
     let mut start = 0;
+    let mut stopped_early = false;
     if progress_path.is_file() {
         let progress: Progress = RunDir::read_json(&progress_path)?;
         model = M::load_from(&ckpt, device)
@@ -402,15 +436,17 @@ where
             .load(ckpt.join("optimizer.bpk"))
             .with_context(|| format!("resuming from {}", ckpt.display()))?;
         start = progress.epochs_done;
+        stopped_early = progress.stopped_early;
     }
     drop_lines_from_epoch(&run.metrics_path(), start)?;
     drop_lines_from_epoch(&run.validation_path(), start)?;
-    if start < optim.epochs {
+    if start < optim.epochs && !stopped_early {
         crate::record::note_session(run, start)?;
     }
     let steps_per_epoch = num_examples.div_ceil(optim.batch_size);
     let total_steps = steps_per_epoch * optim.epochs;
-    for epoch in start..optim.epochs {
+    let last = if stopped_early { start } else { optim.epochs };
+    for epoch in start..last {
         let started = std::time::Instant::now();
         let cpu_clock = EpochCpuClock::start();
         let mut rng = epoch_rng(optim.seed, epoch);
@@ -458,6 +494,13 @@ where
                     RunDir::write_json(&dir.join("selection.json"), &record)
                 })?;
             }
+            let selected = if improves {
+                Some(record)
+            } else {
+                selected_epoch(run)?
+            };
+            stopped_early =
+                epoch + 1 < optim.epochs && selected.is_some_and(|best| best.score.is_perfect());
             validation = Some(record);
         }
         // Log, then checkpoint: a run killed in between redoes the epoch
@@ -473,10 +516,20 @@ where
                 &dir.join("progress.json"),
                 &Progress {
                     epochs_done: epoch + 1,
+                    stopped_early,
                 },
             )
         })?;
         on_epoch(&metrics);
+        if stopped_early {
+            eprintln!(
+                "  [{}] the selected epoch's validation score is perfect, so no later epoch can be selected: training stops after {} of its {} epochs",
+                run.root().file_name().unwrap_or_default().to_string_lossy(),
+                epoch + 1,
+                optim.epochs
+            );
+            break;
+        }
     }
     if selection.is_some()
         && let Some(selected) = selected_model(run, device)?
@@ -521,7 +574,7 @@ pub fn finished_model<M: TrainedModel>(
         return Ok(None);
     }
     let progress: Progress = RunDir::read_json(&progress_path)?;
-    if progress.epochs_done < epochs {
+    if !progress.finished(epochs) {
         return Ok(None);
     }
     if selecting && let Some(selected) = selected_model(run, device)? {
@@ -824,6 +877,115 @@ mod tests {
                 "selecting: {selecting}"
             );
         }
+    }
+
+    /// A perfect validation score at the selected epoch ends training
+    /// there: the run counts as finished, a resumed fit trains nothing, and
+    /// the selected model is the one a full run would select.
+    #[test]
+    fn training_stops_at_a_perfect_validation_score() {
+        let device = ntg_model::cpu_device().autodiff();
+        let step = LeastSquares {
+            device: device.clone(),
+        };
+        let optim = OptimConfig {
+            epochs: 5,
+            batch_size: 2,
+            learning_rate: 0.1,
+            seed: 0,
+            token_dropout: 0.0,
+            cosine_decay: true,
+            gcn_from_other_demo: false,
+            shards: 1,
+        };
+        let values = |m: &burn::nn::Linear| m.weight.val().into_data().try_to_vec::<f32>().unwrap();
+        let score = |success: f64, goal_fraction: f64| ValidationScore {
+            success,
+            goal_fraction,
+        };
+        // Perfect at epoch 1 (of 0..5); nearly perfect at epoch 0 does not stop.
+        let init = LinearConfig::new(3, 1).init(&device);
+        let scores = [
+            score(1.0, 0.9),
+            score(1.0, 1.0),
+            score(1.0, 1.0),
+            score(0.5, 0.5),
+            score(1.0, 1.0),
+        ];
+        let train = |run: &RunDir, calls: &mut usize| {
+            let mut validator = |_: &burn::nn::Linear| {
+                *calls += 1;
+                Ok(scores[*calls - 1])
+            };
+            fit(
+                init.clone(),
+                &step,
+                &optim,
+                run,
+                &device,
+                Some(Selection {
+                    validator: &mut validator,
+                    every: 1,
+                }),
+                |_| {},
+            )
+            .unwrap()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::create(&dir.path().join("run")).unwrap();
+        let mut calls = 0;
+        let fitted = train(&run, &mut calls);
+        assert_eq!(calls, 2, "validated epochs 0 and 1, then stopped");
+        let logged: Vec<serde_json::Value> =
+            crate::run_dir::read_jsonl(&run.metrics_path()).unwrap();
+        assert_eq!(logged.len(), 2);
+        assert_eq!(selected_epoch(&run).unwrap().unwrap().epoch, 1);
+        assert!(training_finished(run.root(), optim.epochs).unwrap());
+        let read = finished_model::<burn::nn::Linear>(&run, optim.epochs, true, &device)
+            .unwrap()
+            .expect("finished");
+        assert_eq!(values(&read), values(&fitted));
+        // Resumed: nothing more is trained or validated.
+        let mut again = 0;
+        let resumed = train(&run, &mut again);
+        assert_eq!(again, 0);
+        assert_eq!(values(&resumed), values(&fitted));
+        let logged: Vec<serde_json::Value> =
+            crate::run_dir::read_jsonl(&run.metrics_path()).unwrap();
+        assert_eq!(logged.len(), 2);
+
+        // The same run trained to its end selects the same epoch's weights.
+        let whole = tempfile::tempdir().unwrap();
+        let run = RunDir::create(&whole.path().join("run")).unwrap();
+        let mut validator = {
+            let mut i = 0;
+            move |_: &burn::nn::Linear| {
+                i += 1;
+                // Scores below perfect never stop a run.
+                Ok(score(
+                    scores[i - 1].success * 0.99,
+                    scores[i - 1].goal_fraction,
+                ))
+            }
+        };
+        let full = fit(
+            init.clone(),
+            &step,
+            &optim,
+            &run,
+            &device,
+            Some(Selection {
+                validator: &mut validator,
+                every: 1,
+            }),
+            |_| {},
+        )
+        .unwrap();
+        let logged: Vec<serde_json::Value> =
+            crate::run_dir::read_jsonl(&run.metrics_path()).unwrap();
+        assert_eq!(logged.len(), 5, "no perfect score: every epoch");
+        assert_eq!(selected_epoch(&run).unwrap().unwrap().epoch, 1);
+        assert_eq!(values(&full), values(&fitted), "the same selected weights");
     }
 
     /// utime 1234 and stime 66 ticks: 13 s, counted after the command

@@ -755,14 +755,10 @@ pub fn train_encoder(
 }
 
 /// Whether the stage A folder `stage_a` (a run's [`STAGE_A_DIR`]) holds
-/// an encoder trained for all of `encoder`'s epochs.
+/// an encoder trained for all of `encoder`'s epochs (or stopped early at a
+/// perfect validation score: [`crate::fit::fit`]).
 pub fn stage_a_finished(stage_a: &std::path::Path, encoder: &EncoderStage) -> anyhow::Result<bool> {
-    let progress = stage_a.join("checkpoint").join("progress.json");
-    if !progress.is_file() {
-        return Ok(false);
-    }
-    let done: serde_json::Value = RunDir::read_json(&progress)?;
-    Ok(done["epochs_done"].as_u64() == Some(encoder.epochs as u64))
+    crate::fit::training_finished(stage_a, encoder.epochs)
 }
 
 /// What `stage_a/config.json` records.

@@ -591,30 +591,27 @@ mod tests {
         let panel = &experiment.profiles.get(Profile::Quick).panels[0];
         let runs = experiment.runs_of(panel);
         assert_eq!(runs.len(), 5);
-        // The whole model is fig. ntp_exp's quick state point at 1000
-        // tasks, in a folder of its own.
-        let state = &ntp_exp.profiles.get(Profile::Quick).panels[1];
+        // The whole model is fig. ntp_exp's quick state point at 500
+        // tasks (the run is shared), in a folder of its own.
+        let state = &ntp_exp.profiles.get(Profile::Quick).panels[4];
         let whole = (crate::method::MethodId::Ntg, Variant::Full);
         assert_eq!(
             experiment
-                .run_config(Profile::Quick, panel, whole, 1000)
+                .run_config(Profile::Quick, panel, whole, 500)
                 .unwrap(),
             ntp_exp
-                .run_config(Profile::Quick, state, whole, 1000)
+                .run_config(Profile::Quick, state, whole, 500)
                 .unwrap()
         );
-        assert_eq!(
-            experiment.run_name(panel, whole, 1000),
-            "ablation-state-1000"
-        );
+        assert_eq!(experiment.run_name(panel, whole, 500), "ablation-state-500");
         for &(method, ablation) in &runs[1..] {
             let c = experiment
-                .run_config(Profile::Quick, panel, (method, ablation), 1000)
+                .run_config(Profile::Quick, panel, (method, ablation), 500)
                 .unwrap();
             assert_eq!(c.ablation, ablation);
             assert_eq!(
-                experiment.run_name(panel, (method, ablation), 1000),
-                format!("ablation-state-{}-1000", ablation.name())
+                experiment.run_name(panel, (method, ablation), 500),
+                format!("ablation-state-{}-500", ablation.name())
             );
         }
         // An evaluation setting is not a trained variant.
@@ -623,7 +620,7 @@ mod tests {
                 Profile::Quick,
                 panel,
                 (crate::method::MethodId::Ntg, Variant::ExecutedNode),
-                1000,
+                500,
             )
             .unwrap_err();
         assert!(format!("{err:#}").contains("ablations are NTG"), "{err:#}");

@@ -524,7 +524,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
     if validated {
         let _ = writeln!(
             s,
-            "Model selection: after every epoch each run is rolled out on {} held-out training-side tasks per training N (tasks in neither the training pool nor the test side), and the epoch with the best validation success (then goals met) is the one tested (column \"epoch\", from 1; the epoch counts above are the most each trains).\n",
+            "Model selection: after every epoch each run is rolled out on {} held-out training-side tasks per training N (tasks in neither the training pool nor the test side), and the epoch with the best validation success (then goals met) is the one tested (column \"epoch\", from 1; the epoch counts above are the most each trains: a run stops at an epoch whose validation score is perfect, every task completed and every goal met, since no later epoch could be selected over it).\n",
             sc.validation_tasks_per_n
         );
     }
