@@ -365,10 +365,15 @@ impl Progress {
 
 /// Whether the run folder `run` holds a checkpoint with nothing left to
 /// train for `epochs` epochs: all of them done, or training stopped early
-/// at a perfect validation score (see [`fit`]). False without a checkpoint.
+/// at a perfect validation score (see [`fit`]). False without a checkpoint,
+/// and false in a run folder restored from a committed record, or a stage
+/// folder of one (its training is recorded, but it holds no weights to
+/// reuse).
 pub fn training_finished(run: &Path, epochs: usize) -> anyhow::Result<bool> {
     let path = run.join("checkpoint").join("progress.json");
-    if !path.is_file() {
+    let restored = crate::record::is_restored(run)
+        || run.parent().is_some_and(crate::record::is_restored);
+    if restored || !path.is_file() {
         return Ok(false);
     }
     let progress: Progress = RunDir::read_json(&path)?;

@@ -471,6 +471,14 @@ mod tests {
         let restored = tmp.path().join("again");
         back.restore(&restored, &file).unwrap();
         assert!(is_restored(&restored));
+        // Its training is recorded as done, but there are no weights to
+        // reuse: neither the run nor a stage folder of it is finished.
+        assert!(crate::fit::training_finished(&run, 2).unwrap());
+        assert!(!crate::fit::training_finished(&restored, 2).unwrap());
+        let stage = restored.join("stage_a");
+        std::fs::create_dir_all(stage.join("checkpoint")).unwrap();
+        std::fs::write(stage.join("checkpoint/progress.json"), r#"{"epochs_done": 2}"#).unwrap();
+        assert!(!crate::fit::training_finished(&stage, 2).unwrap());
         let run_dir = RunDir::open(&restored).unwrap();
         assert_eq!(run_dir.epoch_seconds().unwrap(), 3.5);
         // The evaluation counts as made after the last checkpoint.

@@ -599,20 +599,22 @@ fn run_point(
     };
     let run = RunDir::open_or_create(&dir, &config)?;
     if reuses_stage_a(obs, method) {
-        share_stage_a(
-            &runs.join(experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n)),
-            &run,
-            &config,
-        )?;
         let sibling = match method {
             MethodId::Ntp => MethodId::NtpFlat,
             _ => MethodId::Ntp,
         };
-        share_ntp_frames(
-            &runs.join(experiment.run_name(scale, (sibling, Variant::Full), n)),
-            &run,
-            &config,
-        )?;
+        let sibling_run = runs.join(experiment.run_name(scale, (sibling, Variant::Full), n));
+        // NTG's run first; its sibling's where NTG's holds no weights (a
+        // folder restored from its record).
+        for source in [
+            runs.join(experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n)),
+            sibling_run.clone(),
+        ] {
+            if share_stage_a(&source, &run, &config)? {
+                break;
+            }
+        }
+        share_ntp_frames(&sibling_run, &run, &config)?;
     }
     eprintln!(
         "{} ({}{}, {} recipe, {obs:?}, {n} tasks x {} demos, {epochs} epochs): training -> {}",
@@ -867,22 +869,26 @@ fn finished_twin(runs: &Path, config: &BlocksRunConfig) -> anyhow::Result<Option
 /// Stage A (the frame encoder) of a video point is the same for NTG, NTP
 /// and NTP Flat: their run configurations differ only in the method, and
 /// stage A reads the same videos with the same settings and seed. So a
-/// baseline's run starts from the NTG run's (`ntg_run`) finished stage A,
-/// linked into its folder, rather than training it again; its compute
-/// still counts those epochs. Nothing is linked unless the configurations
-/// match but for the method and that stage A finished.
-fn share_stage_a(ntg_run: &Path, run: &RunDir, config: &BlocksRunConfig) -> anyhow::Result<()> {
+/// baseline's run starts from another run's (`source_run`: NTG's, or the
+/// other baseline's) finished stage A, linked into its folder, rather than
+/// training it again; its compute still counts those epochs. Nothing is
+/// linked (false) unless the configurations match but for the method and
+/// that stage A finished with its weights there.
+fn share_stage_a(
+    source_run: &Path,
+    run: &RunDir,
+    config: &BlocksRunConfig,
+) -> anyhow::Result<bool> {
     let Some(video) = &config.video else {
-        return Ok(());
+        return Ok(false);
     };
     share_part(
-        (ntg_run, crate::video::STAGE_A_DIR),
+        (source_run, crate::video::STAGE_A_DIR),
         run,
         |stage_a| crate::video::stage_a_finished(stage_a, &video.encoder),
         same_but_method(config),
         "stage A: the frame encoder",
     )
-    .map(drop)
 }
 
 /// NTP and NTP Flat on video encode the same primitive-level episodes with
