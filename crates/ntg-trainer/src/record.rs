@@ -230,6 +230,12 @@ pub struct Session {
     /// mode existed, whose binaries kept them.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub flush_subnormals: Option<bool>,
+    /// The threads the run computed on (its rayon pool); absent in lines
+    /// written before it was noted, whose runs computed on one thread
+    /// (`ntg reproduce`'s share of 2 cores at 2 runs at a time) unless the
+    /// record's notes say otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub compute_threads: Option<usize>,
 }
 
 impl Session {
@@ -253,6 +259,7 @@ pub fn note_session(run: &RunDir, from_epoch: usize) -> anyhow::Result<()> {
             commit: commit(),
             machine: machine(),
             flush_subnormals: Some(ntg_model::flushes_subnormals()),
+            compute_threads: Some(rayon::current_num_threads()),
         },
     )
 }
@@ -401,7 +408,9 @@ fn commit() -> String {
     env!("NTG_BUILD_COMMIT").to_owned()
 }
 
-fn machine() -> String {
+/// The machine this process runs on, in words: the CPU's model name and
+/// the threads it offers ("Intel(R) Xeon(R) Processor, 2 threads").
+pub(crate) fn machine() -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|info| {
@@ -532,6 +541,12 @@ mod tests {
         let text = std::fs::read_to_string(tmp.path().join("r/sessions.jsonl")).unwrap();
         let line: Session = serde_json::from_str(text.trim()).unwrap();
         assert_eq!(line.flush_subnormals, Some(false));
+        // And on how many threads.
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        pool.install(|| note_session(&run, 1)).unwrap();
+        let text = std::fs::read_to_string(tmp.path().join("r/sessions.jsonl")).unwrap();
+        let line: Session = serde_json::from_str(text.lines().last().unwrap()).unwrap();
+        assert_eq!(line.compute_threads, Some(3));
         // Resuming it in the other mode is warned about, in its own not.
         assert_eq!(mixed_float_mode_warning(&run, false).unwrap(), None);
         let warning = mixed_float_mode_warning(&run, true).unwrap().unwrap();

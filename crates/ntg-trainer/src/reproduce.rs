@@ -265,6 +265,9 @@ struct TrainingCompute {
     with_cpu: usize,
     cpu: f64,
     wall_of_cpu_epochs: f64,
+    /// Runs that trained (some stretch) on more than one thread, with the
+    /// most threads of a stretch (`compute_threads` in `sessions.jsonl`).
+    multi_threaded: Vec<(String, usize)>,
 }
 
 fn training_compute(results: &Results) -> TrainingCompute {
@@ -292,9 +295,19 @@ fn training_compute(results: &Results) -> TrainingCompute {
         with_cpu: 0,
         cpu: 0.0,
         wall_of_cpu_epochs: 0.0,
+        multi_threaded: Vec::new(),
     };
     for (bits, run) in unique {
         compute.core_seconds += f64::from_bits(bits);
+        let threads = crate::run_dir::read_jsonl::<crate::record::Session>(
+            &run.join("sessions.jsonl"),
+        )
+        .ok()
+        .and_then(|sessions| sessions.iter().filter_map(|s| s.compute_threads).max());
+        if let Some(threads) = threads.filter(|&t| t > 1) {
+            let name = run.file_name().unwrap_or_default().to_string_lossy();
+            compute.multi_threaded.push((name.into_owned(), threads));
+        }
         let recorded = RunDir::open(run)
             .ok()
             .and_then(|dir| dir.recorded_cpu_seconds().ok().flatten());
@@ -345,7 +358,12 @@ fn beside_paper(results: &Results, paper: &Results) -> String {
 }
 
 fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
+    let compute = training_compute(results);
     let mut s = String::new();
+    let measured_on = format!(
+        "Measured on {} (wall time: other jobs on the machine lengthen it).",
+        crate::record::machine()
+    );
     let _ = writeln!(s, "# Reproduced figures\n");
     let _ = writeln!(
         s,
@@ -353,12 +371,23 @@ fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
         results.profile,
         seconds,
         if results.profile == Profile::Paper {
-            "Each run trains on one thread; where each stretch of its training ran (commit, CPU, threads of the machine) is in its record, `records/RUN.json` (`sessions.jsonl`)."
+            format!(
+                "Each run trains on one thread{}; where each stretch of its training ran (commit, CPU, threads of the machine, threads it computed on) is in its record, `records/RUN.json` (`sessions.jsonl`).",
+                match compute.multi_threaded.as_slice() {
+                    [] => String::new(),
+                    runs => format!(
+                        " but {}",
+                        runs.iter()
+                            .map(|(name, threads)| format!("{name} ({threads} threads)"))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                }
+            )
         } else {
-            "Measured on 2 CPU cores shared with other jobs."
+            measured_on
         }
     );
-    let compute = training_compute(results);
     let cpu_note = match compute.with_cpu {
         0 => String::new(),
         n => format!(
