@@ -371,8 +371,8 @@ impl Progress {
 /// reuse).
 pub fn training_finished(run: &Path, epochs: usize) -> anyhow::Result<bool> {
     let path = run.join("checkpoint").join("progress.json");
-    let restored = crate::record::is_restored(run)
-        || run.parent().is_some_and(crate::record::is_restored);
+    let restored =
+        crate::record::is_restored(run) || run.parent().is_some_and(crate::record::is_restored);
     if restored || !path.is_file() {
         return Ok(false);
     }

@@ -486,7 +486,11 @@ mod tests {
         assert!(!crate::fit::training_finished(&restored, 2).unwrap());
         let stage = restored.join("stage_a");
         std::fs::create_dir_all(stage.join("checkpoint")).unwrap();
-        std::fs::write(stage.join("checkpoint/progress.json"), r#"{"epochs_done": 2}"#).unwrap();
+        std::fs::write(
+            stage.join("checkpoint/progress.json"),
+            r#"{"epochs_done": 2}"#,
+        )
+        .unwrap();
         assert!(!crate::fit::training_finished(&stage, 2).unwrap());
         let run_dir = RunDir::open(&restored).unwrap();
         assert_eq!(run_dir.epoch_seconds().unwrap(), 3.5);
@@ -542,7 +546,10 @@ mod tests {
         let line: Session = serde_json::from_str(text.trim()).unwrap();
         assert_eq!(line.flush_subnormals, Some(false));
         // And on how many threads.
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
         pool.install(|| note_session(&run, 1)).unwrap();
         let text = std::fs::read_to_string(tmp.path().join("r/sessions.jsonl")).unwrap();
         let line: Session = serde_json::from_str(text.lines().last().unwrap()).unwrap();

@@ -299,11 +299,10 @@ fn training_compute(results: &Results) -> TrainingCompute {
     };
     for (bits, run) in unique {
         compute.core_seconds += f64::from_bits(bits);
-        let threads = crate::run_dir::read_jsonl::<crate::record::Session>(
-            &run.join("sessions.jsonl"),
-        )
-        .ok()
-        .and_then(|sessions| sessions.iter().filter_map(|s| s.compute_threads).max());
+        let threads =
+            crate::run_dir::read_jsonl::<crate::record::Session>(&run.join("sessions.jsonl"))
+                .ok()
+                .and_then(|sessions| sessions.iter().filter_map(|s| s.compute_threads).max());
         if let Some(threads) = threads.filter(|&t| t > 1) {
             let name = run.file_name().unwrap_or_default().to_string_lossy();
             compute.multi_threaded.push((name.into_owned(), threads));
