@@ -298,6 +298,18 @@ pub fn is_restored(dir: &Path) -> bool {
     dir.join(RESTORED_MARKER).is_file()
 }
 
+/// Where a paper-profile run in progress, carried between machines, is
+/// kept: `in-progress/NAME/` beside the `records` folder (its README says
+/// how a run folder is saved there); `ntg reproduce` resumes from a copy
+/// of it when the run has neither a folder nor a record.
+pub fn in_progress_dir(records: &Path, name: &str) -> PathBuf {
+    records
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join("in-progress")
+        .join(name)
+}
+
 /// The record file of run `name` in `records`.
 pub fn path(records: &Path, name: &str) -> PathBuf {
     records.join(format!("{name}.json"))

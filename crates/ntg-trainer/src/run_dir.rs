@@ -40,14 +40,27 @@ use serde::de::DeserializeOwned;
 /// under a temporary name and renamed at the end, so a kill leaves `to`
 /// absent or whole.
 pub fn link_or_copy_tree(from: &Path, to: &Path) -> anyhow::Result<()> {
-    fn fill(from: &Path, to: &Path) -> anyhow::Result<()> {
+    fill_tree(from, to, true)
+}
+
+/// Copies the folder `from` to `to` (which must not exist), file by file,
+/// never linking: for a tree whose copy will be written to while the
+/// original must stay as it is (a run carried between machines in
+/// `docs/figures/in-progress/`). Like [`link_or_copy_tree`], through
+/// `to.partial`.
+pub fn copy_tree(from: &Path, to: &Path) -> anyhow::Result<()> {
+    fill_tree(from, to, false)
+}
+
+fn fill_tree(from: &Path, to: &Path, link: bool) -> anyhow::Result<()> {
+    fn fill(from: &Path, to: &Path, link: bool) -> anyhow::Result<()> {
         fs::create_dir_all(to).with_context(|| format!("creating {}", to.display()))?;
         for entry in fs::read_dir(from).with_context(|| format!("reading {}", from.display()))? {
             let entry = entry?;
             let (source, target) = (entry.path(), to.join(entry.file_name()));
             if entry.file_type()?.is_dir() {
-                fill(&source, &target)?;
-            } else if fs::hard_link(&source, &target).is_err() {
+                fill(&source, &target, link)?;
+            } else if !link || fs::hard_link(&source, &target).is_err() {
                 fs::copy(&source, &target).with_context(|| {
                     format!("copying {} to {}", source.display(), target.display())
                 })?;
@@ -60,7 +73,7 @@ pub fn link_or_copy_tree(from: &Path, to: &Path) -> anyhow::Result<()> {
         fs::remove_dir_all(&partial)
             .with_context(|| format!("removing the unfinished {}", partial.display()))?;
     }
-    fill(from, &partial)?;
+    fill(from, &partial, link)?;
     fs::rename(&partial, to)
         .with_context(|| format!("renaming {} to {}", partial.display(), to.display()))
 }

@@ -90,9 +90,12 @@ impl<'a> Plan<'a> {
 
     /// Gets the run folder `name` (of `config`) ready for its figure: if
     /// it is missing and a record of the same configuration is kept,
-    /// restores it from there. Returns the folder, or `None` (the run noted
-    /// in `missing`) when training is off and the run has no evaluation
-    /// `eval/<eval_file>`.
+    /// restores it from there; else, when training, if a run of the same
+    /// configuration begun on another machine is carried in the
+    /// `in-progress/` folder beside the records
+    /// ([`crate::record::in_progress_dir`]), copies it in to resume it.
+    /// Returns the folder, or `None` (the run noted in `missing`) when
+    /// training is off and the run has no evaluation `eval/<eval_file>`.
     pub(crate) fn prepare(
         &self,
         name: &str,
@@ -117,6 +120,24 @@ impl<'a> Plan<'a> {
                     eprintln!(
                         "  [{name}] {} records another configuration: not used",
                         path.display()
+                    );
+                }
+            }
+            let carried = crate::record::in_progress_dir(records, name);
+            if self.train && !dir.exists() && carried.is_dir() {
+                let written: Value = serde_json::from_str(&serde_json::to_string(config)?)?;
+                let theirs: Value =
+                    crate::run_dir::RunDir::read_json(&carried.join("config.json"))?;
+                if theirs == written {
+                    eprintln!(
+                        "  [{name}] begun on another machine: resumed from a copy of {}",
+                        carried.display()
+                    );
+                    crate::run_dir::copy_tree(&carried, &dir)?;
+                } else {
+                    eprintln!(
+                        "  [{name}] {} holds another configuration: not used",
+                        carried.display()
                     );
                 }
             }
@@ -543,6 +564,47 @@ mod tests {
             cosine_decay: false,
             shards: 1,
         }
+    }
+
+    #[test]
+    fn a_run_carried_in_progress_is_resumed_from_a_copy() {
+        let tmp = tempfile::tempdir().unwrap();
+        let records = tmp.path().join("figures/records");
+        let carried = crate::record::in_progress_dir(&records, "r");
+        assert!(carried.ends_with("figures/in-progress/r"));
+        std::fs::create_dir_all(carried.join("checkpoint")).unwrap();
+        let config = serde_json::json!({"seed": 1, "method": "ntp"});
+        std::fs::write(carried.join("config.json"), config.to_string()).unwrap();
+        std::fs::write(carried.join("metrics.jsonl"), "{\"epoch\":0}\n").unwrap();
+        std::fs::write(carried.join("checkpoint/progress.json"), "{}").unwrap();
+        let runs = tmp.path().join("runs");
+        let plan = |train: bool| Plan {
+            records: Some(&records),
+            restore: true,
+            train,
+            ..Plan::train_all(&runs, 1)
+        };
+        // Not when nothing is trained, nor for another configuration.
+        assert_eq!(plan(false).prepare("r", &config, "e.json").unwrap(), None);
+        assert!(!runs.join("r").exists());
+        let other = serde_json::json!({"seed": 2, "method": "ntp"});
+        plan(true).prepare("r", &other, "e.json").unwrap();
+        assert!(!runs.join("r").exists());
+        let dir = plan(true).prepare("r", &config, "e.json").unwrap().unwrap();
+        assert_eq!(dir, runs.join("r"));
+        assert!(dir.join("checkpoint/progress.json").is_file());
+        // A copy: training appends to it, the carried folder stays.
+        crate::run_dir::RunDir::append_jsonl(
+            &dir.join("metrics.jsonl"),
+            &serde_json::json!({"epoch": 1}),
+        )
+        .unwrap();
+        let kept = std::fs::read_to_string(carried.join("metrics.jsonl")).unwrap();
+        assert_eq!(kept.lines().count(), 1);
+        // An existing folder is never replaced.
+        std::fs::remove_file(dir.join("checkpoint/progress.json")).unwrap();
+        plan(true).prepare("r", &config, "e.json").unwrap();
+        assert!(!dir.join("checkpoint/progress.json").exists());
     }
 
     #[test]
