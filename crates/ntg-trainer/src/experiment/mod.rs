@@ -123,23 +123,26 @@ impl<'a> Plan<'a> {
                     );
                 }
             }
-            let carried = crate::record::in_progress_dir(records, name);
-            if self.train && !dir.exists() && carried.is_dir() {
-                let written: Value = serde_json::from_str(&serde_json::to_string(config)?)?;
-                let theirs: Value =
-                    crate::run_dir::RunDir::read_json(&carried.join("config.json"))?;
-                if theirs == written {
-                    eprintln!(
-                        "  [{name}] begun on another machine: resumed from a copy of {}",
-                        carried.display()
-                    );
-                    crate::run_dir::copy_tree(&carried, &dir)?;
-                } else {
-                    eprintln!(
-                        "  [{name}] {} holds another configuration: not used",
-                        carried.display()
-                    );
-                }
+        }
+        // Resumed also under `--only` (which restores no record): a
+        // carried run is unfinished, so there is nothing to check it against.
+        let carried = self
+            .records
+            .map(|records| crate::record::in_progress_dir(records, name));
+        if let Some(carried) = carried.filter(|c| self.train && !dir.exists() && c.is_dir()) {
+            let written: Value = serde_json::from_str(&serde_json::to_string(config)?)?;
+            let theirs: Value = crate::run_dir::RunDir::read_json(&carried.join("config.json"))?;
+            if theirs == written {
+                eprintln!(
+                    "  [{name}] begun on another machine: resumed from a copy of {}",
+                    carried.display()
+                );
+                crate::run_dir::copy_tree(&carried, &dir)?;
+            } else {
+                eprintln!(
+                    "  [{name}] {} holds another configuration: not used",
+                    carried.display()
+                );
             }
         }
         if !self.train && !dir.join("eval").join(eval_file).is_file() {
@@ -605,6 +608,14 @@ mod tests {
         std::fs::remove_file(dir.join("checkpoint/progress.json")).unwrap();
         plan(true).prepare("r", &config, "e.json").unwrap();
         assert!(!dir.join("checkpoint/progress.json").exists());
+        // `--only` restores no record but resumes a carried run.
+        std::fs::remove_dir_all(&dir).unwrap();
+        let only = Plan {
+            restore: false,
+            ..plan(true)
+        };
+        only.prepare("r", &config, "e.json").unwrap();
+        assert!(dir.join("checkpoint/progress.json").is_file());
     }
 
     #[test]
