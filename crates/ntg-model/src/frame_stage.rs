@@ -554,6 +554,45 @@ mod tests {
         );
     }
 
+    /// The trainer encodes frames on whatever pool a run has (one thread,
+    /// or two), and caches the embeddings for later stages and other runs
+    /// to read: the full-size encoder's output must be the same, bit for
+    /// bit, on one thread and on two.
+    #[test]
+    fn encoding_does_not_depend_on_the_thread_count() {
+        let device = Device::flex();
+        let net = FrameStageConfig::new(5, EncoderConfig::frame())
+            .init(&device)
+            .unwrap();
+        let dim = net.encoder.input_dim();
+        let rows: Vec<Vec<f32>> = (0..48)
+            .map(|r| {
+                (0..dim)
+                    .map(|k| ((r * 7919 + k * 104_729) % 1000) as f32 / 1000.0)
+                    .collect()
+            })
+            .collect();
+        let encode_on = |threads: usize| {
+            let pool = crate::parallel::compute_pool_builder(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let encoded = net
+                    .encode(rows_tensor(&rows, dim, &device).unwrap())
+                    .unwrap();
+                crate::nn::to_vec(encoded).unwrap()
+            })
+        };
+        let (one, two) = (encode_on(1), encode_on(2));
+        assert_eq!(one.len(), 48 * net.encoder.out_dim());
+        let differing = one
+            .iter()
+            .zip(&two)
+            .filter(|(a, b)| a.to_bits() != b.to_bits())
+            .count();
+        assert_eq!(differing, 0, "{differing} of {} values differ", one.len());
+    }
+
     #[test]
     fn saves_and_loads() {
         let device = Device::flex();

@@ -16,8 +16,10 @@
 //!   [`jigsaws`]: the JIGSAWS cross-task experiment, scored by NLL;
 //! - [`experiment`]: the paper's figures as experiment files
 //!   (`experiments/*.toml`), run and drawn ([`figure`], [`svg`]);
-//!   [`reproduce`] runs them all; [`trace`] executes one test task step by
-//!   step;
+//!   [`reproduce`] runs them all; [`record`] keeps the paper profile's
+//!   finished runs as small committed records and [`carry`] its unfinished
+//!   ones carried between machines; [`trace`] executes one test task step
+//!   by step;
 //! - [`cli`]: the `ntg` command line, which parses arguments into run
 //!   configurations and calls the library.
 //!
@@ -26,6 +28,7 @@
 //! `xtask`. Experiments are data (configs) run through one code path, not
 //! code copied per figure.
 
+pub mod carry;
 pub mod cli;
 pub mod dataset;
 pub mod domain;

@@ -9,6 +9,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 pub mod blocks;
+pub mod carry;
 pub mod collect;
 pub mod graph;
 pub mod jigsaws;
@@ -40,6 +41,10 @@ pub enum Command {
     Trace(trace::TraceArgs),
     /// Reproduce the paper's figures (what `cargo xtask reproduce-figures` runs).
     Reproduce(train::ReproduceArgs),
+    /// Save unfinished paper-profile runs into docs/figures/in-progress/
+    /// (without their rebuildable caches), to commit them and resume them
+    /// on another machine; safe while they train.
+    Carry(carry::CarryArgs),
     /// Block stacking and object sorting: task sets and demonstrations.
     #[command(subcommand)]
     Blocks(blocks::BlocksCommand),
@@ -68,6 +73,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(args) => train::run_eval(&args),
         Command::Trace(args) => trace::run(&args),
         Command::Reproduce(args) => train::run_reproduce(&args),
+        Command::Carry(args) => carry::run(&args),
         Command::Blocks(cmd) => blocks::run(cmd),
         Command::Collect(cmd) => collect::run(cmd),
         Command::Jigsaws(cmd) => jigsaws::run(cmd),

@@ -158,7 +158,8 @@ impl<'a> Plan<'a> {
     /// After a run's evaluations: writes its record where records are kept,
     /// unless the run was restored from one. A record already there is
     /// replaced only by one that adds evaluations to the same outcomes;
-    /// one that differs is kept, and a line says so.
+    /// one that differs is kept, and a line says so. Once the run is
+    /// recorded, its copy carried in `in-progress/` (if any) is removed.
     pub(crate) fn finish(&self, dir: &Path) -> anyhow::Result<()> {
         let Some(records) = self.records else {
             return Ok(());
@@ -184,11 +185,22 @@ impl<'a> Plan<'a> {
                 );
                 return Ok(());
             }
-            if kept.files.len() >= record.files.len() {
-                return Ok(());
+            if kept.files.len() < record.files.len() {
+                record.write(&path)?;
             }
+        } else {
+            record.write(&path)?;
         }
-        record.write(&path)
+        // Recorded: a copy of the run carried from another machine is done with.
+        if let Some(removed) = crate::carry::discard_carried(records, &record.run, record.config())?
+        {
+            eprintln!(
+                "  [{}] recorded: removed its carried copy {}",
+                record.run,
+                removed.display()
+            );
+        }
+        Ok(())
     }
 }
 
@@ -616,6 +628,10 @@ mod tests {
         };
         only.prepare("r", &config, "e.json").unwrap();
         assert!(dir.join("checkpoint/progress.json").is_file());
+        // Recorded: the carried copy is done with and removed.
+        plan(true).finish(&dir).unwrap();
+        assert!(crate::record::path(&records, "r").is_file());
+        assert!(!carried.exists());
     }
 
     #[test]
