@@ -207,6 +207,25 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--video-renaming-group", "2"]),
             "--video-renaming-group".into(),
         ),
+        (
+            train(&["--encoder-labels", "primitive"]),
+            "--encoder-labels".into(),
+        ),
+        (
+            train(&["--obs", "vid", "--encoder-labels", "primitive"]),
+            "--encoder-labels".into(),
+        ),
+        (
+            train(&[
+                "--obs",
+                "vid",
+                "--method",
+                "ntp",
+                "--encoder-labels",
+                "keyframes",
+            ]),
+            "--encoder-labels".into(),
+        ),
         // An evaluation setting is not a trained ablation; only NTG has
         // parts to ablate; object collection has no --ablation.
         (

@@ -290,6 +290,43 @@ pub struct BlocksVideo {
     /// Absent in runs saved before it: false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub executed_node: bool,
+    /// What stage A's frame encoder is trained to tell apart in NTP's and
+    /// NTP Flat's video runs (NTG's always reads flat actions). Absent in
+    /// runs saved before it: [`FrameLabels::Flat`].
+    #[serde(default, skip_serializing_if = "FrameLabels::is_flat")]
+    pub encoder_labels: FrameLabels,
+}
+
+/// The labels stage A's frame encoder is trained on (`--encoder-labels`).
+///
+/// NTG acts once per flat action (`pick(X)`, `place(Y)`), on the scene
+/// after it; its stage A labels every frame with the flat action under way
+/// (the localizer's node) and the next one (the edge classifier's), so the
+/// frames inside a `place(Y)` (the cube carried above `Y`) and the scene
+/// after it (the cube released) share their labels, and the encoder is
+/// trained to map them alike. NTP acts once per primitive: after
+/// `move(Y)` it must `drop`, after `drop` return, and those are exactly
+/// the two scenes. With [`FrameLabels::Primitive`], NTP's and NTP Flat's
+/// encoder is trained instead on the frames NTP acts on (the scene before
+/// each primitive and the last), labelled with NTP's own lowest-level
+/// supervision: the primitive just taken and the next.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum FrameLabels {
+    /// NTG's flat actions, on every frame of the demo videos (stage A as
+    /// NTG's, shared with NTG's run of the point).
+    #[default]
+    Flat,
+    /// NTP's primitives, on the frame before each primitive of its
+    /// primitive-level episodes (NTP and NTP Flat on video only).
+    Primitive,
+}
+
+impl FrameLabels {
+    /// Whether these are NTG's flat labels (the default).
+    pub fn is_flat(&self) -> bool {
+        *self == FrameLabels::Flat
+    }
 }
 
 fn is_one(n: &usize) -> bool {
@@ -344,6 +381,7 @@ impl BlocksVideo {
             demos_per_renaming: if recommended { 4 } else { 0 },
             interpreter_frame_pool: if recommended { 4 } else { 1 },
             executed_node: recommended,
+            encoder_labels: FrameLabels::Flat,
         }
     }
 }
@@ -596,6 +634,7 @@ pub fn train_run(
     on_epoch: impl FnMut(&EpochMetrics),
 ) -> anyhow::Result<TrainedBlocks> {
     check_ablation(config)?;
+    check_encoder_labels(config)?;
     match config.obs {
         ObsKind::State => train_state_run(run, config, device, on_epoch).map(TrainedBlocks::State),
         ObsKind::Vid => train_video_run(run, config, device, on_epoch).map(TrainedBlocks::Video),
@@ -896,6 +935,7 @@ pub fn train_ntp_run(
     mut on_epoch: impl FnMut(&NtpEpochMetrics),
 ) -> anyhow::Result<Model> {
     check_ablation(config)?;
+    check_encoder_labels(config)?;
     let kind = match config.method {
         MethodId::Ntp | MethodId::NtpDetector => NtpKind::Hierarchical,
         MethodId::NtpFlat => NtpKind::Flat,
@@ -986,7 +1026,9 @@ pub fn train_ntp_run(
 /// NTP or NTP Flat from demo videos, in the stages NTG (Vid) trains in
 /// (see [`crate::video`]): stage A, the shared frame encoder, exactly as
 /// NTG's (the same videos, cube renaming for frames, settings and
-/// validation); then, the encoder frozen, NTP on the embeddings of its
+/// validation), or with [`FrameLabels::Primitive`] the same settings on
+/// the frames of the same demos at NTP's primitive level, labelled with
+/// their primitives (validated on the same tasks); then, the encoder frozen, NTP on the embeddings of its
 /// primitive-level episodes' frames (one before each primitive and the
 /// last, of the same renamed tasks and seeds as the videos;
 /// [`ntp_video_dataset`]), the same network as on states but for its
@@ -1000,7 +1042,31 @@ fn train_ntp_video_run(
     mut on_epoch: impl FnMut(&NtpEpochMetrics),
 ) -> anyhow::Result<Model> {
     with_video_run(config, |plan, video_run, validation| {
-        let frames = crate::video::train_encoder(run, video_run, device)?;
+        let frames = match config.video.as_ref().map(|v| v.encoder_labels) {
+            Some(FrameLabels::Primitive) => {
+                let vocab = primitive_vocabulary();
+                let record = |virtual_task: usize, seed: u64| {
+                    record_primitive_video(plan.task(virtual_task), config.failures, seed)
+                };
+                let record_validation = |i: usize, seed: u64| {
+                    record_primitive_video(validation[i].clone(), config.failures, seed)
+                };
+                let primitive_run = VideoRun {
+                    vocabulary: &vocab,
+                    record: &record,
+                    validation: Some(crate::video::ValidationVideos {
+                        pairs: validation_video_pairs(validation.len()),
+                        record: &record_validation,
+                    }),
+                    pairs: video_run.pairs.clone(),
+                    frame_dim: video_run.frame_dim,
+                    encoder: video_run.encoder,
+                    seed: video_run.seed,
+                };
+                crate::video::train_encoder(run, &primitive_run, device)?
+            }
+            _ => crate::video::train_encoder(run, video_run, device)?,
+        };
         let dataset = NtpDataset::load_or_build_in_parts(
             &run.root().join(crate::method::ntp::NTP_FRAMES_DIR),
             &encoder_probe(&frames)?,
@@ -1025,6 +1091,60 @@ fn train_ntp_video_run(
             &mut on_epoch,
         )?))
     })
+}
+
+/// Refuses NTP's primitive frame labels ([`FrameLabels::Primitive`]) for a
+/// method that does not read frames at NTP's level: NTG (its stage A reads
+/// flat actions) and NTP (Detector) (its detector reads frames).
+fn check_encoder_labels(config: &BlocksRunConfig) -> anyhow::Result<()> {
+    let primitive = config
+        .video
+        .as_ref()
+        .is_some_and(|v| v.encoder_labels == FrameLabels::Primitive);
+    if primitive && !matches!(config.method, MethodId::Ntp | MethodId::NtpFlat) {
+        bail!(
+            "video.encoder_labels = \"primitive\" trains the frame encoder of NTP and NTP Flat; {} reads {}",
+            config.method.legend(),
+            if config.method.is_ntg() {
+                "frames through a stage A trained on flat actions"
+            } else {
+                "frames through its detector"
+            }
+        );
+    }
+    Ok(())
+}
+
+/// NTP's primitive-level vocabulary for block stacking: `move(X)`,
+/// `grasp`, `drop`.
+pub fn primitive_vocabulary() -> ctg_graph::Vocabulary {
+    env_blocks::vocabulary(false, env_blocks::ActionLevel::Primitive)
+}
+
+/// The expert episode of `task` with `seed` at NTP's primitive level as a
+/// "video" of the frames NTP acts on: segment 0 the first frame, segment
+/// `i + 1` the scene after primitive `i`, one frame each (every frame a
+/// keyframe), actions in [`primitive_vocabulary`]. What stage A trains on
+/// with [`FrameLabels::Primitive`]; the same episodes and frames as NTP's
+/// training rows ([`ntp_video_dataset`]).
+pub fn record_primitive_video(
+    task: StackTask,
+    failures: bool,
+    seed: u64,
+) -> anyhow::Result<ctg_graph::VideoDemonstration<Vec<f32>>> {
+    let task = env_blocks::BlocksTask::Stack(task);
+    let demo = env_blocks::record_ntp_demo(&task, env_config(ObsKind::Vid, failures), seed)
+        .with_context(|| format!("NTP demo of task {} (seed {seed})", task.id()))?;
+    let segments = demo
+        .observations
+        .iter()
+        .map(|o| vec![featurize(o, ObsKind::Vid)])
+        .collect();
+    Ok(ctg_graph::VideoDemonstration::from_segments(
+        segments,
+        demo.actions,
+        &primitive_vocabulary(),
+    )?)
 }
 
 /// What `frames`' encoder gives for a fixed frame (every value 0.5): a
@@ -1641,6 +1761,12 @@ pub struct BlocksFlags {
     /// recipe, 0 in the paper's].
     #[arg(long, value_name = "K")]
     pub video_renaming_group: Option<usize>,
+    /// --obs vid, --method ntp or ntp-flat: what the frame encoder (stage
+    /// A) is trained to tell apart: NTG's flat actions on every frame of
+    /// the demo videos (`flat`, stage A as NTG's) or NTP's primitives on
+    /// the frames NTP acts on (`primitive`) [default: flat].
+    #[arg(long, value_enum)]
+    pub encoder_labels: Option<FrameLabels>,
     /// --method ntp-detector: primitive-level expert episodes of the
     /// training tasks whose rendered frames train the detector [default:
     /// 2000].
@@ -1675,6 +1801,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
             .interpreter_frame_pool
             .unwrap_or(v.interpreter_frame_pool);
         v.demos_per_renaming = own.video_renaming_group.unwrap_or(v.demos_per_renaming);
+        v.encoder_labels = own.encoder_labels.unwrap_or(v.encoder_labels);
         v
     });
     BlocksRunConfig {
@@ -1757,6 +1884,14 @@ impl DomainRuns for Blocks {
         {
             bail!(
                 "--interpreter-frame-pool sets NTG's demo interpreter on videos: it needs --obs vid and --method ntg"
+            );
+        }
+        if own.encoder_labels.is_some()
+            && (config.obs != ObsKind::Vid
+                || !matches!(config.method, MethodId::Ntp | MethodId::NtpFlat))
+        {
+            bail!(
+                "--encoder-labels sets the frame encoder NTP and NTP Flat read videos through: it needs --obs vid and --method ntp or ntp-flat"
             );
         }
         check_ablation(&config)?;
@@ -2076,5 +2211,61 @@ mod tests {
             vocab.format_sequence(&r.sequence(&path)),
             "pick(C) place(A) pick(B) place(C)"
         );
+    }
+
+    #[test]
+    fn a_primitive_video_is_the_frames_ntp_acts_on_labelled_with_its_primitives() {
+        let task = env_blocks::standard_split().unwrap().train_pool[3].clone();
+        let video = record_primitive_video(task.clone(), true, 11).unwrap();
+        let demo = env_blocks::record_ntp_demo(
+            &env_blocks::BlocksTask::Stack(task),
+            env_config(ObsKind::Vid, true),
+            11,
+        )
+        .unwrap();
+        // One frame per segment: every frame is a keyframe, the scene
+        // before each primitive and the last.
+        assert_eq!(video.actions(), demo.actions.as_slice());
+        assert_eq!(video.num_frames(), demo.actions.len() + 1);
+        let keyframes = video.keyframes();
+        assert_eq!(keyframes.observations().len(), video.num_frames());
+        // The same rows NTP's video dataset encodes.
+        for (frame, obs) in keyframes.observations().iter().zip(&demo.observations) {
+            assert_eq!(frame, &featurize(obs, ObsKind::Vid));
+        }
+        // Carrying a cube above its target and having let it go are two
+        // labels: every `move` of a `place` is followed by a `drop`.
+        let vocab = primitive_vocabulary();
+        let names: Vec<String> = demo
+            .actions
+            .iter()
+            .map(|&a| vocab.format_sequence(&[a]))
+            .collect();
+        let drops = names.iter().filter(|n| *n == "drop").count();
+        assert!(drops > 0, "{names:?}");
+        for (i, n) in names.iter().enumerate() {
+            if n == "drop" {
+                assert!(names[i - 1].starts_with("move("), "{names:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn only_ntp_and_ntp_flat_take_primitive_frame_labels() {
+        let mut config = Recipe::Paper.config(ObsKind::Vid, 5, 2, 1, 0);
+        config.video.as_mut().unwrap().encoder_labels = FrameLabels::Primitive;
+        for (method, ok) in [
+            (MethodId::Ntg, false),
+            (MethodId::NtpDetector, false),
+            (MethodId::Ntp, true),
+            (MethodId::NtpFlat, true),
+        ] {
+            config.method = method;
+            assert_eq!(check_encoder_labels(&config).is_ok(), ok, "{method:?}");
+        }
+        // Saved without the field when flat: older run folders still match.
+        config.video.as_mut().unwrap().encoder_labels = FrameLabels::Flat;
+        let json = serde_json::to_string(&config).unwrap();
+        assert!(!json.contains("encoder_labels"), "{json}");
     }
 }
