@@ -485,17 +485,47 @@ pub fn load<T: DeserializeOwned>(name: &str, source: Source<'_>) -> anyhow::Resu
 }
 
 /// `base` with the fields named in `overrides` replaced (nested tables
-/// replace nested fields). Every key must name a field `base` has, so a
-/// misspelt key is an error, not a silently ignored setting.
+/// replace nested fields). Every key must name a field of `C`, so a
+/// misspelt key is an error, not a silently ignored setting. A field that
+/// `base`'s serialisation leaves out (one skipped at its default, such as
+/// `video.encoder_labels`) can be set too: a key `base` does not have is
+/// added, and refused only if deserialising `C` ignores it.
 pub fn with_overrides<C>(base: &C, overrides: &toml::Table, what: &str) -> anyhow::Result<C>
 where
     C: Serialize + DeserializeOwned,
 {
+    let context = || format!("applying the overrides of {what}");
     let mut value = serde_json::to_value(base)?;
     let overrides = serde_json::to_value(overrides)?;
-    merge(&mut value, &overrides, "")
-        .with_context(|| format!("applying the overrides of {what}"))?;
-    serde_json::from_value(value).with_context(|| format!("applying the overrides of {what}"))
+    let mut added = Vec::new();
+    merge(&mut value, &overrides, "", &mut added).with_context(context)?;
+    let mut ignored = Vec::new();
+    // serde_ignored names an `Option`'s content `?` (`video.?.x`).
+    let config = serde_ignored::deserialize(value, |path| {
+        let path = path.to_string();
+        let keys: Vec<&str> = path.split('.').filter(|key| *key != "?").collect();
+        ignored.push(keys.join("."));
+    })
+    .with_context(context)?;
+    let unread = |name: &str| {
+        ignored
+            .iter()
+            .any(|path| path == name || path.starts_with(&format!("{name}.")))
+    };
+    if let Some(AddedKey { name, known }) = added.iter().find(|key| unread(&key.name)) {
+        return Err(anyhow::anyhow!(
+            "unknown setting `{name}` (known here: {known})"
+        ))
+        .with_context(context);
+    }
+    Ok(config)
+}
+
+/// A key of a figure's overrides that the base config's serialisation did
+/// not have, and the keys it had at that level (for the error naming it).
+struct AddedKey {
+    name: String,
+    known: String,
 }
 
 /// The start of a figure's report section: `heading` (a Markdown heading
@@ -537,7 +567,16 @@ pub fn overrides_text(overrides: &toml::Table) -> String {
     }
 }
 
-fn merge(base: &mut Value, overrides: &Value, path: &str) -> anyhow::Result<()> {
+/// `overrides` written into `base`, key by key (tables into tables). A key
+/// `base` lacks is added and listed in `added`: it may name a field that
+/// `base`'s serialisation skipped, or be a typo ([`with_overrides`] tells
+/// them apart).
+fn merge(
+    base: &mut Value,
+    overrides: &Value,
+    path: &str,
+    added: &mut Vec<AddedKey>,
+) -> anyhow::Result<()> {
     let (Value::Object(base), Value::Object(overrides)) = (base, overrides) else {
         bail!("{path} is not a table");
     };
@@ -547,17 +586,17 @@ fn merge(base: &mut Value, overrides: &Value, path: &str) -> anyhow::Result<()> 
         } else {
             format!("{path}.{key}")
         };
-        let Some(old) = base.get_mut(key) else {
-            let known: Vec<&str> = base.keys().map(String::as_str).collect();
-            bail!(
-                "unknown setting `{name}` (known here: {})",
-                known.join(", ")
-            );
-        };
-        if old.is_object() && new.is_object() {
-            merge(old, new, &name)?;
-        } else {
-            *old = new.clone();
+        match base.get_mut(key) {
+            Some(old) if old.is_object() && new.is_object() => merge(old, new, &name, added)?,
+            Some(old) => *old = new.clone(),
+            None => {
+                let known: Vec<&str> = base.keys().map(String::as_str).collect();
+                added.push(AddedKey {
+                    name,
+                    known: known.join(", "),
+                });
+                base.insert(key.clone(), new.clone());
+            }
         }
     }
     Ok(())
@@ -686,6 +725,34 @@ mod tests {
         );
         let wrong_type: toml::Table = toml::from_str("epochs = \"many\"").unwrap();
         assert!(with_overrides(&optim(), &wrong_type, "x.toml").is_err());
+    }
+
+    #[test]
+    fn overrides_set_fields_their_base_leaves_out_at_the_default() {
+        use crate::domain::blocks::{FrameLabels, ObsKind, Recipe};
+        let base = Recipe::Paper.config(ObsKind::Vid, 4, 2, 1, 0);
+        let json = serde_json::to_value(&base).unwrap();
+        assert!(
+            json["video"].get("encoder_labels").is_none(),
+            "the field is left out at its default: {}",
+            json["video"]
+        );
+        let table: toml::Table = toml::from_str("[video]\nencoder_labels = \"primitive\"").unwrap();
+        let c = with_overrides(&base, &table, "fig.toml").unwrap();
+        assert_eq!(
+            c.video.as_ref().unwrap().encoder_labels,
+            FrameLabels::Primitive
+        );
+        // A key the base leaves out and no field reads is still a typo.
+        let typo: toml::Table = toml::from_str("[video]\nencoder_lables = \"primitive\"").unwrap();
+        let err = format!(
+            "{:#}",
+            with_overrides(&base, &typo, "fig.toml").unwrap_err()
+        );
+        assert!(
+            err.contains("fig.toml") && err.contains("unknown setting `video.encoder_lables`"),
+            "{err}"
+        );
     }
 
     #[test]
