@@ -713,9 +713,25 @@ impl NtpNet {
             .reshape([k, r, c]))
     }
 
-    /// The four losses on `batch` (end-of-program: binary cross-entropy;
-    /// sub-program, argument, scope rows: cross-entropy where supervised).
-    pub fn loss(&self, batch: &NtpBatch) -> Result<NtpLoss> {
+    /// The batch of `examples` for this network (its row length, programs
+    /// and arguments; see [`NtpBatch::new`]).
+    pub fn batch<R: AsRef<[f32]>>(
+        &self,
+        examples: &[NtpExample<'_, R>],
+        device: &Device,
+    ) -> Result<NtpBatch> {
+        NtpBatch::new(
+            examples,
+            self.obs_dim(),
+            self.num_programs(),
+            self.num_arguments(),
+            device,
+        )
+    }
+
+    /// The encoded specification demos of `batch` and the heads of its
+    /// decisions.
+    fn heads(&self, batch: &NtpBatch) -> Result<(EncodedSpec, NtpOutput)> {
         let spec = self.encode_spec(batch.spec.clone(), batch.spec_mask.clone())?;
         let out = self.decide(
             &spec,
@@ -724,6 +740,13 @@ impl NtpNet {
             batch.programs.clone(),
             batch.scope_mask.clone(),
         )?;
+        Ok((spec, out))
+    }
+
+    /// The four losses on `batch` (end-of-program: binary cross-entropy;
+    /// sub-program, argument, scope rows: cross-entropy where supervised).
+    pub fn loss(&self, batch: &NtpBatch) -> Result<NtpLoss> {
+        let (spec, out) = self.heads(batch)?;
         let s = batch.decisions;
         // Binary cross-entropy with logits: softplus(x) − y x.
         let x = out.eop_logits.clone();
@@ -773,6 +796,76 @@ impl NtpNet {
             argument_accuracy,
             scope_accuracy,
         })
+    }
+
+    /// Each decision of `batch` checked against its trace (teacher
+    /// forcing: every decision reads the trace's observation, program and
+    /// scope), as the program stack would take it: end-of-program by the
+    /// sign of its logit, the sub-program and argument by their argmax, the
+    /// callee's scope by [`scope_from_logits`] within the caller's. Run it
+    /// on the inference network ([`Module::valid`]).
+    pub fn check_decisions(&self, batch: &NtpBatch) -> Result<Vec<NtpDecisionCheck>> {
+        let (spec, out) = self.heads(batch)?;
+        let s = batch.decisions;
+        let argmax_rows = |v: Vec<f32>, width: usize| -> Vec<usize> {
+            v.chunks_exact(width.max(1))
+                .map(|row| {
+                    row.iter()
+                        .enumerate()
+                        .fold(0, |best, (i, &x)| if x > row[best] { i } else { best })
+                })
+                .collect()
+        };
+        let eop_logits = to_vec(out.eop_logits.clone())?;
+        let programs = argmax_rows(to_vec(out.program_logits.clone())?, self.num_programs());
+        let arguments = argmax_rows(to_vec(out.argument_logits.clone())?, self.num_arguments());
+        let index = |t: Tensor<1, Int>| -> Result<Vec<usize>> {
+            Ok(to_vec_int(t)?.into_iter().map(|x| x as usize).collect())
+        };
+        let demo = index(batch.demo_index.clone())?;
+        let caller = index(batch.programs.clone())?;
+        let next = index(batch.next_program.clone())?;
+        let argument = index(batch.argument.clone())?;
+        let eop = to_vec(batch.eop.clone())?;
+        let argument_weight = to_vec(batch.argument_weight.clone())?;
+        let r = batch.spec_mask.dims()[1];
+        let scope_mask = to_vec(batch.scope_mask.clone())?;
+        let mut checks: Vec<NtpDecisionCheck> = (0..s)
+            .map(|k| {
+                let returns = eop[k] > 0.5;
+                NtpDecisionCheck {
+                    demo: demo[k],
+                    program: caller[k],
+                    returns,
+                    next_program: next[k],
+                    eop_right: (eop_logits[k] > 0.0) == returns,
+                    program_right: (!returns).then(|| programs[k] == next[k]),
+                    argument_right: (argument_weight[k] > 0.5).then(|| arguments[k] == argument[k]),
+                    scope_right: None,
+                }
+            })
+            .collect();
+        let steps = index(batch.scope_steps.clone())?;
+        if !steps.is_empty() {
+            let demos = batch
+                .demo_index
+                .clone()
+                .select(0, batch.scope_steps.clone());
+            let core = out.core.select(0, batch.scope_steps.clone());
+            let logits = to_vec(self.scope_logits(&spec, demos, core)?)?;
+            let labels = to_vec_int(batch.scope_labels.clone())?;
+            for (j, &step) in steps.iter().enumerate() {
+                let rows = &scope_mask[step * r..(step + 1) * r];
+                let lo = rows.iter().position(|&m| m > 0.5).unwrap_or(0);
+                let hi = rows.iter().rposition(|&m| m > 0.5).unwrap_or(lo);
+                let own = &labels[j * r..(j + 1) * r];
+                let start = own.iter().position(|&l| l == SCOPE_START as i64);
+                let end = own.iter().position(|&l| l == SCOPE_END as i64).or(start);
+                let predicted = scope_from_logits(&logits[j * r * 4..(j + 1) * r * 4], (lo, hi));
+                checks[step].scope_right = Some(start.zip(end) == Some(predicted));
+            }
+        }
+        Ok(checks)
     }
 
     /// The network conditioned on one specification demo (its rows, in
@@ -831,6 +924,41 @@ pub struct NtpDecision {
     pub argument: usize,
     /// Its scope of the demo (read for non-primitives).
     pub scope: (usize, usize),
+}
+
+/// One decision of a trace checked against what the network decides
+/// there ([`NtpNet::check_decisions`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NtpDecisionCheck {
+    /// Which example of the batch it belongs to.
+    pub demo: usize,
+    /// The program deciding (the caller).
+    pub program: usize,
+    /// Whether the trace returns here (end-of-program).
+    pub returns: bool,
+    /// The sub-program the trace calls (0 where it returns).
+    pub next_program: usize,
+    /// End-of-program decided right.
+    pub eop_right: bool,
+    /// Where the trace calls: the sub-program decided right.
+    pub program_right: Option<bool>,
+    /// Where the trace's call takes an argument: the argument decided right.
+    pub argument_right: Option<bool>,
+    /// Where the callee's scope is supervised: the scope the stack would
+    /// give it is exactly the trace's.
+    pub scope_right: Option<bool>,
+}
+
+impl NtpDecisionCheck {
+    /// Whether the program stack would take exactly the trace's step here:
+    /// the return, or the call with its argument and scope.
+    pub fn right(&self) -> bool {
+        self.eop_right
+            && (self.returns
+                || (self.program_right == Some(true)
+                    && self.argument_right != Some(false)
+                    && self.scope_right != Some(false)))
+    }
 }
 
 /// Whatever decides for the running program: the network conditioned on a
@@ -1246,6 +1374,68 @@ mod tests {
     }
 
     #[test]
+    fn decision_checks_follow_the_trace_and_agree_with_the_loss() {
+        let device = cpu_device();
+        let spec: Vec<Vec<f32>> = (0..5).map(|i| vec![i as f32 / 4.0, 0.0]).collect();
+        let episode: Vec<Vec<f32>> = (0..5).map(|i| vec![i as f32 / 4.0, 1.0]).collect();
+        let t = trace();
+        let batch = NtpBatch::new(
+            &[(&spec[..], &episode[..], &t), (&spec[..], &episode[..], &t)],
+            2,
+            4,
+            2,
+            &device,
+        )
+        .unwrap();
+        for seed in 0..4 {
+            let net = tiny_net(seed);
+            let checks = net.check_decisions(&batch).unwrap();
+            assert_eq!(checks.len(), 18);
+            let per_demo: Vec<usize> = (0..2)
+                .map(|d| checks.iter().filter(|c| c.demo == d).count())
+                .collect();
+            assert_eq!(per_demo, vec![9, 9]);
+            // The trace's steps, in order: root calls sub, sub calls a and
+            // b and returns, again, and the root returns.
+            let steps: Vec<(usize, bool, usize)> = checks[..9]
+                .iter()
+                .map(|c| (c.program, c.returns, c.next_program))
+                .collect();
+            let call = |p, n| (p, false, n);
+            let ret = |p| (p, true, 0);
+            assert_eq!(
+                steps,
+                vec![
+                    call(ROOT, SUB),
+                    call(SUB, A),
+                    call(SUB, B),
+                    ret(SUB),
+                    call(ROOT, SUB),
+                    call(SUB, A),
+                    call(SUB, B),
+                    ret(SUB),
+                    ret(ROOT)
+                ]
+            );
+            // Arguments where `a` is called, scopes where `sub` is.
+            let supervised =
+                |f: fn(&NtpDecisionCheck) -> bool| checks.iter().filter(|c| f(c)).count();
+            assert_eq!(supervised(|c| c.argument_right.is_some()), 4);
+            assert_eq!(supervised(|c| c.scope_right.is_some()), 4);
+            assert_eq!(supervised(|c| c.program_right.is_some()), 12);
+            // The loss's accuracies are the checks' means.
+            let loss = net.loss(&batch).unwrap();
+            let mean = |f: fn(&NtpDecisionCheck) -> Option<bool>| {
+                let v: Vec<bool> = checks.iter().filter_map(f).collect();
+                v.iter().filter(|&&x| x).count() as f32 / v.len() as f32
+            };
+            assert!((mean(|c| Some(c.eop_right)) - loss.eop_accuracy).abs() < 1e-6);
+            assert!((mean(|c| c.program_right) - loss.program_accuracy).abs() < 1e-6);
+            assert!((mean(|c| c.argument_right) - loss.argument_accuracy).abs() < 1e-6);
+        }
+    }
+
+    #[test]
     fn the_network_learns_a_trace_and_replays_it_through_the_stack() {
         for scope_match in [false, true] {
             learn_a_trace_and_replay_it(scope_match);
@@ -1282,6 +1472,17 @@ mod tests {
         assert_eq!(out.eop_accuracy, 1.0);
         assert_eq!(out.argument_accuracy, 1.0);
         assert_eq!(out.scope_accuracy, 1.0);
+        // Checked decision by decision, the trained network takes every
+        // step of the trace as the stack would.
+        let valid_batch =
+            NtpBatch::new(&[(&spec[..], &episode[..], &t)], 2, 4, 2, &cpu_device()).unwrap();
+        let checks = net.valid().check_decisions(&valid_batch).unwrap();
+        assert_eq!(
+            checks.len(),
+            9,
+            "2 + 2 x 3 calls and returns + the root's return"
+        );
+        assert!(checks.iter().all(NtpDecisionCheck::right), "{checks:?}");
         // Executed through the stack, the trained network replays the
         // trace's primitives when shown the trace's observations.
         let policy = net.valid().condition(&spec).unwrap();

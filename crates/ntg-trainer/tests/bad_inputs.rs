@@ -342,6 +342,11 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             s(&["eval", "--run", &run_s, "--edge-threshold", "2"]),
             "--edge-threshold".into(),
         ),
+        // Decision checks are NTP's.
+        (
+            s(&["eval", "--run", &run_s, "--decisions"]),
+            "--decisions checks an NTP baseline".into(),
+        ),
         (
             s(&[
                 "eval",

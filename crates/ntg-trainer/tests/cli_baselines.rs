@@ -90,8 +90,8 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
     assert!(stdout.contains("success"), "{stdout}");
     let eval = json(&run.join(format!("eval/{method}-2.json")));
     // Seen tasks, with demos and scenes it never trained on.
-    let seen = |tasks: &str| {
-        ntg(&[
+    let seen = |tasks: &str, extra: &[&str]| {
+        let mut args = vec![
             "eval",
             "--run",
             s(&run),
@@ -99,9 +99,11 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
             "seen",
             "--test-tasks",
             tasks,
-        ])
+        ];
+        args.extend_from_slice(extra);
+        ntg(&args)
     };
-    let (code, _, err) = seen("2");
+    let (code, _, err) = seen("2", &[]);
     assert_eq!(code, 0, "{method}: {err}");
     let seen_eval = json(&run.join(format!("eval/seen-{method}-2.json")));
     let split = env_blocks::standard_split().unwrap();
@@ -111,7 +113,7 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
         first.id.as_str(),
         "{seen_eval}"
     );
-    let (code, _, err) = seen("3");
+    let (code, _, err) = seen("3", &[]);
     assert_ne!(code, 0);
     assert!(err.contains("trained on 2 tasks"), "{err}");
     // Tasks of structures the training pool lacks (a tall tower).
@@ -127,6 +129,34 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
     assert_eq!(code, 0, "{method}: {err}");
     let structure = json(&run.join(format!("eval/structure-{method}-2.json")));
     assert_eq!(structure["tasks"][1]["task"], "struct_1", "{structure}");
+    // Its decisions checked one by one along the expert's traces of two
+    // seen tasks: every decision of both traces is tallied under the step
+    // of the hierarchy it is.
+    let (code, stdout, err) = seen("2", &["--decisions"]);
+    assert_eq!(code, 0, "{method}: {err}");
+    assert!(stdout.contains("decisions right"), "{stdout}");
+    let report = json(&run.join("eval/seen-decisions-2.json"));
+    assert_eq!(report["episodes"], 2, "{report}");
+    let steps = report["steps"].as_array().unwrap();
+    let total: u64 = steps.iter().map(|t| t["decisions"].as_u64().unwrap()).sum();
+    assert_eq!(report["decisions"].as_u64(), Some(total), "{report}");
+    let has = |program: &str, step: &str| {
+        steps
+            .iter()
+            .any(|t| t["program"] == program && t["step"] == step)
+    };
+    if method == "ntp-flat" {
+        assert!(
+            has("stack", "drop") && !has("stack", "pick_place"),
+            "{report}"
+        );
+    } else {
+        assert!(
+            has("stack", "pick_place") && has("place", "drop"),
+            "{report}"
+        );
+        assert!(has("pick", "return") && has("stack", "return"), "{report}");
+    }
 
     let out = tmp.path().join("trace");
     let (code, stdout, err) = ntg(&["trace", "--run", s(&run), "--task", "1", "--out", s(&out)]);

@@ -1951,9 +1951,118 @@ impl DomainRuns for Blocks {
     }
 
     fn evaluate(&self, run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()> {
+        if flags.decisions {
+            return evaluate_decisions(run, flags);
+        }
         let (name, result) = evaluate_run(run, flags)?;
         write_eval(run, &name, &result)
     }
+}
+
+/// `ntg eval --decisions`: the NTP baseline of `run` checked decision by
+/// decision along the expert's traces of the split's first `--test-tasks`
+/// tasks; prints the table and writes `eval/PREFIXdecisions-N.json`.
+fn evaluate_decisions(run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()> {
+    let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+    if !config.method.is_ntp() {
+        bail!(
+            "--decisions checks an NTP baseline's decisions along expert traces; {} is a {} run",
+            run.root().display(),
+            config.method.legend()
+        );
+    }
+    if flags.variant != Variant::Full || flags.edge_threshold.is_some() {
+        bail!("--variant and --edge-threshold choose NTG's policy; --decisions checks NTP's");
+    }
+    let device = crate::spec::device();
+    let (prefix, tasks, seeds) = eval_split(flags, &config)?;
+    let model = load_baseline(run, &config, &device)?;
+    let report = ntp_decisions(model.as_ref(), &config, &tasks, seeds, &device)?;
+    std::fs::create_dir_all(run.eval_dir())?;
+    let path = run
+        .eval_dir()
+        .join(format!("{prefix}decisions-{}.json", flags.test_tasks));
+    RunDir::write_json(&path, &report)?;
+    print!("{}", report.table());
+    println!("records in {}", path.display());
+    Ok(())
+}
+
+/// An NTP baseline (`model`, trained as `config` says) checked decision by
+/// decision along the expert's trace of each of `tasks` in the scene of its
+/// rollout (task `i`'s rollout seed), conditioned on the expert's demo with
+/// its demo seed (`seeds`), both at the primitive level, read as the model
+/// reads observations (states; frames through its frozen encoder or its
+/// detector).
+pub fn ntp_decisions(
+    model: &dyn crate::method::TrainedPolicy,
+    config: &BlocksRunConfig,
+    tasks: &[StackTask],
+    seeds: Seeds,
+    device: &Device,
+) -> anyhow::Result<crate::method::ntp::DecisionReport> {
+    use crate::method::ntp::{CheckedEpisode, DecisionReport, check_episodes};
+    type Front<'a> = Box<dyn Fn(&[Vec<f32>]) -> anyhow::Result<Vec<Vec<f32>>> + 'a>;
+    let kind = match config.method {
+        MethodId::NtpFlat => NtpKind::Flat,
+        _ => NtpKind::Hierarchical,
+    };
+    let any = model.as_any();
+    let (net, front): (&ntg_model::NtpNet, Front<'_>) =
+        if let Some(net) = any.downcast_ref::<ntg_model::NtpNet>() {
+            (net, Box::new(|rows: &[Vec<f32>]| Ok(rows.to_vec())))
+        } else if let Some(m) =
+            any.downcast_ref::<crate::method::on_frames::OnFrames<ntg_model::NtpNet>>()
+        {
+            (&m.policy, Box::new(|rows: &[Vec<f32>]| m.encode_rows(rows)))
+        } else if let Some(m) = any.downcast_ref::<crate::method::ntp_detector::NtpOnDetector>() {
+            (
+                &m.ntp,
+                Box::new(|rows: &[Vec<f32>]| Ok(m.detector.predict_rows(rows)?)),
+            )
+        } else {
+            bail!("{} is not an NTP network", config.method.legend());
+        };
+    let env = env_config(config.obs, config.failures);
+    let mut report = DecisionReport::new();
+    let bar = crate::dataset::progress_bar(tasks.len() as u64, "checking decisions");
+    let indices: Vec<usize> = (0..tasks.len()).collect();
+    for chunk in indices.chunks(32) {
+        use rayon::prelude::*;
+        let recorded = chunk
+            .par_iter()
+            .map(|&i| {
+                let task = env_blocks::BlocksTask::Stack(tasks[i].clone());
+                let record = |seed: u64| {
+                    env_blocks::record_ntp_demo(&task, env, seed)
+                        .with_context(|| format!("NTP demo of task {} (seed {seed})", tasks[i].id))
+                };
+                Ok((
+                    record(seeds.demo + i as u64)?,
+                    record(seeds.rollout + i as u64)?,
+                ))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let mut episodes = Vec::with_capacity(recorded.len());
+        for (spec, episode) in recorded {
+            let rows = |d: &env_blocks::NtpDemo| -> Vec<Vec<f32>> {
+                d.observations
+                    .iter()
+                    .map(|o| featurize(o, config.obs))
+                    .collect()
+            };
+            episodes.push(CheckedEpisode {
+                spec_rows: front(&rows(&spec))?,
+                spec: spec.root,
+                rows: front(&rows(&episode))?,
+                trace: episode.root,
+            });
+        }
+        check_episodes(net, kind, &episodes, &mut report, device)?;
+        bar.inc(chunk.len() as u64);
+    }
+    bar.finish_and_clear();
+    Ok(report)
 }
 
 /// Evaluates the block-stacking run `run` (NTG or an NTP baseline) as

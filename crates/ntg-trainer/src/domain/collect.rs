@@ -924,6 +924,11 @@ impl DomainRuns for Collect {
             flags.variant == crate::method::ntg::Variant::Full && flags.edge_threshold.is_none(),
             "--variant and --edge-threshold apply to block-stacking runs"
         );
+        anyhow::ensure!(
+            !flags.decisions,
+            "--decisions checks an NTP baseline's decisions (block stacking); {} is not one",
+            run.root().display()
+        );
         if flags.split != crate::domain::EvalSplit::Test {
             anyhow::bail!(
                 "--split validation and --split seen are for block-stacking runs; object collection evaluates its test episodes"

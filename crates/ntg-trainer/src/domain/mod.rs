@@ -282,6 +282,12 @@ pub struct EvalFlags {
     /// chosen without looking at the test set.
     #[arg(long, value_enum, default_value_t = EvalSplit::Test)]
     pub split: EvalSplit,
+    /// NTP baselines (block stacking): instead of rolling out, check each
+    /// decision the network takes against the expert's trace in each
+    /// task's rollout scene (teacher forcing), and print, per step of
+    /// the program hierarchy, how often it decides as the trace does.
+    #[arg(long)]
+    pub decisions: bool,
 }
 
 impl EvalFlags {
@@ -295,6 +301,7 @@ impl EvalFlags {
             variant: Variant::Full,
             edge_threshold: None,
             split,
+            decisions: false,
         }
     }
 }

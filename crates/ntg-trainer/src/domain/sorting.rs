@@ -409,6 +409,11 @@ impl DomainRuns for Sorting {
         {
             bail!("object sorting evaluates --split test or validation, without --edge-threshold");
         }
+        anyhow::ensure!(
+            !flags.decisions,
+            "--decisions checks an NTP baseline's decisions (block stacking); {} is not one",
+            run.root().display()
+        );
         let model = load_model(run, &crate::spec::device())?;
         let (_, validation, test) = split()?;
         let (tasks, seeds, split_name) = match flags.split {

@@ -35,8 +35,8 @@ use ctg_graph::{ActionId, Vocabulary};
 use env_blocks::world::{NUM_OBJECTS, Target};
 use env_blocks::{BlocksTask, EnvConfig, NtpCall, NtpProgram, StackTask};
 use ntg_model::{
-    ConditionedNtp, EdgeCounts, NtpBatch, NtpConfig, NtpExample, NtpNet, ProgramCall, ProgramStack,
-    StackStep,
+    ConditionedNtp, EdgeCounts, NtpConfig, NtpDecisionCheck, NtpExample, NtpNet, ProgramCall,
+    ProgramStack, StackStep,
 };
 use rand::seq::IndexedRandom;
 use serde::{Deserialize, Serialize};
@@ -592,13 +592,7 @@ impl TrainStep<NtpNet> for NtpStep<'_> {
             .iter()
             .map(|(spec, rows, trace)| (&spec[..], &rows[..], trace))
             .collect();
-        let batch = NtpBatch::new(
-            &examples,
-            net.obs_dim(),
-            net.num_programs(),
-            net.num_arguments(),
-            &self.device,
-        )?;
+        let batch = net.batch(&examples, &self.device)?;
         let out = net.loss(&batch)?;
         StepReport::scored(
             out.loss,
@@ -637,6 +631,221 @@ impl TrainedModel for NtpNet {
     fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
         Ok(NtpNet::load(dir, device)?)
     }
+}
+
+/// How an NTP network decides along expert traces it is shown step by
+/// step (teacher forcing; `ntg eval --decisions`): per step of the program
+/// hierarchy, how often it decides as the trace does, and which head is
+/// wrong where it does not.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DecisionReport {
+    /// Episodes (traces) checked.
+    pub episodes: usize,
+    /// Episodes in which every decision was the trace's.
+    pub episodes_right: usize,
+    /// Episodes in which every decision was the trace's but perhaps for
+    /// the scopes given to callees (a scope off by a row may still serve).
+    pub episodes_right_but_scopes: usize,
+    /// Decisions checked.
+    pub decisions: usize,
+    /// Decisions the program stack would take exactly as the trace does.
+    pub right: usize,
+    /// Per step (caller, what the trace does there), in first-seen order.
+    pub steps: Vec<StepTally>,
+}
+
+/// The decisions of one step of the program hierarchy: a caller calling
+/// one sub-program, or returning.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StepTally {
+    /// The deciding program (`stack`, `pick_place`, `pick`, `place`).
+    pub program: String,
+    /// What the trace does: the sub-program it calls, or `return`.
+    pub step: String,
+    /// Decisions of this step checked.
+    pub decisions: usize,
+    /// Taken exactly as the trace does.
+    pub right: usize,
+    /// Wrong about returning (returns where the trace calls, or calls
+    /// where it returns).
+    pub eop_wrong: usize,
+    /// Calls the wrong sub-program (end-of-program right).
+    pub program_wrong: usize,
+    /// Gives the wrong argument (a cube).
+    pub argument_wrong: usize,
+    /// Gives the callee a scope other than the trace's.
+    pub scope_wrong: usize,
+}
+
+impl DecisionReport {
+    /// Tallies `checks` ([`ntg_model::NtpNet::check_decisions`], of whole
+    /// episodes told apart by their `demo` index) into the report.
+    pub fn add(&mut self, checks: &[NtpDecisionCheck]) {
+        let name = |p: usize| NtpProgram::from_index(p).map_or("?", NtpProgram::name);
+        let mut episode_right: BTreeMap<usize, (bool, bool)> = BTreeMap::new();
+        for c in checks {
+            let right = c.right();
+            let but_scope = NtpDecisionCheck {
+                scope_right: None,
+                ..*c
+            }
+            .right();
+            let episode = episode_right.entry(c.demo).or_insert((true, true));
+            episode.0 &= right;
+            episode.1 &= but_scope;
+            let step = if c.returns {
+                "return"
+            } else {
+                name(c.next_program)
+            };
+            let at = match self
+                .steps
+                .iter()
+                .position(|t| t.program == name(c.program) && t.step == step)
+            {
+                Some(at) => at,
+                None => {
+                    self.steps.push(StepTally {
+                        program: name(c.program).to_owned(),
+                        step: step.to_owned(),
+                        decisions: 0,
+                        right: 0,
+                        eop_wrong: 0,
+                        program_wrong: 0,
+                        argument_wrong: 0,
+                        scope_wrong: 0,
+                    });
+                    self.steps.len() - 1
+                }
+            };
+            let tally = &mut self.steps[at];
+            tally.decisions += 1;
+            tally.right += usize::from(right);
+            if !c.eop_right {
+                tally.eop_wrong += 1;
+            } else if !c.returns {
+                tally.program_wrong += usize::from(c.program_right == Some(false));
+                tally.argument_wrong += usize::from(c.argument_right == Some(false));
+                tally.scope_wrong += usize::from(c.scope_right == Some(false));
+            }
+            self.decisions += 1;
+            self.right += usize::from(right);
+        }
+        self.episodes += episode_right.len();
+        self.episodes_right += episode_right.values().filter(|r| r.0).count();
+        self.episodes_right_but_scopes += episode_right.values().filter(|r| r.1).count();
+    }
+
+    /// An empty report.
+    pub fn new() -> Self {
+        DecisionReport {
+            episodes: 0,
+            episodes_right: 0,
+            episodes_right_but_scopes: 0,
+            decisions: 0,
+            right: 0,
+            steps: Vec::new(),
+        }
+    }
+
+    /// The fraction of episodes every decision of which would be right if
+    /// each step's decisions were right independently at its measured
+    /// rate: the product over steps of (its rate) to the power of (its
+    /// decisions per episode).
+    pub fn independent_episodes_right(&self) -> f64 {
+        if self.episodes == 0 {
+            return 0.0;
+        }
+        self.steps
+            .iter()
+            .map(|t| {
+                let rate = t.right as f64 / t.decisions.max(1) as f64;
+                rate.powf(t.decisions as f64 / self.episodes as f64)
+            })
+            .product()
+    }
+
+    /// The report as a table, one line per step, then the totals.
+    pub fn table(&self) -> String {
+        let mut out = format!(
+            "{:<11} {:<11} {:>9} {:>8} {:>6} {:>8} {:>9} {:>6}\n",
+            "program", "step", "decisions", "right", "eop", "program", "argument", "scope"
+        );
+        for t in &self.steps {
+            out.push_str(&format!(
+                "{:<11} {:<11} {:>9} {:>8.4} {:>6} {:>8} {:>9} {:>6}\n",
+                t.program,
+                t.step,
+                t.decisions,
+                t.right as f64 / t.decisions.max(1) as f64,
+                t.eop_wrong,
+                t.program_wrong,
+                t.argument_wrong,
+                t.scope_wrong
+            ));
+        }
+        out.push_str(&format!(
+            "(eop / program / argument / scope: decisions wrong by that head)\ndecisions right {}/{} = {:.4}; {:.1} decisions per episode; episodes with every decision right {}/{} = {:.3} (if each step erred independently at its rate: {:.3}), but for scopes {}/{} = {:.3}\n",
+            self.right,
+            self.decisions,
+            self.right as f64 / self.decisions.max(1) as f64,
+            self.decisions as f64 / self.episodes.max(1) as f64,
+            self.episodes_right,
+            self.episodes,
+            self.episodes_right as f64 / self.episodes.max(1) as f64,
+            self.independent_episodes_right(),
+            self.episodes_right_but_scopes,
+            self.episodes,
+            self.episodes_right_but_scopes as f64 / self.episodes.max(1) as f64
+        ));
+        out
+    }
+}
+
+impl Default for DecisionReport {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// One episode to check: the specification demo's rows, the episode's
+/// rows (both as the network reads them) and their call trees.
+pub struct CheckedEpisode {
+    /// The specification demo's rows.
+    pub spec_rows: Vec<Vec<f32>>,
+    /// Its call tree.
+    pub spec: NtpCall,
+    /// The executed episode's rows.
+    pub rows: Vec<Vec<f32>>,
+    /// Its call tree.
+    pub trace: NtpCall,
+}
+
+/// Checks `net`'s decisions along `episodes`' traces (each conditioned on
+/// its specification demo, the trace built as for training,
+/// [`training_trace`]) and adds them to `report`.
+pub fn check_episodes(
+    net: &NtpNet,
+    kind: NtpKind,
+    episodes: &[CheckedEpisode],
+    report: &mut DecisionReport,
+    device: &Device,
+) -> anyhow::Result<()> {
+    let net = net.valid();
+    for chunk in episodes.chunks(16) {
+        let traces: Vec<ProgramCall> = chunk
+            .iter()
+            .map(|e| training_trace(&e.trace, &e.spec, kind))
+            .collect();
+        let examples: Vec<NtpExample<'_, Vec<f32>>> = chunk
+            .iter()
+            .zip(&traces)
+            .map(|(e, t)| (&e.spec_rows[..], &e.rows[..], t))
+            .collect();
+        let batch = net.batch(&examples, device)?;
+        report.add(&net.check_decisions(&batch)?);
+    }
+    Ok(())
 }
 
 /// NTP in the method registry.
@@ -872,6 +1081,78 @@ mod tests {
         .unwrap();
         assert_eq!(rebuilt, 3);
         assert!(same(&fresh, &whole));
+    }
+
+    #[test]
+    fn a_decision_report_tallies_each_step_and_the_head_that_erred() {
+        let (root, place, drop) = (
+            NtpProgram::Root.index(),
+            NtpProgram::Place.index(),
+            NtpProgram::Drop.index(),
+        );
+        let check = |demo, program, returns, next, eop, scope| NtpDecisionCheck {
+            demo,
+            program,
+            returns,
+            next_program: next,
+            eop_right: eop,
+            program_right: (!returns).then_some(true),
+            argument_right: None,
+            scope_right: scope,
+        };
+        let mut report = DecisionReport::new();
+        report.add(&[
+            // Episode 0: place returns instead of dropping.
+            check(0, place, false, drop, false, None),
+            check(0, place, true, 0, true, None),
+            // Episode 1: right but for a scope.
+            check(1, place, false, drop, true, None),
+            check(
+                1,
+                root,
+                false,
+                NtpProgram::PickPlace.index(),
+                true,
+                Some(false),
+            ),
+        ]);
+        report.add(&[check(0, place, false, drop, true, None)]);
+        assert_eq!(
+            (
+                report.episodes,
+                report.episodes_right,
+                report.episodes_right_but_scopes
+            ),
+            (3, 1, 2)
+        );
+        assert_eq!((report.decisions, report.right), (5, 3));
+        let step = |program: &str, step: &str| {
+            report
+                .steps
+                .iter()
+                .find(|t| t.program == program && t.step == step)
+                .unwrap()
+                .clone()
+        };
+        let place_drop = step("place", "drop");
+        assert_eq!(
+            (place_drop.decisions, place_drop.right, place_drop.eop_wrong),
+            (3, 2, 1)
+        );
+        let scoped = step("stack", "pick_place");
+        assert_eq!(
+            (scoped.right, scoped.scope_wrong, scoped.eop_wrong),
+            (0, 1, 0)
+        );
+        assert_eq!(step("place", "return").right, 1);
+        // place -> drop right 2/3, once per episode; stack -> pick_place
+        // 0/1: no episode can be right.
+        assert_eq!(report.independent_episodes_right(), 0.0);
+        assert!(
+            report
+                .table()
+                .contains("episodes with every decision right 1/3")
+        );
     }
 
     #[test]
