@@ -135,7 +135,7 @@ pub fn reproduce(
     });
     let (mut points, ablation_points) = front?;
     let (ablation_b, thor_all) = side?;
-    ntp_exp::evaluate_seen(&mut points, plan, ntp_exp::SEEN_CHECK_TRAIN_TASKS)?;
+    ntp_exp::check_baselines(&mut points, plan, ntp_exp::SEEN_CHECK_TRAIN_TASKS)?;
     let structure = crate::experiment::structure::run(&points, plan)?;
     let trace_sorting = match ablation_b.iter().find(|p| p.ablation.is_full()) {
         Some(p) if crate::record::is_restored(&p.run) => {

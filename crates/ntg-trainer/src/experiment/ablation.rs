@@ -673,6 +673,7 @@ mod tests {
             transcription: None,
             seen: None,
             detector: None,
+            decisions: None,
             curve: None,
             run: std::path::PathBuf::new(),
         };

@@ -356,6 +356,11 @@ pub struct NtpExpPoint {
     /// (`detector_stage/held_out.json`), where the run has a detector.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detector: Option<crate::method::detector::DetectorHeldOut>,
+    /// NTP baselines: its decisions checked along the expert's traces of
+    /// test tasks (`ntg eval --decisions`, `eval/decisions-N.json`), where
+    /// they were: where the method goes wrong. The largest such check.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decisions: Option<crate::method::ntp::DecisionReport>,
     /// How its training went: validation success per validated epoch and
     /// the last epoch's training accuracies (absent where the run folder
     /// has no validation scores).
@@ -690,6 +695,7 @@ fn run_point(
         transcription: TranscriptionSplit::of(&result.tasks),
         seen: seen_success(&run, method)?,
         detector: detector_held_out(&run)?,
+        decisions: decisions_report(&run)?,
         curve: TrainingCurve::of(&run, method)?,
         run: dir,
     }))
@@ -716,45 +722,140 @@ pub(crate) fn largest_of_each_curve(points: &[NtpExpPoint]) -> Vec<usize> {
 }
 
 /// Training tasks from which a baseline's largest point is also scored on
-/// its own training tasks ([`evaluate_seen`]): the paper's largest, where
+/// its own training tasks ([`check_baselines`]): the paper's largest, where
 /// issue 16 compares the baselines with the paper's values.
 pub const SEEN_CHECK_TRAIN_TASKS: usize = 1000;
 
-/// Training tasks scored by [`evaluate_seen`] (at most the run's own).
+/// Training tasks scored by [`check_baselines`] (at most the run's own).
 pub const SEEN_CHECK_TASKS: usize = 200;
 
-/// Scores each baseline curve's largest point (every seed) with at least
-/// `min_train_tasks` training tasks on [`SEEN_CHECK_TASKS`] of its own
-/// training tasks, with demos and scenes it never trained on (`ntg eval
-/// --split seen`, cached in `eval/seen-METHOD-N.json` and added to the
-/// run's record), unless it has such a score: whether a baseline far below
-/// the paper does what it was trained on. A run restored from its record
-/// without that evaluation has no weights and is left out.
-pub fn evaluate_seen(
+/// Test tasks along whose expert traces [`check_baselines`] checks a
+/// baseline's decisions.
+pub const DECISION_CHECK_TASKS: usize = 200;
+
+/// Checks each baseline curve's largest point (every seed) with at least
+/// `min_train_tasks` training tasks: whether a baseline far below the
+/// paper does what it was trained on, and where it goes wrong.
+///
+/// - Scores it on [`SEEN_CHECK_TASKS`] of its own training tasks, with
+///   demos and scenes it never trained on (`ntg eval --split seen`, cached
+///   in `eval/seen-METHOD-N.json`), unless it has such a score.
+/// - Checks its decisions along the expert's traces of the first
+///   [`DECISION_CHECK_TASKS`] test tasks (`ntg eval --decisions`, cached in
+///   `eval/decisions-N.json`), unless it has such a check.
+///
+/// Both are added to the run's record. A run restored from its record
+/// without them has no weights and is left out.
+pub fn check_baselines(
     points: &mut [NtpExpPoint],
     plan: &Plan<'_>,
     min_train_tasks: usize,
 ) -> anyhow::Result<()> {
     for i in largest_of_each_curve(points) {
         let p = &points[i];
-        if p.method.is_ntg() || p.train_tasks < min_train_tasks || p.seen.is_some() {
+        if p.method.is_ntg() || p.train_tasks < min_train_tasks {
             continue;
         }
-        let n = SEEN_CHECK_TASKS.min(p.train_tasks);
-        let Some(result) = evaluate_point(p, crate::domain::EvalSplit::Seen, n, plan)? else {
-            continue;
-        };
-        eprintln!(
-            "seen tasks [{}]: success {:.3} ({:.3}-{:.3}) on {n} of its training tasks (unseen: {:.3})",
-            p.run.display(),
-            result.success.rate,
-            result.success.ci_low,
-            result.success.ci_high,
-            p.success.rate
-        );
-        points[i].seen = Some(result.success);
+        if p.seen.is_none() {
+            seen_check(points, i, plan)?;
+        }
+        let p = &points[i];
+        if p.decisions.is_none() && !crate::record::is_restored(&p.run) {
+            decision_check(points, i, plan)?;
+        }
     }
     Ok(())
+}
+
+/// [`check_baselines`]' seen-task score of `points[i]`.
+fn seen_check(points: &mut [NtpExpPoint], i: usize, plan: &Plan<'_>) -> anyhow::Result<()> {
+    let p = &points[i];
+    let n = SEEN_CHECK_TASKS.min(p.train_tasks);
+    let Some(result) = evaluate_point(p, crate::domain::EvalSplit::Seen, n, plan)? else {
+        return Ok(());
+    };
+    eprintln!(
+        "seen tasks [{}]: success {:.3} ({:.3}-{:.3}) on {n} of its training tasks (unseen: {:.3})",
+        p.run.display(),
+        result.success.rate,
+        result.success.ci_low,
+        result.success.ci_high,
+        p.success.rate
+    );
+    points[i].seen = Some(result.success);
+    Ok(())
+}
+
+/// [`check_baselines`]' decision check of `points[i]`.
+fn decision_check(points: &mut [NtpExpPoint], i: usize, plan: &Plan<'_>) -> anyhow::Result<()> {
+    let p = &points[i];
+    let run = RunDir::open(&p.run)?;
+    let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+    let split = blocks::task_split(config.tasks.as_deref())?;
+    let n = DECISION_CHECK_TASKS.min(split.test.len());
+    let report = run.cached_eval(&format!("decisions-{n}.json"), || {
+        let device = crate::spec::device();
+        let model = blocks::load_baseline(&run, &config, &device)?;
+        blocks::ntp_decisions(
+            model.as_ref(),
+            &config,
+            &split.test[..n],
+            blocks::Seeds::TEST,
+            &device,
+        )
+    })?;
+    eprintln!(
+        "decisions [{}]: {}/{} right along {} test traces",
+        p.run.display(),
+        report.right,
+        report.decisions,
+        report.episodes
+    );
+    plan.finish(&p.run)?;
+    points[i].decisions = Some(report);
+    Ok(())
+}
+
+/// The largest decision check of `run` (`eval/decisions-N.json`, written
+/// by `ntg eval --decisions` on the test split), if any.
+fn decisions_report(run: &RunDir) -> anyhow::Result<Option<crate::method::ntp::DecisionReport>> {
+    largest_eval(
+        run,
+        "decisions-",
+        |r: &crate::method::ntp::DecisionReport| r.episodes,
+    )
+}
+
+/// The largest (by `size`) of `run`'s evaluations `eval/PREFIX{N}.json`
+/// (N a number), if any.
+fn largest_eval<T: serde::de::DeserializeOwned>(
+    run: &RunDir,
+    prefix: &str,
+    size: impl Fn(&T) -> usize,
+) -> anyhow::Result<Option<T>> {
+    let dir = run.eval_dir();
+    if !dir.is_dir() {
+        return Ok(None);
+    }
+    let mut best: Option<T> = None;
+    for entry in std::fs::read_dir(&dir).with_context(|| format!("reading {}", dir.display()))? {
+        let path = entry?.path();
+        let name = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or_default();
+        let matches = name
+            .strip_prefix(prefix)
+            .and_then(|rest| rest.strip_suffix(".json"))
+            .is_some_and(|n| n.parse::<usize>().is_ok());
+        if matches {
+            let found: T = RunDir::read_json(&path)?;
+            if best.as_ref().is_none_or(|b| size(&found) > size(b)) {
+                best = Some(found);
+            }
+        }
+    }
+    Ok(best)
 }
 
 /// Scores `p`'s run on `n` tasks of `split` (what `ntg eval --split`
@@ -815,29 +916,7 @@ fn seen_success(run: &RunDir, method: MethodId) -> anyhow::Result<Option<Success
     } else {
         format!("seen-{}-", method.name())
     };
-    let dir = run.eval_dir();
-    if !dir.is_dir() {
-        return Ok(None);
-    }
-    let mut best: Option<SuccessRate> = None;
-    for entry in std::fs::read_dir(&dir).with_context(|| format!("reading {}", dir.display()))? {
-        let path = entry?.path();
-        let name = path
-            .file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or_default();
-        let is_seen = name
-            .strip_prefix(&prefix)
-            .and_then(|rest| rest.strip_suffix(".json"))
-            .is_some_and(|n| n.parse::<usize>().is_ok());
-        if is_seen {
-            let result: blocks::EvalResult = RunDir::read_json(&path)?;
-            if best.is_none_or(|b| result.success.trials > b.trials) {
-                best = Some(result.success);
-            }
-        }
-    }
-    Ok(best)
+    Ok(largest_eval(run, &prefix, |r: &blocks::EvalResult| r.success.trials)?.map(|r| r.success))
 }
 
 /// A finished run folder under `runs` with exactly `config` (another
@@ -1196,6 +1275,11 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
     );
     bullet_list(
         &mut s,
+        "**Where the baselines go wrong.** Each baseline at its largest number of training tasks, its decisions checked one by one along the expert's trace of each of the first test tasks in that task's rollout scene, conditioned on the test demo (teacher forcing: every decision reads the trace's observation, program and scope; `ntg eval --decisions`). A rollout needs every decision right, so the fraction of traces with every decision right bounds what one error anywhere costs; the steps least often right say where (eop: returns where the trace calls or calls where it returns; scope: the callee's demo slice is not exactly the trace's):",
+        decision_lines(points),
+    );
+    bullet_list(
+        &mut s,
         "**The detector of NTP (Detector).** Its mean position error on held-out frames of training-side tasks, frames it was neither trained nor selected on (state units; beside it, the error of always answering the training frames' mean state), and its gripper accuracy:",
         points
             .iter()
@@ -1251,6 +1335,62 @@ pub(crate) fn baseline_curve_lines(points: &[NtpExpPoint]) -> Vec<String> {
                 p.train_tasks,
                 p.success.rate,
                 curve.describe()
+            ))
+        })
+        .collect()
+}
+
+/// One line per point with a decision check ([`NtpExpPoint::decisions`]):
+/// its totals and its three steps least often right, with the head that
+/// erred most there.
+pub(crate) fn decision_lines(points: &[NtpExpPoint]) -> Vec<String> {
+    points
+        .iter()
+        .filter_map(|p| {
+            let r = p.decisions.as_ref()?;
+            let rate = |right: usize, of: usize| right as f64 / of.max(1) as f64;
+            let mut steps: Vec<&crate::method::ntp::StepTally> = r.steps.iter().collect();
+            steps.sort_by(|a, b| {
+                rate(a.right, a.decisions)
+                    .partial_cmp(&rate(b.right, b.decisions))
+                    .unwrap_or(std::cmp::Ordering::Equal)
+            });
+            let worst: Vec<String> = steps
+                .iter()
+                .take(3)
+                .map(|t| {
+                    let heads = [
+                        ("eop", t.eop_wrong),
+                        ("program", t.program_wrong),
+                        ("argument", t.argument_wrong),
+                        ("scope", t.scope_wrong),
+                    ];
+                    let (head, wrong) = heads
+                        .iter()
+                        .copied()
+                        .max_by_key(|&(_, n)| n)
+                        .unwrap_or(("eop", 0));
+                    format!(
+                        "{} → {} {:.3} ({head} wrong {wrong} of {})",
+                        t.program,
+                        t.step,
+                        rate(t.right, t.decisions),
+                        t.decisions
+                    )
+                })
+                .collect();
+            Some(format!(
+                "{} ({:?}, {} tasks; test {:.3}): decisions right {:.3} ({:.1} per trace); traces with every decision right {:.3} of {} ({:.3} but for callee scopes); least often right: {}",
+                row_name(p),
+                p.obs,
+                p.train_tasks,
+                p.success.rate,
+                rate(r.right, r.decisions),
+                r.decisions as f64 / r.episodes.max(1) as f64,
+                rate(r.episodes_right, r.episodes),
+                r.episodes,
+                rate(r.episodes_right_but_scopes, r.episodes),
+                worst.join("; ")
             ))
         })
         .collect()
@@ -1557,11 +1697,29 @@ mod tests {
         // The seen-task check scores it on its own training tasks (at most
         // as many as it has), once.
         let mut checked = points.clone();
-        evaluate_seen(&mut checked, &Plan::train_all(&runs, 1), 3).unwrap();
+        check_baselines(&mut checked, &Plan::train_all(&runs, 1), 3).unwrap();
         assert_eq!(checked, points, "below the threshold: nothing scored");
-        evaluate_seen(&mut checked, &Plan::train_all(&runs, 1), 2).unwrap();
+        check_baselines(&mut checked, &Plan::train_all(&runs, 1), 2).unwrap();
         assert_eq!(checked[0].seen.unwrap().trials, 2);
         assert!(p.run.join("eval").join("seen-ntp-2.json").is_file());
+        // Its decisions are checked along the expert's traces of test tasks.
+        let report = checked[0].decisions.clone().unwrap();
+        assert_eq!(report.episodes, DECISION_CHECK_TASKS);
+        assert!(
+            report
+                .steps
+                .iter()
+                .any(|t| t.program == "place" && t.step == "drop")
+        );
+        assert!(
+            p.run
+                .join("eval")
+                .join(format!("decisions-{DECISION_CHECK_TASKS}.json"))
+                .is_file()
+        );
+        let lines = decision_lines(&checked);
+        assert_eq!(lines.len(), 1);
+        assert!(lines[0].contains("least often right"), "{}", lines[0]);
         assert_eq!(
             run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap(),
             checked,
@@ -1687,6 +1845,7 @@ mod tests {
             transcription: None,
             seen: None,
             detector: None,
+            decisions: None,
             curve: Some(curve.clone()),
             run: PathBuf::new(),
         };
@@ -1728,6 +1887,7 @@ mod tests {
             }),
             seen: None,
             detector: None,
+            decisions: None,
             curve: None,
             run: PathBuf::new(),
         }];
@@ -1767,6 +1927,7 @@ mod tests {
             transcription: None,
             seen: None,
             detector: None,
+            decisions: None,
             curve: None,
             run: PathBuf::new(),
         };
@@ -1860,6 +2021,7 @@ mod tests {
             transcription: None,
             seen: None,
             detector: None,
+            decisions: None,
             curve: None,
             run: PathBuf::from(format!("run{seed}")),
         };
