@@ -741,7 +741,8 @@ pub const DECISION_CHECK_TASKS: usize = 200;
 ///   demos and scenes it never trained on (`ntg eval --split seen`, cached
 ///   in `eval/seen-METHOD-N.json`), unless it has such a score.
 /// - Checks its decisions along the expert's traces of the first
-///   [`DECISION_CHECK_TASKS`] test tasks (`ntg eval --decisions`, cached in
+///   [`DECISION_CHECK_TASKS`] test tasks, or as many as the point was
+///   scored on if fewer (`ntg eval --decisions`, cached in
 ///   `eval/decisions-N.json`), unless it has such a check.
 ///
 /// Both are added to the run's record. A run restored from its record
@@ -792,7 +793,10 @@ fn decision_check(points: &mut [NtpExpPoint], i: usize, plan: &Plan<'_>) -> anyh
     let run = RunDir::open(&p.run)?;
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     let split = blocks::task_split(config.tasks.as_deref())?;
-    let n = DECISION_CHECK_TASKS.min(split.test.len());
+    // No more tasks than the point was scored on: cheap where it was.
+    let n = DECISION_CHECK_TASKS
+        .min(p.success.trials)
+        .min(split.test.len());
     let report = run.cached_eval(&format!("decisions-{n}.json"), || {
         let device = crate::spec::device();
         let model = blocks::load_baseline(&run, &config, &device)?;
@@ -1704,19 +1708,15 @@ mod tests {
         assert!(p.run.join("eval").join("seen-ntp-2.json").is_file());
         // Its decisions are checked along the expert's traces of test tasks.
         let report = checked[0].decisions.clone().unwrap();
-        assert_eq!(report.episodes, DECISION_CHECK_TASKS);
+        // As many tasks as the point was scored on (2), fewer than 200.
+        assert_eq!(report.episodes, 2);
         assert!(
             report
                 .steps
                 .iter()
                 .any(|t| t.program == "place" && t.step == "drop")
         );
-        assert!(
-            p.run
-                .join("eval")
-                .join(format!("decisions-{DECISION_CHECK_TASKS}.json"))
-                .is_file()
-        );
+        assert!(p.run.join("eval").join("decisions-2.json").is_file());
         let lines = decision_lines(&checked);
         assert_eq!(lines.len(), 1);
         assert!(lines[0].contains("least often right"), "{}", lines[0]);
