@@ -41,8 +41,9 @@ pub struct FigureArgs {
     /// Experiment scale.
     #[arg(long, value_enum, default_value_t = crate::spec::Profile::Quick)]
     pub profile: crate::spec::Profile,
-    /// Where run folders go (finished runs are reused).
-    #[arg(long, default_value = "runs/figures")]
+    /// Where run folders go, in a subfolder per profile (`DIR/PROFILE/RUN`);
+    /// finished runs are reused.
+    #[arg(long, value_name = "DIR", default_value = "runs/figures")]
     pub runs: PathBuf,
     /// Where `thor_all.svg` and `thor_all.png` go.
     #[arg(long, default_value = "docs/figures")]

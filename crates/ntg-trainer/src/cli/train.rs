@@ -55,8 +55,10 @@ pub struct ReproduceArgs {
     /// Experiment scale.
     #[arg(long, value_enum, default_value_t = crate::spec::Profile::Quick)]
     pub profile: crate::spec::Profile,
-    /// Where run folders go (finished runs are reused).
-    #[arg(long, default_value = "runs/figures")]
+    /// Where run folders go, in a subfolder per profile (`DIR/PROFILE/RUN`,
+    /// e.g. `runs/figures/paper/ntp_exp-state-1000`); finished runs are
+    /// reused.
+    #[arg(long, value_name = "DIR", default_value = "runs/figures")]
     pub runs: PathBuf,
     /// Where figures, results.json and REPORT.md go (and, at the paper
     /// profile, the run records under `records/`). Default: `docs/figures`
