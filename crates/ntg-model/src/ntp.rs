@@ -808,13 +808,7 @@ impl NtpNet {
         let (spec, out) = self.heads(batch)?;
         let s = batch.decisions;
         let argmax_rows = |v: Vec<f32>, width: usize| -> Vec<usize> {
-            v.chunks_exact(width.max(1))
-                .map(|row| {
-                    row.iter()
-                        .enumerate()
-                        .fold(0, |best, (i, &x)| if x > row[best] { i } else { best })
-                })
-                .collect()
+            v.chunks_exact(width.max(1)).map(first_argmax).collect()
         };
         let eop_logits = to_vec(out.eop_logits.clone())?;
         let programs = argmax_rows(to_vec(out.program_logits.clone())?, self.num_programs());
@@ -1065,6 +1059,14 @@ impl ConditionedNtp {
     }
 }
 
+/// The index of the largest value of `v` (the first of equals; 0 if empty):
+/// how the program stack reads a head's logits.
+fn first_argmax(v: &[f32]) -> usize {
+    v.iter()
+        .enumerate()
+        .fold(0, |best, (i, &x)| if x > v[best] { i } else { best })
+}
+
 /// The callee's scope from row-label logits `[R, 4]` within the caller's
 /// scope: the row most probably a start, then the row after it most
 /// probably an end (the start itself if it is the scope's last row).
@@ -1118,13 +1120,8 @@ impl NtpCore for ConditionedNtp {
             Tensor::from_data(TensorData::new(mask, [1, self.rows]), &device),
         )?;
         let eop = to_vec(out.eop_logits)?[0] > 0.0;
-        let argmax = |v: Vec<f32>| {
-            v.iter()
-                .enumerate()
-                .fold(0, |best, (i, &x)| if x > v[best] { i } else { best })
-        };
-        let program = argmax(to_vec(out.program_logits)?);
-        let argument = argmax(to_vec(out.argument_logits)?);
+        let program = first_argmax(&to_vec(out.program_logits)?);
+        let argument = first_argmax(&to_vec(out.argument_logits)?);
         let scope = if eop || self.model.config.num_programs <= program {
             frame.scope
         } else {
