@@ -3,7 +3,7 @@
 //!
 //! Three subprocesses, one after another, all with the same thread count:
 //!
-//! 1. burn, rows 1–5: the `twin_bench` example of `ntg-model` (release),
+//! 1. burn, rows 1–5: the `twin_bench` bench of `ntg-model` (release),
 //!    with `RAYON_NUM_THREADS=N` (burn's `flex` backend computes on rayon's
 //!    global pool); one JSON line per row. Rows 1b and 2b are the state
 //!    step and the frame step split into 2 data-parallel shards, as `ntg
@@ -141,16 +141,15 @@ fn cargo_output(
     Ok(out)
 }
 
-/// The `twin_bench` example's rows `rows` with `threads` rayon threads.
+/// The `twin_bench` bench's rows `rows` with `threads` rayon threads.
 fn twin_bench(root: &Path, b: &Bench, rows: &str, threads: usize) -> anyhow::Result<Vec<Value>> {
     let mut cmd = Command::new(env!("CARGO"));
     cmd.args([
-        "run",
-        "--release",
+        "bench",
         "--quiet",
         "-p",
         "ntg-model",
-        "--example",
+        "--bench",
         "twin_bench",
         "--",
     ])
@@ -158,24 +157,24 @@ fn twin_bench(root: &Path, b: &Bench, rows: &str, threads: usize) -> anyhow::Res
     .args(["--repeats", &b.repeats.to_string()])
     .args(["--warmup", &b.warmup.to_string()])
     .env("RAYON_NUM_THREADS", threads.to_string());
-    let out = cargo_output(&mut cmd, root, "the twin_bench example")?;
+    let out = cargo_output(&mut cmd, root, "the twin_bench bench")?;
     Ok(json_lines(&out.stdout))
 }
 
-/// Rows 1–5 on burn (the `twin_bench` example), and its `data_parallel`
+/// Rows 1–5 on burn (the `twin_bench` bench), and its `data_parallel`
 /// row (row 7: the 1-thread and 2-shard medians and the paired speedup).
 fn burn_rows(root: &Path, b: &Bench) -> anyhow::Result<(Vec<Value>, [f64; 3])> {
-    eprintln!("bench: burn rows 1-5 (release build of ntg-model's twin_bench example)");
+    eprintln!("bench: burn rows 1-5 (release build of ntg-model's twin_bench bench)");
     let lines = twin_bench(root, b, "all", b.threads)?;
     for (key, _) in NET_ROWS {
         if find(&lines, key).is_none() {
-            bail!("the twin_bench example printed no row {key:?}");
+            bail!("the twin_bench bench printed no row {key:?}");
         }
     }
     eprintln!("bench: row 7, the state step on 1 thread alternated with 2 shards on 2");
     let parallel = twin_bench(root, b, "data_parallel", b.threads)?;
     let parallel = find(&parallel, "data_parallel")
-        .context("the twin_bench example printed no data_parallel row")?;
+        .context("the twin_bench bench printed no data_parallel row")?;
     let field = |name: &str| {
         parallel[name]
             .as_f64()

@@ -84,15 +84,36 @@ const METRICS_FILE: &str = "metrics.jsonl";
 /// The writer lock's file name in a run folder.
 pub const LOCK_FILE: &str = "train.lock";
 
-/// A held run-folder lock ([`RunDir::lock`]); dropping it releases it.
+/// A held run-folder lock ([`RunDir::lock`]); dropping the last guard of
+/// a folder releases it.
 #[derive(Debug)]
 pub struct RunLock {
     path: PathBuf,
 }
 
+/// The run-folder locks this process holds: the lock file, the thread
+/// that took it and how many of its guards are alive. A thread that holds
+/// a folder's lock may take it again (a run's training holds it from its
+/// first cache to its last epoch, and the epoch loop takes it too); any
+/// other thread is refused, as another process is.
+static HELD_LOCKS: std::sync::Mutex<Vec<(PathBuf, std::thread::ThreadId, usize)>> =
+    std::sync::Mutex::new(Vec::new());
+
+fn held_locks() -> std::sync::MutexGuard<'static, Vec<(PathBuf, std::thread::ThreadId, usize)>> {
+    HELD_LOCKS.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 impl Drop for RunLock {
     fn drop(&mut self) {
-        let _ = fs::remove_file(&self.path);
+        let mut held = held_locks();
+        let Some(i) = held.iter().position(|(p, _, _)| *p == self.path) else {
+            return;
+        };
+        held[i].2 -= 1;
+        if held[i].2 == 0 {
+            held.swap_remove(i);
+            let _ = fs::remove_file(&self.path);
+        }
     }
 }
 
@@ -328,15 +349,31 @@ impl RunDir {
 
     /// Takes the run's writer lock (`train.lock`, holding this process's
     /// id) until the returned guard is dropped. Errors, naming the holder,
-    /// if a live process holds it; a lock left by a process that no longer
-    /// runs (killed) is taken over.
+    /// if a live process holds it, or another thread of this one; a lock
+    /// left by a process that no longer runs (killed) is taken over. The
+    /// thread that holds it may take it again (the guards nest: the last
+    /// one dropped releases it).
     pub fn lock(&self) -> anyhow::Result<RunLock> {
-        let path = self.root.join(LOCK_FILE);
+        let root = fs::canonicalize(&self.root).unwrap_or_else(|_| self.root.clone());
+        let path = root.join(LOCK_FILE);
+        let mut held = held_locks();
+        if let Some(entry) = held.iter_mut().find(|(p, _, _)| *p == path) {
+            if entry.1 != std::thread::current().id() {
+                bail!(
+                    "{} is being written by another thread of this process ({}); a run folder has one writer",
+                    self.root.display(),
+                    path.display()
+                );
+            }
+            entry.2 += 1;
+            return Ok(RunLock { path });
+        }
         for _ in 0..2 {
             match OpenOptions::new().write(true).create_new(true).open(&path) {
                 Ok(mut file) => {
                     write!(file, "{}", std::process::id())
                         .with_context(|| format!("writing {}", path.display()))?;
+                    held.push((path.clone(), std::thread::current().id(), 1));
                     return Ok(RunLock { path });
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
@@ -615,13 +652,26 @@ mod tests {
         let tmp = tempfile::tempdir().unwrap();
         let run = RunDir::create(&tmp.path().join("run")).unwrap();
         let held = run.lock().unwrap();
+        // The holding thread may take it again; the last guard releases it.
+        let nested = run.lock().unwrap();
+        drop(nested);
+        assert!(run.root().join(LOCK_FILE).exists());
+        // Another thread of this process is refused.
+        let err = std::thread::scope(|s| s.spawn(|| run.lock().map(drop)).join().unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("another thread"), "{err}");
+        // So is a lock file of a live process that this process did not
+        // take (here its own id, written by hand).
+        drop(held);
+        assert!(!run.root().join(LOCK_FILE).exists());
+        fs::write(run.root().join(LOCK_FILE), std::process::id().to_string()).unwrap();
         let err = run.lock().unwrap_err().to_string();
         assert!(
             err.contains(&format!("process {}", std::process::id())),
             "{err}"
         );
-        drop(held);
-        assert!(!run.root().join(LOCK_FILE).exists());
+        fs::remove_file(run.root().join(LOCK_FILE)).unwrap();
         let again = run.lock().unwrap();
         drop(again);
         // A lock left by a killed process (no such pid) is taken over.

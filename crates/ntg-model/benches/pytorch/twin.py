@@ -44,7 +44,7 @@ milliseconds.
 
 `--bench ROW` (or `ROW,ROW`, or `all`) times the rows of `cargo xtask
 bench`, one JSON line each, on exactly the batches and sizes of the burn
-side (`crates/ntg-model/examples/twin_bench.rs`, whose doc gives the batch
+side (`crates/ntg-model/benches/twin_bench.rs`, whose doc gives the batch
 recipe): state_step (the above), frame_step (stage A's frame network, 64
 frames), interpreter_step and gcn_step (those networks alone on the same
 batch), policy_step (one executor decision, inference: localizer, edge
@@ -455,7 +455,7 @@ def check(path, tol):
 # --------------------------------------------------------------- bench mode
 
 # The rows of `cargo xtask bench` this side times, in its order; the burn
-# side is `crates/ntg-model/examples/twin_bench.rs`, with the same names,
+# side is `crates/ntg-model/benches/twin_bench.rs`, with the same names,
 # sizes and batches.
 BENCH_ROWS = ("state_step", "frame_step", "interpreter_step", "gcn_step", "policy_step")
 FRAMES = 64  # stage A batch (the trainer's default)

@@ -633,6 +633,9 @@ pub fn train_run(
     device: &Device,
     on_epoch: impl FnMut(&EpochMetrics),
 ) -> anyhow::Result<TrainedBlocks> {
+    // One writer from the first cache this run builds (demos, frame
+    // embeddings, stages) to its last epoch, not only during epochs.
+    let _writer = run.lock()?;
     check_ablation(config)?;
     check_encoder_labels(config)?;
     match config.obs {

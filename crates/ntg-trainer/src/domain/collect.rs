@@ -432,6 +432,9 @@ pub fn train_run(
     device: &Device,
     mut on_epoch: impl FnMut(String),
 ) -> anyhow::Result<Model> {
+    // One writer from the first cache this run builds (demos, frame
+    // embeddings, stages) to its last epoch, not only during epochs.
+    let _writer = run.lock()?;
     config.validate()?;
     let n = env_collect::vocabulary().len();
     // On demo videos: stage A trains the shared encoder, stage B the

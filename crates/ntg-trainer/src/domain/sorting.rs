@@ -278,6 +278,9 @@ pub fn train_run(
     device: &Device,
     mut on_epoch: impl FnMut(&EpochMetrics),
 ) -> anyhow::Result<NtgModel> {
+    // One writer from the first cache this run builds (demos, frame
+    // embeddings, stages) to its last epoch, not only during epochs.
+    let _writer = run.lock()?;
     config.validate()?;
     let (pool, validation, _) = split()?;
     let tasks = &pool[..config.train_tasks];

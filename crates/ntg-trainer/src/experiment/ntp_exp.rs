@@ -603,6 +603,10 @@ fn run_point(
         return Ok(None);
     };
     let run = RunDir::open_or_create(&dir, &config)?;
+    // One writer for the whole point: the stages it shares in, its caches,
+    // training and evaluation (another `ntg reproduce --only` of the same
+    // run is refused here, not only once the epochs start).
+    let _writer = run.lock()?;
     if reuses_stage_a(obs, method) {
         let sibling = match method {
             MethodId::Ntp => MethodId::NtpFlat,
@@ -2165,12 +2169,18 @@ mod tests {
         let detector = config.detector.expect("detector settings");
         assert_eq!((detector.episodes, detector.epochs), (10, 1));
         // The detector's stage: its own metrics and held-out score; its
-        // seconds count in the point's compute.
+        // seconds count in the point's compute (compared as compute, CPU
+        // seconds where recorded: wall seconds exceed them whenever other
+        // processes share the cores, and then the stage's wall alone could
+        // exceed the point's compute).
         let stage = p.run.join(crate::method::detector::DETECTOR_STAGE_DIR);
         let held_out: crate::method::detector::DetectorHeldOut =
             RunDir::read_json(&stage.join("held_out.json")).unwrap();
         assert!(held_out.detector.frames > 0 && held_out.detector.position_error.is_finite());
-        let stage_seconds = RunDir::open(&stage).unwrap().epoch_seconds().unwrap();
+        let stage_seconds = RunDir::open(&stage)
+            .unwrap()
+            .epoch_compute_seconds()
+            .unwrap();
         assert!(stage_seconds > 0.0 && p.train_seconds > stage_seconds);
         // The saved model is NTP with its detector; it loads by method.
         let model = MethodId::NtpDetector

@@ -2,7 +2,7 @@
 //! ablated NTG trains on sorting demos, keeps its ablation in its saved
 //! configuration, and is scored on part-sorted test scenes.
 
-mod common;
+use crate::common;
 use common::ntg;
 
 #[test]

@@ -1,6 +1,6 @@
 //! The `ntg graph` binary end to end: output, exit codes, one-line errors.
 
-mod common;
+use crate::common;
 use common::ntg;
 
 #[test]

@@ -4,7 +4,7 @@
 //! per row with the median milliseconds.
 //!
 //! ```text
-//! RAYON_NUM_THREADS=2 cargo run --release -p ntg-model --example twin_bench -- [--rows all|ROW,ROW] [--repeats 20] [--warmup 3]
+//! RAYON_NUM_THREADS=2 cargo bench -p ntg-model --bench twin_bench -- [--rows all|ROW,ROW] [--repeats 20] [--warmup 3]
 //! ```
 //!
 //! Rows (the names the twin uses too):
@@ -83,7 +83,7 @@ use ntg_model::{
 };
 use serde_json::json;
 
-#[path = "twin_export.rs"]
+#[path = "../examples/twin_export.rs"]
 #[allow(dead_code)] // the example's `main` and export code
 mod twin_export;
 
@@ -551,6 +551,8 @@ fn main() -> Result<(), Box<dyn Error>> {
             }
             "--repeats" => repeats = value()?.parse()?,
             "--warmup" => warmup = value()?.parse()?,
+            // What `cargo bench` passes every bench target.
+            "--bench" => {}
             "-h" | "--help" => {
                 println!(
                     "usage: twin_bench [--rows all|ROW,ROW] [--repeats N] [--warmup N]; rows: {}, data_parallel, part_parallel",

@@ -5,7 +5,7 @@
 //! 1e-4.
 //!
 //! ```text
-//! NTG_PYTHON=/path/to/venv/bin/python cargo test -p ntg-model --test pytorch_twin -- --nocapture
+//! NTG_PYTHON=/path/to/venv/bin/python cargo test -p ntg-model --test integration pytorch_twin -- --nocapture
 //! ```
 //!
 //! The Python interpreter is `NTG_PYTHON` (default `python3`). Without
@@ -15,7 +15,7 @@
 use std::path::Path;
 use std::process::{Command, Stdio};
 
-#[path = "../examples/twin_export.rs"]
+#[path = "../../examples/twin_export.rs"]
 #[allow(dead_code)] // the example's `main`
 mod twin_export;
 

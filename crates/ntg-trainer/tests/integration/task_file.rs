@@ -3,7 +3,7 @@
 //! standard rule (first 1000 tasks the training pool, the rest the test
 //! tasks), with validation tasks drawn outside the file's configurations.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -4,7 +4,7 @@
 //! without a panic, with a message naming the flag or file at fault, and
 //! leave every file in its working folder as it was.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -126,6 +126,13 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         )
         .unwrap();
     });
+    // Held by another live process (this test's), with a cache that
+    // training would rebuild: refused before anything is written, not only
+    // once the epochs start.
+    let locked = damaged("locked", &|d| {
+        std::fs::remove_dir_all(d.join("dataset")).unwrap();
+        std::fs::write(d.join("train.lock"), std::process::id().to_string()).unwrap();
+    });
 
     let train = |extra: &[&str]| -> Vec<String> {
         let mut args = vec!["train".to_owned(), "--out".to_owned(), p("new-run")];
@@ -165,6 +172,25 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             "--encoder-demos".into(),
         ),
         (train(&["--lr", "1e-3", "--lr", "2e-3"]), "--lr".into()),
+        (
+            s(&[
+                "train",
+                "--domain",
+                "blocks",
+                "--train-tasks",
+                "2",
+                "--demos-per-task",
+                "2",
+                "--epochs",
+                "1",
+                "--validation-tasks",
+                "0",
+                "--resume",
+                "--out",
+                &locked,
+            ]),
+            "being written by another process".into(),
+        ),
         // Flags of another domain or another input.
         (
             train(&["--domain", "blocks", "--memory"]),
