@@ -30,24 +30,26 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     files
 }
 
-/// A tiny trained block-stacking run in `dir/run` (state input, 1 epoch).
+/// The `ntg train` flags of the tiny fixture run (state input, 1 epoch).
+const TINY_RUN: &[&str] = &[
+    "train",
+    "--domain",
+    "blocks",
+    "--train-tasks",
+    "2",
+    "--demos-per-task",
+    "2",
+    "--epochs",
+    "1",
+    "--validation-tasks",
+    "0",
+];
+
+/// A tiny trained block-stacking run in `dir/run` ([`TINY_RUN`]).
 fn train_tiny_run(dir: &Path) -> PathBuf {
     let run = dir.join("run");
-    let (code, _, err) = ntg(&[
-        "train",
-        "--domain",
-        "blocks",
-        "--train-tasks",
-        "2",
-        "--demos-per-task",
-        "2",
-        "--epochs",
-        "1",
-        "--validation-tasks",
-        "0",
-        "--out",
-        run.to_str().unwrap(),
-    ]);
+    let args = [TINY_RUN, &["--out", run.to_str().unwrap()]].concat();
+    let (code, _, err) = ntg(&args);
     assert_eq!(code, 0, "training the fixture run failed: {err}");
     run
 }
@@ -173,22 +175,7 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         ),
         (train(&["--lr", "1e-3", "--lr", "2e-3"]), "--lr".into()),
         (
-            s(&[
-                "train",
-                "--domain",
-                "blocks",
-                "--train-tasks",
-                "2",
-                "--demos-per-task",
-                "2",
-                "--epochs",
-                "1",
-                "--validation-tasks",
-                "0",
-                "--resume",
-                "--out",
-                &locked,
-            ]),
+            s(&[TINY_RUN, &["--resume", "--out", &locked]].concat()),
             "being written by another process".into(),
         ),
         // Flags of another domain or another input.
