@@ -15,7 +15,8 @@
 //!   best/            the weights of the epoch that scored best on them,
 //!                    and `selection.json` saying which epoch that was
 //!   eval/            evaluation results
-//!   train.lock       while a process trains the run: its process id
+//!   train.lock       while a process writes the run (trains or evaluates
+//!                    it): its process id, the file held with an OS lock
 //!   stage_a/, detector_stage/
 //!                    a stage trained before the run's model (a video
 //!                    run's frame encoder, NTP (Detector)'s detector): a
@@ -24,8 +25,11 @@
 //!
 //! Nothing the user wrote is overwritten: creating a run in a non-empty
 //! folder is an error unless the caller resumes it. A run has one writer at
-//! a time: training holds [`RunDir::lock`], and a second process that tries
-//! is told which process holds it.
+//! a time: training and evaluation hold [`RunDir::lock`], and a second
+//! process that tries is told which process holds it. The lock is the OS's
+//! (`flock` on Unix) on `train.lock`, so the kernel releases it when its
+//! process dies, however it dies: a killed run's file is taken over by the
+//! next writer, with no guessing from process ids.
 
 use std::fs::{self, OpenOptions};
 use std::io::Write;
@@ -58,6 +62,10 @@ fn fill_tree(from: &Path, to: &Path, link: bool) -> anyhow::Result<()> {
         for entry in fs::read_dir(from).with_context(|| format!("reading {}", from.display()))? {
             let entry = entry?;
             let (source, target) = (entry.path(), to.join(entry.file_name()));
+            if entry.file_name() == LOCK_FILE {
+                // The lock of whoever writes `from`, not part of its run.
+                continue;
+            }
             if entry.file_type()?.is_dir() {
                 fill(&source, &target, link)?;
             } else if !link || fs::hard_link(&source, &target).is_err() {
@@ -91,38 +99,68 @@ pub struct RunLock {
     path: PathBuf,
 }
 
-/// The run-folder locks this process holds: the lock file, the thread
-/// that took it and how many of its guards are alive. A thread that holds
-/// a folder's lock may take it again (a run's training holds it from its
-/// first cache to its last epoch, and the epoch loop takes it too); any
-/// other thread is refused, as another process is.
-static HELD_LOCKS: std::sync::Mutex<Vec<(PathBuf, std::thread::ThreadId, usize)>> =
-    std::sync::Mutex::new(Vec::new());
+/// One run-folder lock this process holds: the lock file's path, its open
+/// file (holding the OS lock), the thread that took it and how many of its
+/// guards are alive.
+struct HeldLock {
+    path: PathBuf,
+    file: fs::File,
+    thread: std::thread::ThreadId,
+    guards: usize,
+}
 
-fn held_locks() -> std::sync::MutexGuard<'static, Vec<(PathBuf, std::thread::ThreadId, usize)>> {
+/// The run-folder locks this process holds. A thread that holds a folder's
+/// lock may take it again (a run's training holds it from its first cache
+/// to its last epoch, and the epoch loop takes it too); any other thread is
+/// refused, as another process is.
+static HELD_LOCKS: std::sync::Mutex<Vec<HeldLock>> = std::sync::Mutex::new(Vec::new());
+
+fn held_locks() -> std::sync::MutexGuard<'static, Vec<HeldLock>> {
     HELD_LOCKS.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 impl Drop for RunLock {
     fn drop(&mut self) {
         let mut held = held_locks();
-        let Some(i) = held.iter().position(|(p, _, _)| *p == self.path) else {
+        let Some(i) = held.iter().position(|h| h.path == self.path) else {
             return;
         };
-        held[i].2 -= 1;
-        if held[i].2 == 0 {
-            held.swap_remove(i);
-            let _ = fs::remove_file(&self.path);
+        held[i].guards -= 1;
+        if held[i].guards == 0 {
+            let last = held.swap_remove(i);
+            // Removed while still locked, then unlocked by closing: a
+            // process that opened the file meanwhile finds, once it has
+            // the lock, that the path no longer names its file, and opens
+            // it again ([`RunDir::lock`]).
+            let _ = fs::remove_file(&last.path);
+            drop(last.file);
         }
     }
 }
 
-/// Whether process `pid` runs (on Linux, from `/proc`; elsewhere assumed,
-/// so a stale lock is left for the user to delete).
-fn process_is_running(pid: u32) -> bool {
-    if cfg!(target_os = "linux") {
-        pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists()
-    } else {
+/// Whether process `pid`, not this one, runs (on Linux, from `/proc`;
+/// elsewhere it is not known, and `false`).
+fn another_live_process(pid: u32) -> bool {
+    cfg!(target_os = "linux")
+        && pid != std::process::id()
+        && Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// Whether `path` still names the open `file` (it was not removed or
+/// replaced since it was opened). Where file identities are not known
+/// (not Unix), assumed.
+fn names_file(path: &Path, file: &fs::File) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        match (fs::metadata(path), file.metadata()) {
+            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+            _ => false,
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = (path, file);
         true
     }
 }
@@ -347,58 +385,91 @@ impl RunDir {
         Ok(files)
     }
 
-    /// Takes the run's writer lock (`train.lock`, holding this process's
-    /// id) until the returned guard is dropped. Errors, naming the holder,
-    /// if a live process holds it, or another thread of this one; a lock
-    /// left by a process that no longer runs (killed) is taken over. The
-    /// thread that holds it may take it again (the guards nest: the last
-    /// one dropped releases it).
+    /// Takes the run's writer lock until the returned guard is dropped:
+    /// the OS's exclusive lock on `train.lock` (which then holds this
+    /// process's id, for the message another process gets). Errors, naming
+    /// the holder, if another process holds it, or another thread of this
+    /// one. A lock file left by a process that died (killed, or a power
+    /// cut) is taken over: the OS released its lock. The thread that holds
+    /// it may take it again (the guards nest: the last one dropped
+    /// releases it). A file whose OS lock is free but which names another
+    /// live process is refused too: a process of an `ntg` from before OS
+    /// locks may hold it.
     pub fn lock(&self) -> anyhow::Result<RunLock> {
         let root = fs::canonicalize(&self.root).unwrap_or_else(|_| self.root.clone());
         let path = root.join(LOCK_FILE);
         let mut held = held_locks();
-        if let Some(entry) = held.iter_mut().find(|(p, _, _)| *p == path) {
-            if entry.1 != std::thread::current().id() {
+        if let Some(entry) = held.iter_mut().find(|h| h.path == path) {
+            if entry.thread != std::thread::current().id() {
                 bail!(
                     "{} is being written by another thread of this process ({}); a run folder has one writer",
                     self.root.display(),
                     path.display()
                 );
             }
-            entry.2 += 1;
+            entry.guards += 1;
             return Ok(RunLock { path });
         }
-        for _ in 0..2 {
-            match OpenOptions::new().write(true).create_new(true).open(&path) {
-                Ok(mut file) => {
-                    write!(file, "{}", std::process::id())
-                        .with_context(|| format!("writing {}", path.display()))?;
-                    held.push((path.clone(), std::thread::current().id(), 1));
-                    return Ok(RunLock { path });
+        let refused = |text: &str, unlocked: bool| {
+            anyhow::anyhow!(
+                "{} is being written by another process ({}: {}); wait for it to finish{}",
+                self.root.display(),
+                path.display(),
+                match text.trim().parse::<u32>() {
+                    Ok(pid) => format!("process {pid}"),
+                    Err(_) => format!("{:?}", text.trim()),
+                },
+                if unlocked {
+                    " (it holds no OS lock on the file: if that process is not an ntg, delete the file)"
+                } else {
+                    ""
                 }
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
-                    let text = fs::read_to_string(&path).unwrap_or_default();
-                    let holder: Option<u32> = text.trim().parse().ok();
-                    match holder {
-                        Some(pid) if !process_is_running(pid) => {
-                            fs::remove_file(&path).with_context(|| {
-                                format!("removing the stale {}", path.display())
-                            })?;
-                        }
-                        _ => bail!(
-                            "{} is being written by another process ({}: {}); wait for it to finish, or delete the file if no such process runs",
-                            self.root.display(),
-                            path.display(),
-                            holder.map_or_else(|| format!("{text:?}"), |p| format!("process {p}"))
-                        ),
-                    }
+            )
+        };
+        // Retried while the file the lock was taken on is no longer the
+        // one at `path` (its holder removed it on release meanwhile).
+        for _ in 0..100 {
+            let mut file = OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(&path)
+                .with_context(|| format!("opening {}", path.display()))?;
+            match file.try_lock() {
+                Ok(()) => {}
+                Err(fs::TryLockError::WouldBlock) => {
+                    return Err(refused(
+                        &fs::read_to_string(&path).unwrap_or_default(),
+                        false,
+                    ));
                 }
-                Err(e) => {
-                    return Err(e).with_context(|| format!("creating {}", path.display()));
+                Err(fs::TryLockError::Error(e)) => {
+                    return Err(e).with_context(|| format!("locking {}", path.display()));
                 }
             }
+            if !names_file(&path, &file) {
+                continue;
+            }
+            let text = fs::read_to_string(&path).unwrap_or_default();
+            if text.trim().parse::<u32>().is_ok_and(another_live_process) {
+                return Err(refused(&text, true));
+            }
+            file.set_len(0)
+                .and_then(|()| write!(file, "{}", std::process::id()))
+                .with_context(|| format!("writing {}", path.display()))?;
+            held.push(HeldLock {
+                path: path.clone(),
+                file,
+                thread: std::thread::current().id(),
+                guards: 1,
+            });
+            return Ok(RunLock { path });
         }
-        bail!("could not take {}", path.display())
+        bail!(
+            "could not take {}: it was replaced 100 times in a row",
+            path.display()
+        )
     }
 
     /// The folder itself.
@@ -651,45 +722,57 @@ mod tests {
     fn one_writer_at_a_time_and_stale_locks_are_taken_over() {
         let tmp = tempfile::tempdir().unwrap();
         let run = RunDir::create(&tmp.path().join("run")).unwrap();
+        let lock_file = run.root().join(LOCK_FILE);
         let held = run.lock().unwrap();
         // The holding thread may take it again; the last guard releases it.
         let nested = run.lock().unwrap();
         drop(nested);
-        assert!(run.root().join(LOCK_FILE).exists());
+        assert!(lock_file.exists());
         // Another thread of this process is refused.
         let err = std::thread::scope(|s| s.spawn(|| run.lock().map(drop)).join().unwrap())
             .unwrap_err()
             .to_string();
         assert!(err.contains("another thread"), "{err}");
-        // So is a lock file of a live process that this process did not
-        // take (here its own id, written by hand).
+        // A copy of the folder does not take its writer's lock along.
+        let copy = tmp.path().join("copy");
+        link_or_copy_tree(run.root(), &copy).unwrap();
+        assert!(!copy.join(LOCK_FILE).exists());
         drop(held);
-        assert!(!run.root().join(LOCK_FILE).exists());
-        fs::write(run.root().join(LOCK_FILE), std::process::id().to_string()).unwrap();
+        assert!(!lock_file.exists());
+
+        // Another process's lock (here an OS lock this test takes on its
+        // own handle, the file naming a process that does not exist).
+        fs::write(&lock_file, "4194304999").unwrap();
+        let outside = fs::File::open(&lock_file).unwrap();
+        outside.try_lock().unwrap();
         let err = run.lock().unwrap_err().to_string();
-        assert!(
-            err.contains(&format!("process {}", std::process::id())),
-            "{err}"
-        );
-        fs::remove_file(run.root().join(LOCK_FILE)).unwrap();
-        let again = run.lock().unwrap();
-        drop(again);
-        // A lock left by a killed process (no such pid) is taken over.
-        fs::write(run.root().join(LOCK_FILE), "4194304999").unwrap();
+        assert!(err.contains("process 4194304999"), "{err}");
+        assert!(!err.contains("delete the file"), "{err}");
+        // Its holder died: the OS released the lock, the file is taken over.
+        drop(outside);
         let taken = run.lock().unwrap();
         assert_eq!(
-            fs::read_to_string(run.root().join(LOCK_FILE)).unwrap(),
+            fs::read_to_string(&lock_file).unwrap(),
             std::process::id().to_string()
         );
         drop(taken);
-        // A lock file that names no process is left to the user.
-        fs::write(run.root().join(LOCK_FILE), "someone").unwrap();
-        assert!(
-            run.lock()
-                .unwrap_err()
-                .to_string()
-                .contains("delete the file")
-        );
+        // So is a file left half-written, or naming this very process (a
+        // killed run's id, reused by the process that resumes it).
+        for left in ["", "someone", &std::process::id().to_string()] {
+            fs::write(&lock_file, left).unwrap();
+            drop(run.lock().unwrap());
+            assert!(!lock_file.exists());
+        }
+        // A file without an OS lock that names another live process (an
+        // ntg from before OS locks) is refused, saying how to clear it.
+        if cfg!(target_os = "linux") {
+            fs::write(&lock_file, "1").unwrap();
+            let err = run.lock().unwrap_err().to_string();
+            assert!(
+                err.contains("process 1") && err.contains("delete the file"),
+                "{err}"
+            );
+        }
     }
 
     #[test]

@@ -42,6 +42,8 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
             run.config_path().display()
         )
     })?;
+    // It writes the run's `eval/`: not while another process trains it.
+    let _writer = run.lock()?;
     domain.runs().evaluate(&run, args)
 }
 

@@ -937,6 +937,9 @@ pub fn train_ntp_run(
     device: &Device,
     mut on_epoch: impl FnMut(&NtpEpochMetrics),
 ) -> anyhow::Result<Model> {
+    // One writer from the first cache (demos, frames, the detector stage)
+    // to the last epoch, as in `train_run`.
+    let _writer = run.lock()?;
     check_ablation(config)?;
     check_encoder_labels(config)?;
     let kind = match config.method {

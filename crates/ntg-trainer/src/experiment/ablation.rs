@@ -412,6 +412,8 @@ pub fn run_b(
                     return Ok(None);
                 };
                 let run = RunDir::open_or_create(&dir, &config)?;
+                // One writer for training, evaluation and the record.
+                let _writer = run.lock()?;
                 eprintln!(
                     "ablation (b) ({}, {} maps x {} demos, {} epochs): training -> {}",
                     ablation.name(),

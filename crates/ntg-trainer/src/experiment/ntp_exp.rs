@@ -795,6 +795,7 @@ fn seen_check(points: &mut [NtpExpPoint], i: usize, plan: &Plan<'_>) -> anyhow::
 fn decision_check(points: &mut [NtpExpPoint], i: usize, plan: &Plan<'_>) -> anyhow::Result<()> {
     let p = &points[i];
     let run = RunDir::open(&p.run)?;
+    let _writer = run.lock()?;
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     let split = blocks::task_split(config.tasks.as_deref())?;
     // No more tasks than the point was scored on: cheap where it was.
@@ -897,6 +898,7 @@ pub(crate) fn evaluate_point(
         return Ok(None);
     }
     let flags = crate::domain::EvalFlags::of_run(&p.run, n, split);
+    let _writer = run.lock()?;
     let result = run.cached_eval(&file, || {
         blocks::evaluate_run(&run, &flags).map(|(_, result)| result)
     })?;

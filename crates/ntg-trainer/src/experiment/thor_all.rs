@@ -299,6 +299,9 @@ pub fn run(
             return Ok(None);
         };
         let run = RunDir::open_or_create(&dir, &config)?;
+        // One writer for the whole run: the stages it shares in, training,
+        // evaluation and its record.
+        let _writer = run.lock()?;
         if let Some(video) = &config.video {
             share_videos(
                 experiment, profile, variant, plan.runs, &run, &config, video,

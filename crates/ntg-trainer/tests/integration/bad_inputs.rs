@@ -128,13 +128,16 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         )
         .unwrap();
     });
-    // Held by another live process (this test's), with a cache that
-    // training would rebuild: refused before anything is written, not only
-    // once the epochs start.
+    // Held by another live process (this test, holding the OS lock on the
+    // file for the whole test; the id in it names no process, so only the
+    // OS lock can refuse), with a cache that training would rebuild:
+    // refused before anything is written, not only once the epochs start.
     let locked = damaged("locked", &|d| {
         std::fs::remove_dir_all(d.join("dataset")).unwrap();
-        std::fs::write(d.join("train.lock"), std::process::id().to_string()).unwrap();
+        std::fs::write(d.join("train.lock"), "4194304999").unwrap();
     });
+    let lock_holder = std::fs::File::open(Path::new(&locked).join("train.lock")).unwrap();
+    lock_holder.try_lock().unwrap();
 
     let train = |extra: &[&str]| -> Vec<String> {
         let mut args = vec!["train".to_owned(), "--out".to_owned(), p("new-run")];
@@ -557,5 +560,6 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             break;
         }
     }
+    drop(lock_holder);
     assert!(failures.is_empty(), "{}", failures.join("\n\n"));
 }
