@@ -124,6 +124,19 @@ fn snapshot(from: &Path, to: &Path) -> anyhow::Result<Listing> {
 /// (it is not overwritten). The run may be training meanwhile (the
 /// copy is redone until no file changed under it).
 pub fn carry_run(runs: &Path, records: &Path, name: &str) -> anyhow::Result<Carried> {
+    // One plain folder name (a trailing `/` from tab completion would name
+    // the record `records/NAME/.json` and pass the check below).
+    let name = name.trim_end_matches(['/', std::path::MAIN_SEPARATOR]);
+    let mut parts = Path::new(name).components();
+    if !matches!(
+        (parts.next(), parts.next()),
+        (Some(std::path::Component::Normal(_)), None)
+    ) {
+        bail!(
+            "{name:?} is not a run name: name a run folder of {}",
+            runs.display()
+        );
+    }
     let from = runs.join(name);
     let config_path = from.join("config.json");
     if !config_path.is_file() {
@@ -306,6 +319,14 @@ mod tests {
         write(&record::path(&records, "r"), "{}");
         let err = carry_run(&runs, &records, "r").unwrap_err().to_string();
         assert!(err.contains("finished and recorded"), "{err}");
+        // Also when named with a trailing slash (tab completion); a path
+        // is not a run name.
+        let err = carry_run(&runs, &records, "r/").unwrap_err().to_string();
+        assert!(err.contains("finished and recorded"), "{err}");
+        for bad in ["../r", "a/r", "", "/r"] {
+            let err = carry_run(&runs, &records, bad).unwrap_err().to_string();
+            assert!(err.contains("not a run name"), "{bad}: {err}");
+        }
     }
 
     #[test]

@@ -59,6 +59,42 @@ pub struct RunRecord {
     pub files: BTreeMap<String, Value>,
 }
 
+/// How a new record of a run stands to the one kept ([`RunRecord::compare`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Comparison {
+    /// The same configuration and evaluations, episode for episode.
+    Same,
+    /// Every evaluation of the kept one, equal, and more (or the same ones
+    /// with the per-episode verdict the kept one predates): worth keeping
+    /// instead.
+    Extends,
+    /// Every evaluation both hold is equal, but the new one lacks some of
+    /// the kept one's (`missing`): e.g. `ntg reproduce --only` reruns a
+    /// point's main evaluation, not the checks its record also holds.
+    Within {
+        /// The kept record's evaluations the new one lacks.
+        missing: Vec<String>,
+    },
+    /// Another configuration, or an evaluation both hold differs.
+    Differs,
+}
+
+/// `path` with `.SUFFIX` appended to its file name (not replacing an
+/// extension: run names may hold dots).
+fn sibling(path: &Path, suffix: &str) -> PathBuf {
+    let mut name = path.file_name().unwrap_or_default().to_os_string();
+    name.push(".");
+    name.push(suffix);
+    path.with_file_name(name)
+}
+
+/// An evaluation without what records written before it lack.
+fn normalised(value: &Value) -> Value {
+    let mut value = value.clone();
+    without_key(&mut value, TRANSCRIBED_EXACTLY);
+    value
+}
+
 impl RunRecord {
     /// The record of the run folder `dir`.
     pub fn of_run(dir: &Path) -> anyhow::Result<Self> {
@@ -98,7 +134,12 @@ impl RunRecord {
                 .with_context(|| format!("creating {}", parent.display()))?;
         }
         let text = serde_json::to_string(self)?;
-        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))
+        // Through a temporary file renamed into place: a kill leaves the
+        // old record or the new one, never half of one.
+        let tmp = sibling(path, "tmp");
+        std::fs::write(&tmp, text + "\n").with_context(|| format!("writing {}", tmp.display()))?;
+        std::fs::rename(&tmp, path)
+            .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
     }
 
     /// The run configuration it was trained with.
@@ -108,7 +149,10 @@ impl RunRecord {
 
     /// Writes its files into the new folder `dir` (which must not exist),
     /// checkpoint progress before evaluations so that these count as
-    /// belonging to the final weights, and marks it restored.
+    /// belonging to the final weights, and marks it restored. Through a
+    /// sibling `NAME.restoring` folder renamed into place: a kill leaves no
+    /// `dir` (a folder with the record's progress but not its marker would
+    /// pass for a finished training with weights).
     pub fn restore(&self, dir: &Path, from: &Path) -> anyhow::Result<()> {
         if dir.exists() {
             bail!(
@@ -116,6 +160,18 @@ impl RunRecord {
                 dir.display()
             );
         }
+        let staging = sibling(dir, "restoring");
+        if staging.exists() {
+            std::fs::remove_dir_all(&staging)
+                .with_context(|| format!("removing the unfinished {}", staging.display()))?;
+        }
+        self.write_files(&staging, from)?;
+        std::fs::rename(&staging, dir)
+            .with_context(|| format!("renaming {} to {}", staging.display(), dir.display()))
+    }
+
+    /// [`RunRecord::restore`]'s writing of the files and marker into `dir`.
+    fn write_files(&self, dir: &Path, from: &Path) -> anyhow::Result<()> {
         let mut paths: Vec<&String> = self.files.keys().collect();
         paths.sort_by_key(|p| (p.starts_with("eval/"), p.as_str()));
         for relative in paths {
@@ -145,22 +201,64 @@ impl RunRecord {
             .with_context(|| format!("writing {}", dir.join(RESTORED_MARKER).display()))
     }
 
-    /// Whether `other` records the same run with the same outcomes: the same
-    /// configuration and evaluations (every episode), whatever the commit,
-    /// machine or timings.
-    pub fn same_outcomes(&self, other: &RunRecord) -> bool {
-        let evals = |r: &RunRecord| -> Vec<(String, Value)> {
-            r.files
+    /// How the record `new` of the same run stands to this one: their
+    /// configurations and the evaluations both hold (every episode),
+    /// whatever the commit, machine or timings. See [`Comparison`].
+    pub fn compare(&self, new: &RunRecord) -> Comparison {
+        if self.config() != new.config() {
+            return Comparison::Differs;
+        }
+        let (ours, theirs) = (self.evaluations(), new.evaluations());
+        if ours.iter().any(|(path, v)| {
+            theirs
+                .get(path)
+                .is_some_and(|w| normalised(v) != normalised(w))
+        }) {
+            return Comparison::Differs;
+        }
+        let missing: Vec<String> = ours
+            .keys()
+            .filter(|p| !theirs.contains_key(*p))
+            .map(|p| (*p).to_owned())
+            .collect();
+        if !missing.is_empty() {
+            return Comparison::Within { missing };
+        }
+        // `new` holds every evaluation of this one, equal: it extends this
+        // one if it has more, or adds the per-episode verdict a record
+        // written before it lacks.
+        let adds = theirs.len() > ours.len()
+            || ours
                 .iter()
-                .filter(|(p, _)| p.starts_with("eval/") || p.as_str() == "config.json")
-                .map(|(p, v)| {
-                    let mut v = v.clone();
-                    without_key(&mut v, TRANSCRIBED_EXACTLY);
-                    (p.clone(), v)
-                })
-                .collect()
-        };
-        evals(self) == evals(other)
+                .any(|(path, v)| v != &theirs[path] && normalised(v) == **v);
+        if adds {
+            Comparison::Extends
+        } else {
+            Comparison::Same
+        }
+    }
+
+    /// Whether `other` records the same run with the same outcomes: the
+    /// same configuration and evaluations (every episode), whatever the
+    /// commit, machine or timings ([`RunRecord::compare`] is `Same` or
+    /// `Extends` either way round).
+    pub fn same_outcomes(&self, other: &RunRecord) -> bool {
+        matches!(
+            (self.compare(other), other.compare(self)),
+            (
+                Comparison::Same | Comparison::Extends,
+                Comparison::Same | Comparison::Extends
+            )
+        )
+    }
+
+    /// Its evaluations (`eval/...`) by path.
+    fn evaluations(&self) -> BTreeMap<&str, &Value> {
+        self.files
+            .iter()
+            .filter(|(p, _)| p.starts_with("eval/"))
+            .map(|(p, v)| (p.as_str(), v))
+            .collect()
     }
 
     /// The stretches of training its `sessions.jsonl` lists (lines that do
@@ -374,7 +472,7 @@ fn collect(root: &Path, dir: &Path, files: &mut BTreeMap<String, Value>) -> anyh
 
 /// The per-episode verdict kept of the dropped sequences (see
 /// `EpisodeRecord::transcribed_exactly`): derived here for evaluations
-/// saved before it, and left out of [`RunRecord::same_outcomes`], since
+/// saved before it, and left out of [`RunRecord::compare`], since
 /// records written before it lack it.
 const TRANSCRIBED_EXACTLY: &str = "transcribed_exactly";
 
@@ -523,6 +621,66 @@ mod tests {
         let mut other = back.clone();
         other.files.get_mut("eval/full-2.json").unwrap()["tasks"][1]["success"] = true.into();
         assert!(!back.same_outcomes(&other));
+    }
+
+    #[test]
+    fn records_compare_by_the_evaluations_both_hold() {
+        let record = |evals: &[(&str, Value)]| RunRecord {
+            format: FORMAT,
+            run: "x-0.5".into(),
+            commit: "c".into(),
+            machine: "m".into(),
+            files: std::iter::once(("config.json".to_owned(), serde_json::json!({"seed": 1})))
+                .chain(evals.iter().map(|(p, v)| (format!("eval/{p}"), v.clone())))
+                .collect(),
+        };
+        let won = serde_json::json!({"tasks": [{"success": true, TRANSCRIBED_EXACTLY: true}]});
+        let won_before_verdict = serde_json::json!({"tasks": [{"success": true}]});
+        let lost = serde_json::json!({"tasks": [{"success": false}]});
+        let main = record(&[("full-1.json", won.clone())]);
+        let both = record(&[("full-1.json", won.clone()), ("seen-1.json", lost.clone())]);
+        assert_eq!(main.compare(&main), Comparison::Same);
+        assert_eq!(main.compare(&both), Comparison::Extends);
+        assert_eq!(
+            both.compare(&main),
+            Comparison::Within {
+                missing: vec!["eval/seen-1.json".into()]
+            }
+        );
+        assert!(main.same_outcomes(&main) && !main.same_outcomes(&both));
+        // A record from before the per-episode verdict: the same outcomes,
+        // which a record with the verdict extends.
+        let older = record(&[("full-1.json", won_before_verdict)]);
+        assert_eq!(older.compare(&main), Comparison::Extends);
+        assert_eq!(main.compare(&older), Comparison::Same);
+        assert!(older.same_outcomes(&main));
+        assert_eq!(
+            main.compare(&record(&[("full-1.json", lost)])),
+            Comparison::Differs
+        );
+        let mut other_config = main.clone();
+        other_config
+            .files
+            .insert("config.json".into(), serde_json::json!({"seed": 2}));
+        assert_eq!(main.compare(&other_config), Comparison::Differs);
+
+        // Written through a temporary file, restored through a staging
+        // folder (a dotted run name keeps its whole name in both), an
+        // unfinished staging folder of a killed restore cleared first.
+        let tmp = tempfile::tempdir().unwrap();
+        let file = tmp.path().join("x-0.5.json");
+        main.write(&file).unwrap();
+        assert_eq!(RunRecord::read(&file).unwrap(), main);
+        let dir = tmp.path().join("x-0.5");
+        std::fs::create_dir_all(tmp.path().join("x-0.5.restoring/checkpoint")).unwrap();
+        main.restore(&dir, &file).unwrap();
+        assert!(is_restored(&dir));
+        let mut names: Vec<String> = std::fs::read_dir(tmp.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["x-0.5", "x-0.5.json"]);
     }
 
     #[test]

@@ -620,18 +620,37 @@ pub fn reproduce_only(
                             dir.display()
                         ),
                         Some(record) => {
+                            use crate::record::Comparison;
                             let now = crate::record::RunRecord::of_run(&dir)?;
-                            if record.same_outcomes(&now) {
-                                format!("matches {} (every episode)", path.display())
-                            } else {
-                                let why = record
-                                    .float_mode_note()
-                                    .map_or_else(String::new, |n| format!(" ({n})"));
-                                format!(
-                                    "DIFFERS from {}: {}{why}",
-                                    path.display(),
-                                    record.summary()
-                                )
+                            match record.compare(&now) {
+                                Comparison::Same | Comparison::Extends => {
+                                    format!("matches {} (every episode)", path.display())
+                                }
+                                Comparison::Within { missing }
+                                    if now.files.keys().any(|p| {
+                                        p.starts_with("eval/") && record.files.contains_key(p)
+                                    }) =>
+                                {
+                                    format!(
+                                        "matches {} (every episode of the evaluations rerun; not rerun here: {})",
+                                        path.display(),
+                                        missing.join(", ")
+                                    )
+                                }
+                                Comparison::Within { .. } => format!(
+                                    "no evaluation in common with {}: nothing to compare",
+                                    path.display()
+                                ),
+                                Comparison::Differs => {
+                                    let why = record
+                                        .float_mode_note()
+                                        .map_or_else(String::new, |n| format!(" ({n})"));
+                                    format!(
+                                        "DIFFERS from {}: {}{why}",
+                                        path.display(),
+                                        record.summary()
+                                    )
+                                }
                             }
                         }
                         None => format!("no record before: written to {}", path.display()),
@@ -821,6 +840,31 @@ mod tests {
         )
         .unwrap();
         assert!(lines[0].contains("(every episode)"), "{}", lines[0]);
+        // A point whose record also holds the checks of a curve's largest
+        // point (the structure split): rerun alone, it matches on its main
+        // evaluation, says what it did not rerun, and the record is kept.
+        let only = ["ntp_exp-state-ntp-10".to_owned()];
+        let record_file = crate::record::path(&records, &only[0]);
+        let before = std::fs::read(&record_file).unwrap();
+        let lines = reproduce_only(
+            Profile::Smoke,
+            &Plan {
+                only: Some(&only),
+                records: Some(&records),
+                ..Plan::train_all(&dir.path().join("fresh-3"), 1)
+            },
+            &out,
+            Source::BuiltIn,
+        )
+        .unwrap();
+        assert!(
+            lines[0].contains(
+                "(every episode of the evaluations rerun; not rerun here: eval/structure-"
+            ),
+            "{}",
+            lines[0]
+        );
+        assert_eq!(std::fs::read(&record_file).unwrap(), before);
         let only = ["nope".to_owned()];
         let err = reproduce_only(
             Profile::Smoke,

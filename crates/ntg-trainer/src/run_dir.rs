@@ -76,7 +76,10 @@ fn fill_tree(from: &Path, to: &Path, link: bool) -> anyhow::Result<()> {
         }
         Ok(())
     }
-    let partial = to.with_extension("partial");
+    // Appended, not `with_extension`: a run name may hold a dot
+    // (`x-0.5` would stage in `x-0.partial`, shared with `x-0.7`).
+    let name = to.file_name().map(|n| n.to_string_lossy().into_owned());
+    let partial = to.with_file_name(format!("{}.partial", name.unwrap_or_default()));
     if partial.exists() {
         fs::remove_dir_all(&partial)
             .with_context(|| format!("removing the unfinished {}", partial.display()))?;

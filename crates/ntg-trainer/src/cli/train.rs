@@ -133,6 +133,17 @@ pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
         for line in crate::reproduce::reproduce_only(args.profile, &plan, &out, experiments)? {
             println!("{line}");
         }
+        for name in plan
+            .missing
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+        {
+            println!(
+                "{name}: not evaluated in {} (--no-train trains nothing)",
+                runs.display()
+            );
+        }
         return Ok(());
     }
     // The paper profile's committed results, shown beside another

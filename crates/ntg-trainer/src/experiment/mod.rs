@@ -157,50 +157,66 @@ impl<'a> Plan<'a> {
 
     /// After a run's evaluations: writes its record where records are kept,
     /// unless the run was restored from one. A record already there is
-    /// replaced only by one that adds evaluations to the same outcomes;
-    /// one that differs is kept, and a line says so. Once the run is
-    /// recorded, its copy carried in `in-progress/` (if any) is removed.
+    /// replaced only by one that extends it (the same outcomes, and more
+    /// evaluations); one that holds evaluations this run lacks (`ntg
+    /// reproduce --only` reruns a point's main one) is kept, and one that
+    /// differs is kept, a line saying so either way. Once the run is
+    /// recorded (or restored from its record), its copy carried in
+    /// `in-progress/` (if any) is removed.
     pub(crate) fn finish(&self, dir: &Path) -> anyhow::Result<()> {
+        use crate::record::{Comparison, RunRecord};
         let Some(records) = self.records else {
             return Ok(());
         };
+        let discard_carried = |run: &str, config: Option<&Value>| -> anyhow::Result<()> {
+            // Recorded: a copy of the run carried from another machine is
+            // done with.
+            if let Some(removed) = crate::carry::discard_carried(records, run, config)? {
+                eprintln!(
+                    "  [{run}] recorded: removed its carried copy {}",
+                    removed.display()
+                );
+            }
+            Ok(())
+        };
         if crate::record::is_restored(dir) {
+            let run = dir
+                .file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+            let path = crate::record::path(records, &run);
+            if path.is_file() {
+                let kept = RunRecord::read(&path)?;
+                discard_carried(&run, kept.config())?;
+            }
             return Ok(());
         }
-        let record = crate::record::RunRecord::of_run(dir)?;
+        let record = RunRecord::of_run(dir)?;
         let path = crate::record::path(records, &record.run);
         if path.is_file() {
-            let kept = crate::record::RunRecord::read(&path)?;
-            let extends = kept
-                .files
-                .iter()
-                .filter(|(p, _)| p.starts_with("eval/") || p.as_str() == "config.json")
-                .all(|(p, v)| record.files.get(p) == Some(v));
-            if !extends {
-                eprintln!(
-                    "  [{}] differs from its record {} (kept; delete it to replace it): {}",
+            let kept = RunRecord::read(&path)?;
+            match kept.compare(&record) {
+                Comparison::Same => {}
+                Comparison::Extends => record.write(&path)?,
+                Comparison::Within { missing } => eprintln!(
+                    "  [{}] matches its record {} on every evaluation both hold; the record, which also holds {}, is kept",
                     record.run,
                     path.display(),
-                    record.summary()
-                );
-                return Ok(());
-            }
-            if kept.files.len() < record.files.len() {
-                record.write(&path)?;
+                    missing.join(", ")
+                ),
+                Comparison::Differs => {
+                    eprintln!(
+                        "  [{}] differs from its record {} (kept; delete it to replace it): {}",
+                        record.run,
+                        path.display(),
+                        record.summary()
+                    );
+                    return Ok(());
+                }
             }
         } else {
             record.write(&path)?;
         }
-        // Recorded: a copy of the run carried from another machine is done with.
-        if let Some(removed) = crate::carry::discard_carried(records, &record.run, record.config())?
-        {
-            eprintln!(
-                "  [{}] recorded: removed its carried copy {}",
-                record.run,
-                removed.display()
-            );
-        }
-        Ok(())
+        discard_carried(&record.run, record.config())
     }
 }
 
@@ -671,6 +687,74 @@ mod tests {
         plan(true).finish(&dir).unwrap();
         assert!(crate::record::path(&records, "r").is_file());
         assert!(!carried.exists());
+    }
+
+    #[test]
+    fn a_record_is_replaced_only_by_one_that_extends_it() {
+        use crate::record::RunRecord;
+        let tmp = tempfile::tempdir().unwrap();
+        let records = tmp.path().join("figures/records");
+        let runs = tmp.path().join("runs");
+        let plan = Plan {
+            records: Some(&records),
+            restore: true,
+            ..Plan::train_all(&runs, 1)
+        };
+        let dir = runs.join("r");
+        std::fs::create_dir_all(dir.join("eval")).unwrap();
+        let config = serde_json::json!({"seed": 1});
+        std::fs::write(dir.join("config.json"), config.to_string()).unwrap();
+        let eval = |name: &str, success: bool| {
+            std::fs::write(
+                dir.join("eval").join(name),
+                serde_json::json!({"tasks": [{"success": success}]}).to_string(),
+            )
+            .unwrap()
+        };
+        let recorded = || RunRecord::read(&crate::record::path(&records, "r")).unwrap();
+        eval("full-1.json", true);
+        plan.finish(&dir).unwrap();
+        assert_eq!(recorded().files.len(), 2);
+        // More evaluations, the same outcomes: written.
+        eval("structure-full-1.json", false);
+        plan.finish(&dir).unwrap();
+        assert!(recorded().files.contains_key("eval/structure-full-1.json"));
+        // A rerun of the main evaluation alone (`--only` in a fresh
+        // folder) matches on it and keeps the record whole; so does one
+        // that a carried copy waits for, which is then removed.
+        std::fs::remove_file(dir.join("eval/structure-full-1.json")).unwrap();
+        let carried = crate::record::in_progress_dir(&records, "r");
+        std::fs::create_dir_all(&carried).unwrap();
+        std::fs::write(carried.join("config.json"), config.to_string()).unwrap();
+        plan.finish(&dir).unwrap();
+        assert!(recorded().files.contains_key("eval/structure-full-1.json"));
+        assert!(!carried.exists());
+        let kept = recorded();
+        assert!(matches!(
+            kept.compare(&RunRecord::of_run(&dir).unwrap()),
+            crate::record::Comparison::Within { missing } if missing == ["eval/structure-full-1.json"]
+        ));
+        // Other outcomes: the record is kept as it was.
+        eval("full-1.json", false);
+        eval("structure-full-1.json", false);
+        eval("seen-full-1.json", false);
+        plan.finish(&dir).unwrap();
+        assert_eq!(recorded(), kept);
+        // A folder restored from the record writes nothing, but a copy
+        // carried before the run was recorded is done with.
+        let restored = runs.join("again");
+        std::fs::create_dir_all(&carried).unwrap();
+        std::fs::write(carried.join("config.json"), config.to_string()).unwrap();
+        let named = crate::record::path(&records, "again");
+        std::fs::copy(crate::record::path(&records, "r"), &named).unwrap();
+        let again = crate::record::in_progress_dir(&records, "again");
+        std::fs::create_dir_all(&again).unwrap();
+        std::fs::write(again.join("config.json"), config.to_string()).unwrap();
+        kept.restore(&restored, &named).unwrap();
+        plan.finish(&restored).unwrap();
+        assert!(!again.exists());
+        assert!(carried.exists());
+        assert_eq!(RunRecord::read(&named).unwrap(), kept);
     }
 
     #[test]
