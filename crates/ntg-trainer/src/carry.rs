@@ -159,6 +159,9 @@ pub fn carry_run(runs: &Path, records: &Path, name: &str) -> anyhow::Result<Carr
         );
     }
     let to = record::in_progress_dir(records, name);
+    // An earlier carry killed while it swapped copies: its old copy back
+    // in place (or its new one kept), so that the check below sees it.
+    crate::run_dir::recover_dir(&to)?;
     let config: serde_json::Value = RunDir::read_json(&config_path)?;
     let earlier = to.join("config.json");
     if earlier.is_file() && RunDir::read_json::<serde_json::Value>(&earlier)? != config {
@@ -207,6 +210,8 @@ pub fn discard_carried(
     config: Option<&serde_json::Value>,
 ) -> anyhow::Result<Option<PathBuf>> {
     let carried = record::in_progress_dir(records, name);
+    // A carry killed while it swapped copies is put back in order first.
+    crate::run_dir::recover_dir(&carried)?;
     let carried_config = carried.join("config.json");
     if !carried_config.is_file() {
         return Ok(None);
@@ -315,6 +320,14 @@ mod tests {
         let kept: serde_json::Value =
             RunDir::read_json(&record::in_progress_dir(&records, "r").join("config.json")).unwrap();
         assert_eq!(kept["seed"], 0);
+        // Also after a carry killed while it swapped copies, its copy
+        // parked as `r.old`: put back, then seen.
+        let copy = record::in_progress_dir(&records, "r");
+        let parked = copy.with_file_name("r.old");
+        fs::rename(&copy, &parked).unwrap();
+        let err = carry_run(&runs, &records, "r").unwrap_err().to_string();
+        assert!(err.contains("another configuration"), "{err}");
+        assert!(copy.join("config.json").is_file() && !parked.exists());
         // Recorded: finished.
         write(&record::path(&records, "r"), "{}");
         let err = carry_run(&runs, &records, "r").unwrap_err().to_string();

@@ -129,6 +129,11 @@ impl<'a> Plan<'a> {
         let carried = self
             .records
             .map(|records| crate::record::in_progress_dir(records, name));
+        if let Some(carried) = carried.as_deref().filter(|_| self.train && !dir.exists()) {
+            // A carry killed while it swapped copies leaves the copy parked
+            // beside its place: put back first.
+            crate::run_dir::recover_dir(carried)?;
+        }
         if let Some(carried) = carried.filter(|c| self.train && !dir.exists() && c.is_dir()) {
             let written: Value = serde_json::from_str(&serde_json::to_string(config)?)?;
             let theirs: Value = crate::run_dir::RunDir::read_json(&carried.join("config.json"))?;
