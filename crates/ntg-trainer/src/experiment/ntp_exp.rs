@@ -624,6 +624,16 @@ fn run_point(
             }
         }
         share_ntp_frames(&sibling_run, &run, &config)?;
+    } else if obs == ObsKind::Vid && method.is_ntg() && ablation.is_full() {
+        // NTG trains the point's frame encoder first in a whole figure;
+        // run on its own (`--only`) after a baseline of its point finished
+        // the same stage A, it links that one instead of training it again.
+        for sibling in [MethodId::Ntp, MethodId::NtpFlat] {
+            let source = runs.join(experiment.run_name(scale, (sibling, Variant::Full), n));
+            if share_stage_a(&source, &run, &config)? {
+                break;
+            }
+        }
     }
     eprintln!(
         "{} ({}{}, {} recipe, {obs:?}, {n} tasks x {} demos, {epochs} epochs): training -> {}",
@@ -2136,6 +2146,36 @@ mod tests {
         assert_eq!(metrics(&points[0]), metrics(&points[1]), "trained once");
         assert!(points[1].run.ends_with("ntp_exp-vid-ntp-2"));
         assert_eq!(points[1].success.trials, 1);
+        // NTG's point run on its own after its baselines (`--only`): it
+        // links their finished stage A instead of training it again.
+        std::fs::remove_dir_all(&points[0].run).unwrap();
+        let only = ["ntp_exp-vid-2".to_owned()];
+        let again = run(
+            &experiment,
+            Profile::Smoke,
+            &Plan {
+                only: Some(&only),
+                ..Plan::train_all(&runs, 1)
+            },
+        )
+        .unwrap();
+        assert_eq!(again.len(), 1);
+        assert_eq!(weights(&again[0]), weights(&points[1]));
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let inode = |p: &NtpExpPoint| {
+                std::fs::metadata(stage(p).join("metrics.jsonl"))
+                    .unwrap()
+                    .ino()
+            };
+            assert_eq!(
+                inode(&again[0]),
+                inode(&points[1]),
+                "linked, not trained again"
+            );
+        }
+        assert_eq!(again[0].success.trials, 1);
     }
 
     /// NTP (Detector) trains its detector, then NTP on states, in one run
