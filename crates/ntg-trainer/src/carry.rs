@@ -127,11 +127,11 @@ pub fn carry_run(runs: &Path, records: &Path, name: &str) -> anyhow::Result<Carr
     // One plain folder name (a trailing `/` from tab completion would name
     // the record `records/NAME/.json` and pass the check below).
     let name = name.trim_end_matches(['/', std::path::MAIN_SEPARATOR]);
-    let mut parts = Path::new(name).components();
-    if !matches!(
-        (parts.next(), parts.next()),
-        (Some(std::path::Component::Normal(_)), None)
-    ) {
+    if name.is_empty()
+        || name == "."
+        || name == ".."
+        || name.contains(['/', std::path::MAIN_SEPARATOR])
+    {
         bail!(
             "{name:?} is not a run name: name a run folder of {}",
             runs.display()
@@ -336,7 +336,7 @@ mod tests {
         // is not a run name.
         let err = carry_run(&runs, &records, "r/").unwrap_err().to_string();
         assert!(err.contains("finished and recorded"), "{err}");
-        for bad in ["../r", "a/r", "", "/r"] {
+        for bad in ["../r", "a/r", "", "/r", "r/.", ".", ".."] {
             let err = carry_run(&runs, &records, bad).unwrap_err().to_string();
             assert!(err.contains("not a run name"), "{bad}: {err}");
         }

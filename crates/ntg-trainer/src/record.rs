@@ -69,11 +69,17 @@ pub enum Comparison {
     /// instead.
     Extends,
     /// Every evaluation both hold is equal, but the new one lacks some of
-    /// the kept one's (`missing`): e.g. `ntg reproduce --only` reruns a
-    /// point's main evaluation, not the checks its record also holds.
+    /// the kept one's (`missing`; e.g. `ntg reproduce --only` reruns a
+    /// point's main evaluation, not the checks its record also holds), or
+    /// the per-episode verdict in some: the kept one stays, with the new
+    /// one's other evaluations (`adds`) worth adding to it.
     Within {
         /// The kept record's evaluations the new one lacks.
         missing: Vec<String>,
+        /// The new one's evaluations the kept one lacks.
+        adds: Vec<String>,
+        /// How many evaluations both hold (0: nothing was compared).
+        common: usize,
     },
     /// Another configuration, or an evaluation both hold differs.
     Differs,
@@ -216,26 +222,56 @@ impl RunRecord {
         }) {
             return Comparison::Differs;
         }
-        let missing: Vec<String> = ours
-            .keys()
-            .filter(|p| !theirs.contains_key(*p))
-            .map(|p| (*p).to_owned())
-            .collect();
+        let only_in = |a: &BTreeMap<&str, &Value>, b: &BTreeMap<&str, &Value>| -> Vec<String> {
+            a.keys()
+                .filter(|p| !b.contains_key(*p))
+                .map(|p| (*p).to_owned())
+                .collect()
+        };
+        let (missing, adds) = (only_in(&ours, &theirs), only_in(&theirs, &ours));
         if !missing.is_empty() {
-            return Comparison::Within { missing };
+            let common = ours.len() - missing.len();
+            return Comparison::Within {
+                missing,
+                adds,
+                common,
+            };
         }
         // `new` holds every evaluation of this one, equal: it extends this
         // one if it has more, or adds the per-episode verdict a record
-        // written before it lacks.
-        let adds = theirs.len() > ours.len()
-            || ours
-                .iter()
-                .any(|(path, v)| v != &theirs[path] && normalised(v) == **v);
-        if adds {
+        // written before it lacks, and drops that verdict from none.
+        let lacks_verdict = |v: &Value| normalised(v) == *v;
+        let drops = ours
+            .iter()
+            .any(|(path, v)| !lacks_verdict(v) && lacks_verdict(theirs[path]));
+        let gains = ours
+            .iter()
+            .any(|(path, v)| lacks_verdict(v) && !lacks_verdict(theirs[path]));
+        if drops && !adds.is_empty() {
+            // Worth merging, not replacing: its new evaluations into this.
+            Comparison::Within {
+                missing,
+                adds,
+                common: ours.len(),
+            }
+        } else if (!adds.is_empty() || gains) && !drops {
             Comparison::Extends
         } else {
             Comparison::Same
         }
+    }
+
+    /// This record with the evaluations `paths` of `new` added (a record
+    /// that holds evaluations `new` lacks, `new` ones it lacks:
+    /// [`Comparison::Within`] with `adds`).
+    pub fn with_evaluations_of(&self, new: &RunRecord, paths: &[String]) -> RunRecord {
+        let mut merged = self.clone();
+        for path in paths {
+            if let Some(v) = new.files.get(path) {
+                merged.files.insert(path.clone(), v.clone());
+            }
+        }
+        merged
     }
 
     /// Whether `other` records the same run with the same outcomes: the
@@ -644,15 +680,50 @@ mod tests {
         assert_eq!(
             both.compare(&main),
             Comparison::Within {
-                missing: vec!["eval/seen-1.json".into()]
+                missing: vec!["eval/seen-1.json".into()],
+                adds: vec![],
+                common: 1,
             }
         );
+        // Each with an evaluation the other lacks; nothing in common.
+        let other = record(&[
+            ("full-1.json", won.clone()),
+            ("structure-1.json", won.clone()),
+        ]);
+        assert_eq!(
+            both.compare(&other),
+            Comparison::Within {
+                missing: vec!["eval/seen-1.json".into()],
+                adds: vec!["eval/structure-1.json".into()],
+                common: 1,
+            }
+        );
+        let merged = both.with_evaluations_of(&other, &["eval/structure-1.json".into()]);
+        assert_eq!(merged.files.len(), 4);
+        assert_eq!(both.compare(&merged), Comparison::Extends);
+        assert!(matches!(
+            main.compare(&record(&[("seen-1.json", won.clone())])),
+            Comparison::Within { common: 0, .. }
+        ));
         assert!(main.same_outcomes(&main) && !main.same_outcomes(&both));
         // A record from before the per-episode verdict: the same outcomes,
         // which a record with the verdict extends.
-        let older = record(&[("full-1.json", won_before_verdict)]);
+        let older = record(&[("full-1.json", won_before_verdict.clone())]);
         assert_eq!(older.compare(&main), Comparison::Extends);
         assert_eq!(main.compare(&older), Comparison::Same);
+        // More evaluations, but one without the verdict the kept one has.
+        let fewer_verdicts = record(&[
+            ("full-1.json", won_before_verdict),
+            ("seen-1.json", won.clone()),
+        ]);
+        assert_eq!(
+            main.compare(&fewer_verdicts),
+            Comparison::Within {
+                missing: vec![],
+                adds: vec!["eval/seen-1.json".into()],
+                common: 1,
+            }
+        );
         assert!(older.same_outcomes(&main));
         assert_eq!(
             main.compare(&record(&[("full-1.json", lost)])),

@@ -626,20 +626,17 @@ pub fn reproduce_only(
                                 Comparison::Same | Comparison::Extends => {
                                     format!("matches {} (every episode)", path.display())
                                 }
-                                Comparison::Within { missing }
-                                    if now.files.keys().any(|p| {
-                                        p.starts_with("eval/") && record.files.contains_key(p)
-                                    }) =>
-                                {
-                                    format!(
-                                        "matches {} (every episode of the evaluations rerun; not rerun here: {})",
-                                        path.display(),
-                                        missing.join(", ")
-                                    )
-                                }
-                                Comparison::Within { .. } => format!(
+                                Comparison::Within { common: 0, .. } => format!(
                                     "no evaluation in common with {}: nothing to compare",
                                     path.display()
+                                ),
+                                Comparison::Within { missing, .. } if missing.is_empty() => {
+                                    format!("matches {} (every episode)", path.display())
+                                }
+                                Comparison::Within { missing, .. } => format!(
+                                    "matches {} (every episode of the evaluations rerun; not rerun here: {})",
+                                    path.display(),
+                                    missing.join(", ")
                                 ),
                                 Comparison::Differs => {
                                     let why = record

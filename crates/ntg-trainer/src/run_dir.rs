@@ -135,18 +135,48 @@ impl Drop for RunLock {
             // process that opened the file meanwhile finds, once it has
             // the lock, that the path no longer names its file, and opens
             // it again ([`RunDir::lock`]).
-            let _ = fs::remove_file(&last.path);
+            // (Off Unix the file stays: there a file's identity is not
+            // checked after locking, so a removed file could get two
+            // holders.)
+            if cfg!(unix) {
+                let _ = fs::remove_file(&last.path);
+            }
             drop(last.file);
         }
     }
 }
 
-/// Whether process `pid`, not this one, runs (on Linux, from `/proc`;
-/// elsewhere it is not known, and `false`).
-fn another_live_process(pid: u32) -> bool {
-    cfg!(target_os = "linux")
-        && pid != std::process::id()
-        && Path::new(&format!("/proc/{pid}")).exists()
+/// What a lock file holds after this process's id: it was written by an
+/// `ntg` that holds OS locks (a file without it is from an older one).
+const OS_LOCK_TAG: &str = "os-lock";
+
+/// The command line of process `pid`, if it is a live process other than
+/// this one (on Linux, from `/proc`: a process, not a thread of one, and
+/// not a zombie; elsewhere not known, `None`).
+fn another_live_process(pid: u32) -> Option<String> {
+    if !cfg!(target_os = "linux") || pid == std::process::id() {
+        return None;
+    }
+    let status = fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let field = |name: &str| {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(name))
+            .map(str::trim)
+    };
+    if field("Tgid:") != Some(pid.to_string().as_str())
+        || field("State:").is_some_and(|s| s.starts_with('Z'))
+    {
+        return None;
+    }
+    let cmdline = fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+    Some(
+        String::from_utf8_lossy(&cmdline)
+            .split('\0')
+            .filter(|a| !a.is_empty())
+            .collect::<Vec<_>>()
+            .join(" "),
+    )
 }
 
 /// Whether `path` still names the open `file` (it was not removed or
@@ -413,20 +443,18 @@ impl RunDir {
             entry.guards += 1;
             return Ok(RunLock { path });
         }
-        let refused = |text: &str, unlocked: bool| {
+        let refused = |text: &str, unlocked: Option<&str>| {
             anyhow::anyhow!(
                 "{} is being written by another process ({}: {}); wait for it to finish{}",
                 self.root.display(),
                 path.display(),
-                match text.trim().parse::<u32>() {
-                    Ok(pid) => format!("process {pid}"),
-                    Err(_) => format!("{:?}", text.trim()),
+                match text.split_whitespace().next().map(str::parse::<u32>) {
+                    Some(Ok(pid)) => format!("process {pid}"),
+                    _ => format!("{:?}", text.trim()),
                 },
-                if unlocked {
-                    " (it holds no OS lock on the file: if that process is not an ntg, delete the file)"
-                } else {
-                    ""
-                }
+                unlocked.map_or_else(String::new, |cmdline| format!(
+                    " (it holds no OS lock on the file, as an ntg from before OS locks would; that process runs `{cmdline}`: if it is not an ntg, delete the file)"
+                ))
             )
         };
         // Retried while the file the lock was taken on is no longer the
@@ -444,7 +472,7 @@ impl RunDir {
                 Err(fs::TryLockError::WouldBlock) => {
                     return Err(refused(
                         &fs::read_to_string(&path).unwrap_or_default(),
-                        false,
+                        None,
                     ));
                 }
                 Err(fs::TryLockError::Error(e)) => {
@@ -454,12 +482,19 @@ impl RunDir {
             if !names_file(&path, &file) {
                 continue;
             }
+            // A bare process id: written by an ntg from before OS locks,
+            // which may still run and write without one.
             let text = fs::read_to_string(&path).unwrap_or_default();
-            if text.trim().parse::<u32>().is_ok_and(another_live_process) {
-                return Err(refused(&text, true));
+            if let Some(cmdline) = text
+                .trim()
+                .parse::<u32>()
+                .ok()
+                .and_then(another_live_process)
+            {
+                return Err(refused(&text, Some(&cmdline)));
             }
             file.set_len(0)
-                .and_then(|()| write!(file, "{}", std::process::id()))
+                .and_then(|()| write!(file, "{} {OS_LOCK_TAG}", std::process::id()))
                 .with_context(|| format!("writing {}", path.display()))?;
             held.push(HeldLock {
                 path: path.clone(),
@@ -756,9 +791,13 @@ mod tests {
         let taken = run.lock().unwrap();
         assert_eq!(
             fs::read_to_string(&lock_file).unwrap(),
-            std::process::id().to_string()
+            format!("{} {OS_LOCK_TAG}", std::process::id())
         );
         drop(taken);
+        // A file of this ntg naming a live process: its OS lock decides
+        // (the process may be another one that reused a dead holder's id).
+        fs::write(&lock_file, format!("1 {OS_LOCK_TAG}")).unwrap();
+        drop(run.lock().unwrap());
         // So is a file left half-written, or naming this very process (a
         // killed run's id, reused by the process that resumes it).
         for left in ["", "someone", &std::process::id().to_string()] {
@@ -775,7 +814,34 @@ mod tests {
                 err.contains("process 1") && err.contains("delete the file"),
                 "{err}"
             );
+            // Not a thread of a process (this test's, alive while it is
+            // checked), though `/proc/TID` answers for those too.
+            let found = std::thread::scope(|s| {
+                s.spawn(|| {
+                    let me = fs::read_link("/proc/thread-self").unwrap();
+                    let tid: u32 = me.file_name().unwrap().to_str().unwrap().parse().unwrap();
+                    another_live_process(tid)
+                })
+                .join()
+                .unwrap()
+            });
+            assert_eq!(found, None);
+            assert!(another_live_process(1).is_some());
         }
+    }
+
+    #[test]
+    fn a_lock_taken_on_a_file_replaced_meanwhile_is_not_held() {
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join(LOCK_FILE);
+        fs::write(&path, "").unwrap();
+        let opened = fs::File::open(&path).unwrap();
+        assert!(names_file(&path, &opened));
+        // Its holder removed it on release, and another process made a new one.
+        fs::remove_file(&path).unwrap();
+        assert_eq!(names_file(&path, &opened), !cfg!(unix));
+        fs::write(&path, "").unwrap();
+        assert_eq!(names_file(&path, &opened), !cfg!(unix));
     }
 
     #[test]

@@ -202,12 +202,31 @@ impl<'a> Plan<'a> {
             match kept.compare(&record) {
                 Comparison::Same => {}
                 Comparison::Extends => record.write(&path)?,
-                Comparison::Within { missing } => eprintln!(
-                    "  [{}] matches its record {} on every evaluation both hold; the record, which also holds {}, is kept",
+                Comparison::Within { common: 0, .. } => eprintln!(
+                    "  [{}] has no evaluation in common with its record {}: nothing compared; the record is kept",
                     record.run,
-                    path.display(),
-                    missing.join(", ")
+                    path.display()
                 ),
+                Comparison::Within { missing, adds, .. } => {
+                    eprintln!(
+                        "  [{}] matches its record {} on every evaluation both hold; the record is kept{}{}",
+                        record.run,
+                        path.display(),
+                        if missing.is_empty() {
+                            String::new()
+                        } else {
+                            format!(" (it also holds {})", missing.join(", "))
+                        },
+                        if adds.is_empty() {
+                            String::new()
+                        } else {
+                            format!(", with this run's {} added", adds.join(", "))
+                        }
+                    );
+                    if !adds.is_empty() {
+                        kept.with_evaluations_of(&record, &adds).write(&path)?;
+                    }
+                }
                 Comparison::Differs => {
                     eprintln!(
                         "  [{}] differs from its record {} (kept; delete it to replace it): {}",
@@ -737,8 +756,14 @@ mod tests {
         let kept = recorded();
         assert!(matches!(
             kept.compare(&RunRecord::of_run(&dir).unwrap()),
-            crate::record::Comparison::Within { missing } if missing == ["eval/structure-full-1.json"]
+            crate::record::Comparison::Within { missing, .. } if missing == ["eval/structure-full-1.json"]
         ));
+        // One that also brings an evaluation the record lacks: added to it.
+        eval("seen-full-1.json", true);
+        plan.finish(&dir).unwrap();
+        let kept = recorded();
+        assert!(kept.files.contains_key("eval/structure-full-1.json"));
+        assert!(kept.files.contains_key("eval/seen-full-1.json"));
         // Other outcomes: the record is kept as it was.
         eval("full-1.json", false);
         eval("structure-full-1.json", false);
