@@ -150,7 +150,14 @@ impl<'a> Plan<'a> {
                 );
             }
         }
-        if !self.train && !dir.join("eval").join(eval_file).is_file() {
+        let evaluated = dir.join("eval").join(eval_file).is_file();
+        if self.train && !evaluated && crate::record::is_restored(&dir) {
+            bail!(
+                "{} was restored from its record, which holds no eval/{eval_file} (and a record holds no weights to make it): move the folder away to train the run again",
+                dir.display()
+            );
+        }
+        if !self.train && !evaluated {
             self.missing
                 .lock()
                 .unwrap_or_else(|e| e.into_inner())
@@ -782,6 +789,16 @@ mod tests {
         std::fs::write(again.join("config.json"), config.to_string()).unwrap();
         kept.restore(&restored, &named).unwrap();
         plan.finish(&restored).unwrap();
+        // Asked for an evaluation its record lacks: a clear error, not a
+        // training that finds no weights.
+        let err = plan
+            .prepare("again", &config, "other-7.json")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("restored from its record") && err.contains("eval/other-7.json"),
+            "{err}"
+        );
         assert!(!again.exists());
         assert!(carried.exists());
         assert_eq!(RunRecord::read(&named).unwrap(), kept);
