@@ -476,7 +476,12 @@ impl RunDir {
                     ));
                 }
                 Err(fs::TryLockError::Error(e)) => {
-                    return Err(e).with_context(|| format!("locking {}", path.display()));
+                    return Err(e).with_context(|| {
+                        format!(
+                            "locking {} (a run folder needs a file system with file locks: put the runs folder on a local disk)",
+                            path.display()
+                        )
+                    });
                 }
             }
             if !names_file(&path, &file) {
