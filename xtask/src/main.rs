@@ -6,6 +6,9 @@
 //!   reused), figures, `results.json` and `REPORT.md` to `docs/figures/<profile>/`
 //!   (the paper profile's to `docs/figures/`, with its run records).
 //! - `ci`: runs exactly what CI runs (`.ci/run`).
+//! - `check-gpu`: clippy and rustdoc with the GPU backends compiled in
+//!   (`.ci/check-gpu`), then records the checked inputs in
+//!   `.ci/gpu-checked`; CI checks them itself only when those inputs changed.
 //! - `soak [--kills N]`: SIGKILLs a small training run N times, resumes it
 //!   to the end and checks it ends exactly as an uninterrupted run
 //!   (see `soak.rs`).
@@ -55,6 +58,11 @@ enum Task {
     },
     /// Run what CI runs: formatting, clippy, the test suite (see .ci/run).
     Ci,
+    /// Clippy and rustdoc with the GPU backends (features wgpu and cuda),
+    /// then record what was checked in .ci/gpu-checked (commit it: CI
+    /// skips these features while the lock file, the manifests and the
+    /// code naming a backend are unchanged; see .ci/gpu-inputs).
+    CheckGpu,
     /// Kill a small training run again and again (SIGKILL), resume it to
     /// the end, and check it ends bit for bit where an uninterrupted run
     /// ends, with no stray files.
@@ -170,15 +178,17 @@ fn reproduce_figures(profile: Profile, jigsaws_root: Option<PathBuf>) -> anyhow:
     Ok(())
 }
 
-fn ci() -> anyhow::Result<()> {
+/// Runs the bash script `.ci/<name>` from the workspace root.
+fn ci_script(name: &str) -> anyhow::Result<()> {
     let root = workspace_root();
+    let script = Path::new(".ci").join(name);
     let status = Command::new("bash")
-        .arg(root.join(".ci/run"))
+        .arg(&script)
         .current_dir(&root)
         .status()
-        .context("could not start bash .ci/run")?;
+        .with_context(|| format!("could not start bash {}", script.display()))?;
     if !status.success() {
-        bail!(".ci/run failed ({status})");
+        bail!("{} failed ({status})", script.display());
     }
     Ok(())
 }
@@ -190,7 +200,8 @@ fn main() -> std::process::ExitCode {
             profile,
             jigsaws_root,
         } => reproduce_figures(profile, jigsaws_root),
-        Task::Ci => ci(),
+        Task::Ci => ci_script("run"),
+        Task::CheckGpu => ci_script("check-gpu"),
         Task::Bench {
             threads,
             quick,

@@ -6,6 +6,11 @@
 //! convolutions) and the GPU backends (features `wgpu`, `cuda`) are opt-in.
 //! Always pick the device explicitly: `Device::default()` depends on which
 //! features happen to be unified into the build.
+//!
+//! CI type-checks the GPU features only when a file that names a backend
+//! (this one, the `backend_extension` kernels, ...: `.ci/gpu-inputs`) or
+//! the lock file changed since `cargo xtask check-gpu` last checked them:
+//! run it after changing such a file and commit `.ci/gpu-checked`.
 
 use std::fmt;
 use std::str::FromStr;

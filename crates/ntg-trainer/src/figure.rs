@@ -345,9 +345,7 @@ pub fn write_figure(panels: &[Panel], stem: &Path) -> anyhow::Result<()> {
     }
     draw_all(SVGBackend::new(&svg, size).into_drawing_area(), panels)
         .with_context(|| format!("writing {}", svg.display()))?;
-    draw_all(BitMapBackend::new(&png, size).into_drawing_area(), panels)
-        .with_context(|| format!("writing {}", png.display()))?;
-    Ok(())
+    write_png(&png, size, |area| draw_all(area, panels))
 }
 
 // --- Bar charts (added with the JIGSAWS experiment, issue 7) ---
@@ -455,9 +453,25 @@ pub fn write_bar_chart(chart: &BarChart, stem: &Path) -> anyhow::Result<()> {
     }
     draw_bars(SVGBackend::new(&svg, size).into_drawing_area(), chart)
         .with_context(|| format!("writing {}", svg.display()))?;
-    draw_bars(BitMapBackend::new(&png, size).into_drawing_area(), chart)
-        .with_context(|| format!("writing {}", png.display()))?;
-    Ok(())
+    write_png(&png, size, |area| draw_bars(area, chart))
+}
+
+/// Draws into an RGB buffer with plotters' bitmap backend and writes it to
+/// `path` as a PNG with `image` (plotters' own encoder would pull in a
+/// second, older `image` and `png` crate).
+fn write_png(
+    path: &Path,
+    (width, height): (u32, u32),
+    draw: impl FnOnce(DrawingArea<BitMapBackend<'_>, Shift>) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let mut pixels = vec![0u8; width as usize * height as usize * 3];
+    draw(BitMapBackend::with_buffer(&mut pixels, (width, height)).into_drawing_area())
+        .with_context(|| format!("drawing {}", path.display()))?;
+    let picture = image::RgbImage::from_raw(width, height, pixels)
+        .expect("the buffer holds width x height RGB pixels");
+    picture
+        .save(path)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 // --- end of bar charts ---
