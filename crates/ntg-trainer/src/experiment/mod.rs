@@ -107,9 +107,7 @@ impl<'a> Plan<'a> {
             let path = crate::record::path(records, name);
             if path.is_file() {
                 let record = crate::record::RunRecord::read(&path)?;
-                // As written to config.json: through text, so that an f32
-                // reads back as the record's number.
-                let written: Value = serde_json::from_str(&serde_json::to_string(config)?)?;
+                let written = as_written(config)?;
                 if record.config() == Some(&written) {
                     eprintln!(
                         "  [{name}] finished earlier: restored from {}",
@@ -135,7 +133,7 @@ impl<'a> Plan<'a> {
             crate::run_dir::recover_dir(carried)?;
         }
         if let Some(carried) = carried.filter(|c| self.train && !dir.exists() && c.is_dir()) {
-            let written: Value = serde_json::from_str(&serde_json::to_string(config)?)?;
+            let written = as_written(config)?;
             let theirs: Value = crate::run_dir::RunDir::read_json(&carried.join("config.json"))?;
             if theirs == written {
                 eprintln!(
@@ -249,6 +247,12 @@ impl<'a> Plan<'a> {
         }
         discard_carried(&record.run, record.config())
     }
+}
+
+/// `config` as a run folder's `config.json` holds it: through text, so
+/// that an f32 reads back as the number the file holds.
+pub(crate) fn as_written(config: &impl Serialize) -> anyhow::Result<Value> {
+    Ok(serde_json::from_str(&serde_json::to_string(config)?)?)
 }
 
 /// A run folder's name: `base`, with `-seedS` unless `seed` is the
@@ -1051,5 +1055,121 @@ mod tests {
             "{err}"
         );
         assert!(!err.contains("built in"), "{err}");
+    }
+
+    /// Every run of the paper profile: folder name and configuration as
+    /// its `config.json` would hold it.
+    fn paper_runs() -> std::collections::BTreeMap<String, Value> {
+        let mut runs = std::collections::BTreeMap::new();
+        let paper = Profile::Paper;
+        for figure in [
+            ntp_exp::NtpExpExperiment::load(Source::BuiltIn).unwrap(),
+            ablation::load(Source::BuiltIn).unwrap(),
+        ] {
+            for (name, config) in figure.named_run_configs(paper).unwrap() {
+                runs.insert(name, as_written(&config).unwrap());
+            }
+        }
+        let sorting = ablation::AblationBExperiment::load(Source::BuiltIn).unwrap();
+        for seed in sorting.seeds(paper) {
+            for &variant in &sorting.ablations {
+                let config = sorting.run_config(paper, variant, seed).unwrap();
+                runs.insert(
+                    sorting.run_name(variant, seed),
+                    as_written(&config).unwrap(),
+                );
+            }
+        }
+        let thor_all = thor_all::ThorAllExperiment::load(Source::BuiltIn).unwrap();
+        for run in thor_all.runs(paper) {
+            let config = thor_all.run_config(paper, run).unwrap();
+            runs.insert(thor_all.run_name(run), as_written(&config).unwrap());
+        }
+        runs
+    }
+
+    /// The top-level fields in which two configurations differ.
+    fn differing_fields(a: &Value, b: &Value) -> Vec<String> {
+        let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else {
+            return vec!["(not both objects)".into()];
+        };
+        let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
+        keys.sort();
+        keys.dedup();
+        keys.into_iter()
+            .filter(|k| a.get(*k) != b.get(*k))
+            .map(|k| {
+                let shown = |v: Option<&Value>| v.map_or("absent".to_string(), Value::to_string);
+                format!("{k}: {} recorded, {} now", shown(a.get(k)), shown(b.get(k)))
+            })
+            .collect()
+    }
+
+    /// The committed paper-profile results (`docs/figures/records/`, days
+    /// of CPU) and the carried unfinished runs (`docs/figures/in-progress/`)
+    /// are reused only while they hold exactly the configuration the paper
+    /// profile trains their run with. A change to a run configuration's
+    /// fields (a new field that serialises where older files lack it) or to
+    /// an experiment file that would make `ntg reproduce --profile paper`
+    /// pass over a record ("records another configuration: not used") or a
+    /// carried run fails here, at once, instead.
+    #[test]
+    fn committed_paper_records_hold_the_configurations_the_paper_profile_trains() {
+        let figures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures");
+        let records = figures.join("records");
+        if !records.is_dir() {
+            eprintln!(
+                "skipped: no {} (not a checkout of the repository)",
+                records.display()
+            );
+            return;
+        }
+        let planned = paper_runs();
+        let mut checked = 0;
+        let mut problems = Vec::new();
+        for entry in std::fs::read_dir(&records).unwrap() {
+            let path = entry.unwrap().path();
+            let Some(name) = path.file_stem().and_then(|n| n.to_str()) else {
+                continue;
+            };
+            let record = crate::record::RunRecord::read(&path).unwrap();
+            match (planned.get(name), record.config()) {
+                (None, _) => problems.push(format!(
+                    "{name}: recorded, but no paper-profile run has this name"
+                )),
+                (Some(_), None) => {
+                    problems.push(format!("{name}: its record holds no config.json"))
+                }
+                (Some(now), Some(recorded)) if now != recorded => problems.push(format!(
+                    "{name}: another configuration: {}",
+                    differing_fields(recorded, now).join("; ")
+                )),
+                _ => checked += 1,
+            }
+        }
+        let carried = figures.join("in-progress");
+        if carried.is_dir() {
+            for entry in std::fs::read_dir(&carried).unwrap() {
+                let dir = entry.unwrap().path();
+                if !dir.is_dir() {
+                    continue; // its README
+                }
+                let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+                let config: Value =
+                    crate::run_dir::RunDir::read_json(&dir.join("config.json")).unwrap();
+                match planned.get(&name) {
+                    None => problems.push(format!(
+                        "in-progress/{name}: no paper-profile run has this name"
+                    )),
+                    Some(now) if *now != config => problems.push(format!(
+                        "in-progress/{name}: another configuration: {}",
+                        differing_fields(&config, now).join("; ")
+                    )),
+                    _ => checked += 1,
+                }
+            }
+        }
+        assert!(problems.is_empty(), "{}", problems.join("\n"));
+        assert!(checked > 0, "no record checked in {}", records.display());
     }
 }

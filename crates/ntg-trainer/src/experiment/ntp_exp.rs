@@ -218,11 +218,27 @@ impl NtpExpExperiment {
 
     /// Every run configuration of the figure at `profile`, checked.
     pub fn run_configs(&self, profile: Profile) -> anyhow::Result<Vec<BlocksRunConfig>> {
+        Ok(self
+            .named_run_configs(profile)?
+            .into_iter()
+            .map(|(_, config)| config)
+            .collect())
+    }
+
+    /// Every run of the figure at `profile`: its folder name and its
+    /// configuration, checked.
+    pub fn named_run_configs(
+        &self,
+        profile: Profile,
+    ) -> anyhow::Result<Vec<(String, BlocksRunConfig)>> {
         let mut configs = Vec::new();
         for panel in &self.profiles.get(profile).panels {
             for run in self.runs_of(panel) {
                 for &n in &panel.train_tasks {
-                    configs.push(self.run_config(profile, panel, run, n)?);
+                    configs.push((
+                        self.run_name(panel, run, n),
+                        self.run_config(profile, panel, run, n)?,
+                    ));
                 }
             }
         }
