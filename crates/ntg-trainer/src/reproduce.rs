@@ -439,6 +439,12 @@ fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
         s.push_str(&beside_paper(results, paper));
     }
     let _ = writeln!(s, "## Not reproduced yet\n");
+    if results.not_yet.is_empty() {
+        let _ = writeln!(
+            s,
+            "Nothing: every run of this profile is trained and in the figures above."
+        );
+    }
     for (what, why) in &results.not_yet {
         let _ = writeln!(s, "- {what}: {why}");
     }
