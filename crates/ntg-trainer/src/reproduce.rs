@@ -265,8 +265,9 @@ struct TrainingCompute {
     with_cpu: usize,
     cpu: f64,
     wall_of_cpu_epochs: f64,
-    /// Runs that trained (some stretch) on more than one thread, with the
-    /// most threads of a stretch (`compute_threads` in `sessions.jsonl`).
+    /// Runs (or a stage of a run, "RUN's STAGE") that trained some stretch
+    /// on more than one thread, with the most threads of a stretch
+    /// ([`compute_threads`]).
     multi_threaded: Vec<(String, usize)>,
 }
 
@@ -299,13 +300,13 @@ fn training_compute(results: &Results) -> TrainingCompute {
     };
     for (bits, run) in unique {
         compute.core_seconds += f64::from_bits(bits);
-        let threads =
-            crate::run_dir::read_jsonl::<crate::record::Session>(&run.join("sessions.jsonl"))
-                .ok()
-                .and_then(|sessions| sessions.iter().filter_map(|s| s.compute_threads).max());
-        if let Some(threads) = threads.filter(|&t| t > 1) {
-            let name = run.file_name().unwrap_or_default().to_string_lossy();
-            compute.multi_threaded.push((name.into_owned(), threads));
+        let name = run.file_name().unwrap_or_default().to_string_lossy();
+        for (part, threads) in compute_threads(run) {
+            let name = match part {
+                None => name.clone().into_owned(),
+                Some(stage) => format!("{name}'s {stage}"),
+            };
+            compute.multi_threaded.push((name, threads));
         }
         let recorded = RunDir::open(run)
             .ok()
@@ -317,6 +318,36 @@ fn training_compute(results: &Results) -> TrainingCompute {
         }
     }
     compute
+}
+
+/// The most threads a stretch of `run`'s training computed on
+/// (`compute_threads` in `sessions.jsonl`), where more than one: the run's
+/// own stretches (`None`) and each stage folder's (`stage_a/`,
+/// `detector_stage/`: trained in stretches of their own, noted in their
+/// own `sessions.jsonl`), in that order.
+fn compute_threads(run: &std::path::Path) -> Vec<(Option<String>, usize)> {
+    let most = |folder: &std::path::Path| {
+        crate::run_dir::read_jsonl::<crate::record::Session>(&folder.join("sessions.jsonl"))
+            .ok()
+            .and_then(|sessions| sessions.iter().filter_map(|s| s.compute_threads).max())
+            .filter(|&threads| threads > 1)
+    };
+    let mut stages: Vec<String> = std::fs::read_dir(run)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|entry| entry.path().join("sessions.jsonl").is_file())
+        .map(|entry| entry.file_name().to_string_lossy().into_owned())
+        .collect();
+    stages.sort();
+    let own = most(run).map(|threads| (None, threads));
+    own.into_iter()
+        .chain(
+            stages
+                .into_iter()
+                .filter_map(|stage| most(&run.join(&stage)).map(|threads| (Some(stage), threads))),
+        )
+        .collect()
 }
 
 /// The names of the runs `results` lists as not trained yet (its
@@ -678,6 +709,38 @@ pub fn reproduce_only(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A run's stage trained in stretches of its own: its threads are
+    /// found in its own `sessions.jsonl`, not only the run's.
+    #[test]
+    fn compute_threads_names_a_stage_that_ran_on_more_threads_than_its_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = dir.path().join("r");
+        let line = |threads: usize| {
+            format!(
+                "{{\"from_epoch\":0,\"commit\":\"c\",\"machine\":\"m\",\"compute_threads\":{threads}}}\n"
+            )
+        };
+        for stage in ["stage_a", "detector_stage", "embeddings"] {
+            std::fs::create_dir_all(run.join(stage)).unwrap();
+        }
+        std::fs::write(run.join("sessions.jsonl"), line(1)).unwrap();
+        std::fs::write(run.join("stage_a/sessions.jsonl"), line(1) + &line(2)).unwrap();
+        std::fs::write(run.join("detector_stage/sessions.jsonl"), line(1)).unwrap();
+        assert_eq!(compute_threads(&run), vec![(Some("stage_a".to_owned()), 2)]);
+        std::fs::write(run.join("sessions.jsonl"), line(1) + &line(3)).unwrap();
+        assert_eq!(
+            compute_threads(&run),
+            vec![(None, 3), (Some("stage_a".to_owned()), 2)]
+        );
+        // Lines written before threads were noted count as one thread.
+        std::fs::write(
+            run.join("stage_a/sessions.jsonl"),
+            "{\"from_epoch\":0,\"commit\":\"c\",\"machine\":\"m\"}\n",
+        )
+        .unwrap();
+        assert_eq!(compute_threads(&run), vec![(None, 3)]);
+    }
 
     /// The whole smoke profile end to end, then one run again with
     /// `--only`, compared with the committed results.
