@@ -1,5 +1,5 @@
 //! Neural Task Programming (NTP; Xu et al., ICRA 2018), the baseline of
-//! the NTG paper's block-stacking figure, as `../shared/design/BASELINES.md`
+//! the NTG paper's block-stacking figure, as `docs/BASELINES.md`
 //! describes it: a neural program interpreter conditioned on a
 //! demonstration (the *task specification*), run by a program stack.
 //!

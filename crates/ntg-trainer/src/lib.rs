@@ -1,18 +1,17 @@
-//! Wires the environments and networks of ntg-rs together, and holds the
-//! `ntg` command-line tool.
+//! The `ntg` application: wires the environments of this repository and the
+//! training library (ntg-train) together, and holds the `ntg` command-line
+//! tool.
 //!
 //! What is here, in layers (each module uses only those above it):
-//! - [`spec`] (observation kinds, profiles), [`run_dir`] (run folders),
-//!   [`dataset`] (demo datasets generated in parallel and cached on disk),
-//!   [`stats`], [`symmetry`] (object renaming);
-//! - [`fit`]: the one epoch loop (checkpoints, exact resume, validation
-//!   and best-epoch selection) that every method trains through;
-//! - [`method`]: methods, one file each (NTG, the Flat Policy): a training
-//!   step and a model that can be conditioned on a demo; [`video`]: NTG
-//!   from demo videos, trained in stages (the shared frame encoder on
-//!   single frames, then the rest on its cached embeddings);
-//! - [`domain`]: domains, one file each (block stacking, object
-//!   collection) behind one trait, and the one evaluation loop;
+//! - ntg-train's modules, re-exported under their own names ([`fit`],
+//!   [`dataset`], [`run_dir`], [`stats`], [`symmetry`], [`video`],
+//!   [`evaluate`], [`provenance`]); [`spec`] adds profiles, the device and
+//!   the command line's parsers to ntg-train's;
+//! - [`method`]: ntg-train's methods (NTG, the Flat Policy) and this
+//!   repository's block-stacking baselines (NTP, NTP Flat, NTP
+//!   (Detector)), in one registry;
+//! - [`domain`]: this repository's domains, one file each (block stacking,
+//!   object collection, object sorting) behind ntg-train's `Domain` trait;
 //!   [`jigsaws`]: the JIGSAWS cross-task experiment, scored by NLL;
 //! - [`experiment`]: the paper's figures as experiment files
 //!   (`experiments/*.toml`), run and drawn ([`figure`], [`svg`]);
@@ -28,24 +27,20 @@
 //! `xtask`. Experiments are data (configs) run through one code path, not
 //! code copied per figure.
 
+pub mod block_world;
 pub mod carry;
 pub mod cli;
-pub mod dataset;
 pub mod domain;
-pub mod evaluate;
 pub mod experiment;
 pub mod figure;
-pub mod fit;
 pub mod jigsaws;
 pub mod method;
 pub mod record;
 pub mod reproduce;
-pub mod run_dir;
 pub mod spec;
-pub mod stats;
 pub mod svg;
-pub mod symmetry;
 pub mod trace;
-pub mod video;
+
+pub use ntg_train::{dataset, evaluate, fit, provenance, run_dir, stats, symmetry, video};
 
 pub use domain::{blocks, collect};

@@ -1,6 +1,7 @@
 //! The words a run is specified in, shared by every domain, method and
-//! figure: the observation kind, the experiment scale (profile) and the
-//! device the networks run on.
+//! figure: the observation kind (ntg-train's, re-exported), the experiment
+//! scale (profile), the device the networks run on, and the command line's
+//! parsers of numbers and [`Choice`]s.
 //!
 //! Architecture invariant: this module imports nothing else of the crate,
 //! so every other module may use it without forming a cycle.
@@ -8,26 +9,7 @@
 use clap::ValueEnum;
 use serde::{Deserialize, Serialize};
 
-/// What the networks see.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum ObsKind {
-    /// The domain's symbolic state vector (block stacking: the 26-number
-    /// state, cube positions relative to the gripper and a gripper one-hot).
-    State,
-    /// The rendered 64×64 RGB frame.
-    Vid,
-}
-
-impl ObsKind {
-    /// Name in run folders and files (`state`, `vid`).
-    pub fn name(self) -> &'static str {
-        match self {
-            ObsKind::State => "state",
-            ObsKind::Vid => "vid",
-        }
-    }
-}
+pub use ntg_train::spec::*;
 
 /// Experiment scale.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
@@ -102,6 +84,20 @@ pub fn device() -> burn::tensor::Device {
 /// Command-line parsers that refuse out-of-range numbers at parse time, so
 /// that clap's error names the flag and nothing is written.
 pub mod parse {
+    use ntg_train::spec::Choice;
+
+    /// The parser of a [`Choice`] flag: its values by name, each with its
+    /// help, as clap's `value_enum` lists them.
+    pub fn choice<T: Choice + Clone>() -> impl clap::builder::TypedValueParser<Value = T> {
+        use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+        PossibleValuesParser::new(
+            T::ALL
+                .iter()
+                .map(|c| PossibleValue::new(c.name()).help(c.help())),
+        )
+        .map(|name| T::from_name(&name).expect("clap accepts only the possible values"))
+    }
+
     fn number<T: std::str::FromStr>(s: &str) -> Result<T, String>
     where
         T::Err: std::fmt::Display,

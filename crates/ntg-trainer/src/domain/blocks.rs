@@ -15,7 +15,7 @@ use burn::tensor::Device;
 use clap::ValueEnum;
 use ctg_graph::{ActionId, record_demonstration};
 use env_blocks::{BlocksEnv, BlocksExpert, BlocksObservation, EnvConfig, StackTask};
-use ntg_model::{EncoderConfig, NtgConfig, NtgModel, NtgPolicy};
+use ntg_model::{NtgConfig, NtgModel, NtgPolicy};
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::DemoDataset;
@@ -26,7 +26,9 @@ use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore, fit};
 use crate::method::detector::DetectorSettings;
 pub use crate::method::ntg::Variant;
 use crate::method::ntg::{EpochMetrics, GcnSource, NtgStep, NtgTraining, TrainExtras, train_with};
-use crate::method::ntp::{NtpDataset, NtpEpochMetrics, NtpKind, NtpRenaming, NtpStep, ntp_config};
+use crate::method::ntp::{
+    NtpDataset, NtpEpochMetrics, NtpKind, NtpModel, NtpRenaming, NtpStep, ntp_config,
+};
 use crate::method::on_frames::{NtgBased, OnFramesStep, VideoNtgModel};
 use crate::method::{MethodId, Model};
 use crate::run_dir::RunDir;
@@ -51,63 +53,7 @@ pub const SEEN_DEMO_SEED_BASE: u64 = 60_000_000;
 /// Seed base of the rollout scene of each seen task so evaluated.
 pub const SEEN_ROLLOUT_SEED_BASE: u64 = 70_000_000;
 
-/// Values per observation row of `kind`.
-pub fn obs_dim(kind: ObsKind) -> usize {
-    match kind {
-        ObsKind::State => env_blocks::STATE_DIM,
-        ObsKind::Vid => 3 * 64 * 64,
-    }
-}
-
-/// The encoder of the NTG networks for `kind` (`state_hidden_layers` and
-/// `pairwise` apply to the state MLP: the relational input covers the 8
-/// cube positions). On video the networks read the frozen frame encoder's
-/// embeddings (see [`crate::video`]) through an MLP of
-/// `state_hidden_layers` layers.
-pub fn encoder(kind: ObsKind, state_hidden_layers: usize, pairwise: bool) -> EncoderConfig {
-    match kind {
-        ObsKind::Vid => EncoderConfig::State(
-            ntg_model::StateEncoderConfig::new(EncoderStage::default().embedding_dim())
-                .with_hidden_layers(state_hidden_layers),
-        ),
-        ObsKind::State => EncoderConfig::State(
-            ntg_model::StateEncoderConfig::new(env_blocks::STATE_DIM)
-                .with_hidden_layers(state_hidden_layers)
-                .with_pairwise_objects(if pairwise {
-                    env_blocks::world::NUM_OBJECTS
-                } else {
-                    0
-                }),
-        ),
-    }
-}
-
-/// The observation as a flat row: the state, or the frame in CHW order
-/// scaled to `[0, 1]` (the same layout as object collection's frames).
-pub fn featurize(obs: &BlocksObservation, kind: ObsKind) -> Vec<f32> {
-    match kind {
-        ObsKind::State => obs.state().to_vec(),
-        // Rendering is switched on for `Vid` by `env_config`; a missing
-        // frame gives a wrong-length row, which the model rejects.
-        ObsKind::Vid => obs
-            .frame()
-            .map(env_collect::frame_to_chw)
-            .unwrap_or_default(),
-    }
-}
-
-/// The environment configuration for `kind`, with stochastic failures on or off.
-pub fn env_config(kind: ObsKind, failures: bool) -> EnvConfig {
-    let config = match kind {
-        ObsKind::State => EnvConfig::state_only(),
-        ObsKind::Vid => EnvConfig::default(),
-    };
-    if failures {
-        config
-    } else {
-        config.without_failures()
-    }
-}
+pub use crate::block_world::{encoder, env_config, featurize, obs_dim};
 
 /// Everything that defines a block-stacking training run (`config.json`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -993,7 +939,7 @@ pub fn train_ntp_run(
         }
     };
     let encoder = encoder(ObsKind::State, config.state_hidden_layers, config.pairwise);
-    let net = ntp_config(encoder, true, config.model_seed).init(device)?;
+    let net = NtpModel::init(&ntp_config(encoder, true, config.model_seed), device)?;
     let held_out = HeldOutConfigurations::for_run(config)?;
     let accept = held_out
         .as_ref()
@@ -1084,7 +1030,7 @@ fn train_ntp_video_run(
             },
         )?;
         let encoder = encoder(ObsKind::Vid, config.state_hidden_layers, false);
-        let net = ntp_config(encoder, false, config.model_seed).init(device)?;
+        let net = NtpModel::init(&ntp_config(encoder, false, config.model_seed), device)?;
         let step = NtpStep::new(&dataset, kind, None, device)?;
         let model = crate::method::on_frames::OnFrames::new(frames, net)?;
         Ok::<Model, _>(Box::new(fit_validated(
@@ -2015,15 +1961,16 @@ pub fn ntp_decisions(
     };
     let any = model.as_any();
     let (net, front): (&ntg_model::NtpNet, Front<'_>) =
-        if let Some(net) = any.downcast_ref::<ntg_model::NtpNet>() {
-            (net, Box::new(|rows: &[Vec<f32>]| Ok(rows.to_vec())))
-        } else if let Some(m) =
-            any.downcast_ref::<crate::method::on_frames::OnFrames<ntg_model::NtpNet>>()
-        {
-            (&m.policy, Box::new(|rows: &[Vec<f32>]| m.encode_rows(rows)))
+        if let Some(model) = any.downcast_ref::<NtpModel>() {
+            (&model.net, Box::new(|rows: &[Vec<f32>]| Ok(rows.to_vec())))
+        } else if let Some(m) = any.downcast_ref::<crate::method::on_frames::OnFrames<NtpModel>>() {
+            (
+                &m.policy.net,
+                Box::new(|rows: &[Vec<f32>]| m.encode_rows(rows)),
+            )
         } else if let Some(m) = any.downcast_ref::<crate::method::ntp_detector::NtpOnDetector>() {
             (
-                &m.ntp,
+                &m.ntp.net,
                 Box::new(|rows: &[Vec<f32>]| Ok(m.detector.predict_rows(rows)?)),
             )
         } else {

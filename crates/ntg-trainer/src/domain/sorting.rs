@@ -119,7 +119,7 @@ impl SortingDomain {
     /// Sorting, with stochastic failures on or off, episodes cut at
     /// `step_limit` actions.
     pub fn new(failures: bool, step_limit: usize) -> Self {
-        let mut env_config = crate::blocks::env_config(ObsKind::State, failures);
+        let mut env_config = crate::block_world::env_config(ObsKind::State, failures);
         env_config.max_steps = Some(step_limit);
         SortingDomain {
             env_config,
@@ -225,7 +225,7 @@ pub fn episodes(tasks: &[SortTask], count: usize, seeds: [u64; 3]) -> Vec<Episod
 /// The untrained model of a sorting run.
 pub fn new_model(config: &SortingRunConfig, device: &Device) -> anyhow::Result<NtgModel> {
     let vocab = env_blocks::vocabulary(true, env_blocks::ActionLevel::Flat);
-    let state = |layers, pairwise| crate::blocks::encoder(ObsKind::State, layers, pairwise);
+    let state = |layers, pairwise| crate::block_world::encoder(ObsKind::State, layers, pairwise);
     let mut model_config = NtgConfig::for_domain(vocab.len(), state(1, false));
     model_config.localizer.encoder = state(config.state_hidden_layers, config.pairwise);
     model_config.edge.encoder = state(config.state_hidden_layers, config.pairwise);

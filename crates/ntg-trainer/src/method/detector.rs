@@ -9,8 +9,6 @@
 //! [`crate::fit::fit`], its training stage ([`train_detector`]) and its
 //! position error on held-out frames.
 
-use std::path::Path;
-
 use anyhow::Context;
 use burn::module::Module;
 use burn::tensor::{Device, Tensor, TensorData};
@@ -20,8 +18,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::evaluate::in_parallel;
 use crate::fit::{
-    OptimConfig, Selection, StepContext, StepReport, TrainStep, TrainedModel, ValidationScore,
-    finished_model, fit,
+    OptimConfig, Selection, StepContext, StepReport, TrainStep, ValidationScore, finished_model,
+    fit,
 };
 use crate::run_dir::RunDir;
 
@@ -264,15 +262,6 @@ pub fn train_detector(
         RunDir::write_json(&dir.root().join("held_out.json"), &held_out)?;
     }
     Ok(net)
-}
-
-impl TrainedModel for Detector {
-    fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
-        Ok(self.save(dir)?)
-    }
-    fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
-        Ok(Detector::load(dir, device)?)
-    }
 }
 
 /// Frames (CHW bytes) and the state rows they show.

@@ -1,5 +1,5 @@
 //! Neural Task Programming (NTP) and NTP Flat, the block-stacking
-//! figure's baselines (`../shared/design/BASELINES.md`), as training
+//! figure's baselines (`docs/BASELINES.md`), as training
 //! methods: the network is [`ntg_model::NtpNet`], its program stack
 //! [`ntg_model::ProgramStack`], its training signal the expert's
 //! primitive-level episodes with NTP's call trees
@@ -550,7 +550,7 @@ fn renamed_call(call: &mut ProgramCall, perm: &[usize]) {
     }
 }
 
-impl TrainStep<NtpNet> for NtpStep<'_> {
+impl TrainStep<NtpModel> for NtpStep<'_> {
     type Metrics = NtpEpochMetrics;
 
     fn num_examples(&self) -> usize {
@@ -559,10 +559,11 @@ impl TrainStep<NtpNet> for NtpStep<'_> {
 
     fn step(
         &self,
-        net: &NtpNet,
+        model: &NtpModel,
         chunk: &[usize],
         ctx: StepContext<'_>,
     ) -> anyhow::Result<StepReport> {
+        let net = &model.net;
         let episodes = &self.dataset.episodes;
         // Per example: the spec's rows, the episode's rows, the trace.
         type Owned = (Vec<Vec<f32>>, Vec<Vec<f32>>, ProgramCall);
@@ -624,12 +625,39 @@ impl TrainStep<NtpNet> for NtpStep<'_> {
     }
 }
 
-impl TrainedModel for NtpNet {
+/// An NTP network as a trained method of block stacking: what `fit` trains
+/// and checkpoints (the network's own files) and the policy whose programs
+/// act in block stacking's vocabulary. (The network is ntg-model's and the
+/// method traits ntg-train's, so the method is this wrapper.)
+#[derive(Module, Debug)]
+pub struct NtpModel {
+    /// The network.
+    pub net: NtpNet,
+}
+
+impl NtpModel {
+    /// A freshly initialised model of `config`.
+    pub fn init(config: &NtpConfig, device: &Device) -> anyhow::Result<Self> {
+        Ok(NtpModel {
+            net: config.init(device)?,
+        })
+    }
+}
+
+impl TrainedModel for NtpModel {
     fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
-        Ok(self.save(dir)?)
+        Ok(self.net.save(dir)?)
     }
     fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
-        Ok(NtpNet::load(dir, device)?)
+        Ok(NtpModel {
+            net: NtpNet::load(dir, device)?,
+        })
+    }
+}
+
+impl crate::method::on_frames::EmbeddingReader for NtpModel {
+    fn row_dim(&self) -> usize {
+        self.net.obs_dim()
     }
 }
 
@@ -862,7 +890,7 @@ impl crate::method::Method for Ntp {
         "NTP"
     }
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
-        crate::method::on_frames::load_either::<NtpNet>(dir, device)
+        crate::method::on_frames::load_either::<NtpModel>(dir, device)
     }
 }
 
@@ -874,11 +902,11 @@ impl crate::method::Method for NtpFlat {
         "NTP Flat"
     }
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
-        crate::method::on_frames::load_either::<NtpNet>(dir, device)
+        crate::method::on_frames::load_either::<NtpModel>(dir, device)
     }
 }
 
-impl TrainedPolicy for NtpNet {
+impl TrainedPolicy for NtpModel {
     fn for_inference(&self) -> Model {
         Box::new(self.valid())
     }
@@ -887,9 +915,10 @@ impl TrainedPolicy for NtpNet {
         demo: &[Vec<f32>],
         vocabulary: &Vocabulary,
     ) -> anyhow::Result<Box<dyn Agent>> {
-        let actions = (0..self.num_programs())
+        let net = &self.net;
+        let actions = (0..net.num_programs())
             .map(|p| {
-                (0..self.num_arguments())
+                (0..net.num_arguments())
                     .map(|a| {
                         let program = NtpProgram::from_index(p)?;
                         let action = program.action(Some(argument_target(a)))?;
@@ -898,7 +927,7 @@ impl TrainedPolicy for NtpNet {
                     .collect()
             })
             .collect();
-        let primitives = (0..self.num_programs())
+        let primitives = (0..net.num_programs())
             .map(|p| NtpProgram::from_index(p).is_some_and(NtpProgram::is_primitive))
             .collect();
         Ok(Box::new(NtpAgent {
@@ -908,7 +937,7 @@ impl TrainedPolicy for NtpNet {
                 primitives,
                 MAX_DEPTH,
             )),
-            core: NtpNet::condition(self, demo)?,
+            core: NtpNet::condition(net, demo)?,
             actions,
         }))
     }

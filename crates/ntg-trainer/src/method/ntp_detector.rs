@@ -1,5 +1,5 @@
 //! NTP (Detector), the video panel's baseline that gets extra supervision
-//! (`../shared/design/BASELINES.md`): an NTP network
+//! (`docs/BASELINES.md`): an NTP network
 //! ([`crate::method::ntp`]) fed the states a separately trained frame →
 //! state regressor ([`ntg_model::Detector`], [`crate::method::detector`])
 //! estimates, for the demo's frames and for every observed frame. Our
@@ -20,9 +20,10 @@ use anyhow::Context;
 use burn::module::Module;
 use burn::tensor::Device;
 use ctg_graph::{ActionId, Vocabulary};
-use ntg_model::{Detector, NtpNet};
+use ntg_model::Detector;
 
 use crate::fit::TrainedModel;
+use crate::method::ntp::NtpModel;
 use crate::method::on_frames::FrozenFront;
 use crate::method::{Agent, Model, TrainedPolicy};
 
@@ -35,18 +36,18 @@ pub struct NtpOnDetector {
     /// Frame → estimated state row; frozen.
     pub detector: Detector,
     /// NTP on state rows.
-    pub ntp: NtpNet,
+    pub ntp: NtpModel,
 }
 
 impl NtpOnDetector {
     /// Joins a trained detector (frozen here) and NTP on the state rows it
     /// estimates.
-    pub fn new(detector: Detector, ntp: NtpNet) -> anyhow::Result<Self> {
+    pub fn new(detector: Detector, ntp: NtpModel) -> anyhow::Result<Self> {
         anyhow::ensure!(
-            detector.config.row_dim() == ntp.obs_dim(),
+            detector.config.row_dim() == ntp.net.obs_dim(),
             "the detector estimates rows of {} values, NTP reads {}",
             detector.config.row_dim(),
-            ntp.obs_dim()
+            ntp.net.obs_dim()
         );
         Ok(NtpOnDetector {
             detector: detector.no_grad(),
@@ -56,8 +57,8 @@ impl NtpOnDetector {
 }
 
 impl FrozenFront for NtpOnDetector {
-    type Behind = NtpNet;
-    fn behind(&self) -> &NtpNet {
+    type Behind = NtpModel;
+    fn behind(&self) -> &NtpModel {
         &self.ntp
     }
 }
@@ -69,7 +70,7 @@ impl TrainedModel for NtpOnDetector {
     }
     fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
         let detector = Detector::load(dir.join(DETECTOR_DIR), device)?;
-        NtpOnDetector::new(detector, NtpNet::load_from(dir, device)?)
+        NtpOnDetector::new(detector, NtpModel::load_from(dir, device)?)
     }
 }
 

@@ -24,7 +24,6 @@ use std::collections::BTreeMap;
 
 use burn::module::Module;
 use burn::tensor::{Bool, Device, Int, Tensor, TensorData};
-use clap::ValueEnum;
 use ctg_graph::{ActionId, Ctg, Vocabulary};
 use ntg_model::{
     AblationConfig, DemoBatch, EdgeCounts, NtgModel, NtgPolicy, adjacency_tensor, ids_tensor,
@@ -619,10 +618,20 @@ pub fn train_with(
     fit(model, &step, optim, run, device, selection, on_epoch)
 }
 
+/// A fresh NTG model for `dataset`'s vocabulary and state rows (an MLP
+/// row encoder over its `obs_dim` values), its weights seeded with `seed`:
+/// the model [`train_with`] takes, for a domain of one's own.
+pub fn state_model(dataset: &DemoDataset, seed: u64, device: &Device) -> anyhow::Result<NtgModel> {
+    let encoder = ntg_model::EncoderConfig::state(dataset.obs_dim());
+    let mut config = ntg_model::NtgConfig::for_domain(dataset.vocabulary().len(), encoder);
+    config.seed = seed;
+    Ok(NtgModel::new(config, device)?)
+}
+
 /// NTG's policy variants: the full model and its ablations, at evaluation
 /// (`ntg eval --variant`) and, for the paper's ablations, in training too
 /// (`ntg train --ablation`, fig. "ablation" (a); see [`Variant::trains`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Variant {
     /// The full NTG model, as trained (its current node from the localizer,
@@ -694,6 +703,36 @@ impl Variant {
 
     /// Name used in files and reports.
     pub fn name(self) -> &'static str {
+        crate::spec::Choice::name(self)
+    }
+}
+
+impl crate::spec::Choice for Variant {
+    const ALL: &'static [Self] = &[
+        Variant::Full,
+        Variant::NoEdgeClassifier,
+        Variant::NoNodeLocalizer,
+        Variant::ExecutedNode,
+        Variant::LocalizerNode,
+        Variant::NoDemoInterpreter,
+        Variant::NoGcn,
+    ];
+
+    fn help(self) -> &'static str {
+        match self {
+            Variant::Full => "The full NTG model, as trained",
+            Variant::NoEdgeClassifier => "Uniform over successors (no edge classifier)",
+            Variant::NoNodeLocalizer => "Uniform current node (no node localizer)",
+            Variant::ExecutedNode => {
+                "The current node is the last action executed (not in the paper)"
+            }
+            Variant::LocalizerNode => "The current node from the node localizer (the paper's way)",
+            Variant::NoDemoInterpreter => "Fully connected initial graph (no demo interpreter)",
+            Variant::NoGcn => "The demo's path graph as is (no GCN)",
+        }
+    }
+
+    fn name(self) -> &'static str {
         match self {
             Variant::Full => "full",
             Variant::NoEdgeClassifier => "no-edge-classifier",
@@ -703,6 +742,12 @@ impl Variant {
             Variant::NoDemoInterpreter => "no-demo-interpreter",
             Variant::NoGcn => "no-gcn",
         }
+    }
+}
+
+impl std::fmt::Display for Variant {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }
 

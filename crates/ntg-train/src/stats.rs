@@ -55,6 +55,17 @@ impl SuccessRate {
     }
 }
 
+impl std::fmt::Display for SuccessRate {
+    /// `0.850 (0.767-0.907, 85/100)`: the rate, its 95% interval and counts.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:.3} ({:.3}-{:.3}, {}/{})",
+            self.rate, self.ci_low, self.ci_high, self.successes, self.trials
+        )
+    }
+}
+
 /// The mean rate of `rates` (one per seed of a point; 0 for none).
 pub fn mean_rate(rates: &[SuccessRate]) -> f64 {
     rates.iter().map(|r| r.rate).sum::<f64>() / rates.len().max(1) as f64

@@ -538,7 +538,7 @@ impl DemoDataset {
 /// built by `build` (given its pairs and a label such as " 3/25" for its
 /// progress bar) and saved there by `save` before the next starts. A saved
 /// part of other pairs is an error naming it.
-pub(crate) fn build_in_parts<T>(
+pub fn build_in_parts<T>(
     parts_dir: &Path,
     pairs: &[(usize, u64)],
     part_len: usize,

@@ -1,5 +1,4 @@
-//! The one epoch loop of ntg-trainer: every method of every domain trains
-//! through [`fit`].
+//! The one epoch loop: every method of every domain trains through [`fit`].
 //!
 //! A method supplies a [`TrainStep`] (the loss of one batch of example
 //! indices, and how an epoch's mean step values become its metrics line);
@@ -37,19 +36,21 @@ use serde::{Deserialize, Serialize};
 
 use crate::run_dir::{RunDir, drop_lines_from_epoch, recover_dir, replace_dir};
 
-/// Jobs of [`crate::experiment`]'s runner training or evaluating in this
-/// process now, and how many have started: an epoch's process CPU time is
-/// its run's own only if no other job ran at any moment of it.
+/// Trainings and evaluations running in this process now, and how many
+/// have started: an epoch's process CPU time is its run's own only if no
+/// other job ran at any moment of it.
 static JOBS_RUNNING: AtomicUsize = AtomicUsize::new(0);
 static JOBS_STARTED: AtomicUsize = AtomicUsize::new(0);
 
-/// One job of the experiment runner, counted while it lives (see
-/// [`JOBS_RUNNING`]).
-pub(crate) struct RunningJob(());
+/// One of several trainings or evaluations an application runs at once in
+/// one process (`ntg reproduce --jobs`), counted while it lives: [`fit`]
+/// records an epoch's CPU seconds only when its job was the only one
+/// running throughout. A process that runs one job at a time needs none.
+pub struct RunningJob(());
 
 impl RunningJob {
     /// Counts a job starting now.
-    pub(crate) fn start() -> Self {
+    pub fn start() -> Self {
         JOBS_STARTED.fetch_add(1, Ordering::SeqCst);
         JOBS_RUNNING.fetch_add(1, Ordering::SeqCst);
         RunningJob(())
@@ -109,10 +110,8 @@ impl EpochCpuClock {
     }
 }
 
-/// The paper's Adam learning rate (block stacking's [`Recipe::Paper`], and
-/// the default of the other domains' `ntg train`).
-///
-/// [`Recipe::Paper`]: crate::blocks::Recipe::Paper
+/// The paper's Adam learning rate (the default of every method's training
+/// unless a recipe says otherwise).
 pub const PAPER_LEARNING_RATE: f64 = 1e-3;
 
 /// Optimisation settings.
@@ -156,7 +155,7 @@ pub struct OptimConfig {
 }
 
 /// Whether `shards` means one shard (serde: such a count is not written).
-pub(crate) fn is_one_shard(shards: &usize) -> bool {
+pub fn is_one_shard(shards: &usize) -> bool {
     *shards <= 1
 }
 
@@ -218,6 +217,15 @@ impl TrainedModel for FlatPolicy {
     }
     fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
         Ok(FlatPolicy::load(dir, device)?)
+    }
+}
+
+impl TrainedModel for ntg_model::Detector {
+    fn save_to(&self, dir: &Path) -> anyhow::Result<()> {
+        Ok(self.save(dir)?)
+    }
+    fn load_from(dir: &Path, device: &Device) -> anyhow::Result<Self> {
+        Ok(ntg_model::Detector::load(dir, device)?)
     }
 }
 
@@ -372,7 +380,7 @@ impl Progress {
 pub fn training_finished(run: &Path, epochs: usize) -> anyhow::Result<bool> {
     let path = run.join("checkpoint").join("progress.json");
     let restored =
-        crate::record::is_restored(run) || run.parent().is_some_and(crate::record::is_restored);
+        crate::run_dir::is_restored(run) || run.parent().is_some_and(crate::run_dir::is_restored);
     if restored || !path.is_file() {
         return Ok(false);
     }
@@ -446,7 +454,7 @@ where
     drop_lines_from_epoch(&run.metrics_path(), start)?;
     drop_lines_from_epoch(&run.validation_path(), start)?;
     if start < optim.epochs && !stopped_early {
-        crate::record::note_session(run, start)?;
+        crate::provenance::note_session(run, start)?;
     }
     let steps_per_epoch = num_examples.div_ceil(optim.batch_size);
     let total_steps = steps_per_epoch * optim.epochs;

@@ -39,6 +39,16 @@ use anyhow::{Context, bail};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
+/// The file a run folder restored from a committed record holds instead of
+/// weights (the record's path): its training is finished, elsewhere.
+pub const RESTORED_MARKER: &str = "restored-from-record.txt";
+
+/// Whether the run folder `dir` was restored from a record (it has no
+/// weights).
+pub fn is_restored(dir: &Path) -> bool {
+    dir.join(RESTORED_MARKER).is_file()
+}
+
 /// Fills the new folder `to` with the files of `from` (recursively),
 /// hard-linked where the file system allows and copied where not; built
 /// under a temporary name and renamed at the end, so a kill leaves `to`
