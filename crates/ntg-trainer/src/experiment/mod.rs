@@ -27,6 +27,7 @@ pub mod ablation;
 pub mod ntp_exp;
 pub mod qualitative;
 pub mod structure;
+pub mod template;
 pub mod thor_all;
 
 /// The experiment files compiled in: `(name, contents)`.
@@ -588,7 +589,7 @@ pub(crate) fn open_section(heading: &str, trained: bool) -> Result<String, Strin
     if trained {
         Ok(head)
     } else {
-        Err(head + "No run of it trained yet at this profile (see \"Not reproduced yet\").\n\n")
+        Err(head + &template::REPORT.text("not_trained") + "\n\n")
     }
 }
 
