@@ -406,7 +406,7 @@ pub(crate) type Job<'a, T> = Box<dyn FnOnce() -> anyhow::Result<T> + Send + 'a>;
 /// (`current_num_threads / slots.count()`, at least one), so two at once
 /// use both cores of a 2-core machine without contending for one pool (the
 /// parallel kernels of two runs on one shared pool made each about 2.2x
-/// slower, session 25). After a job fails no
+/// slower). After a job fails no
 /// new one starts (here or in another figure), and the first failure in
 /// list order is returned. A line on stderr after each run says how many
 /// of `what` are done, and the time left at the pace so far (a rough

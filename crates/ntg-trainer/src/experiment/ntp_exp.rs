@@ -186,9 +186,10 @@ impl NtpExpExperiment {
     }
 
     /// The run folder's name of `method` (`ablation`: NTG without a part)
-    /// at the point with `train_tasks` tasks of `panel`. NTG's folders keep
-    /// the names they had before the baselines; a panel with another recipe
-    /// than the experiment's adds the recipe's name, an ablation its own.
+    /// at the point with `train_tasks` tasks of `panel`. NTG's folders name
+    /// no method (the names of the committed records); a panel with
+    /// another recipe than the experiment's adds the recipe's name, an
+    /// ablation its own.
     pub fn run_name(
         &self,
         panel: &PanelScale,
@@ -2041,7 +2042,9 @@ mod tests {
         assert!(trend_checks(&apart)[0].contains("**does not hold**"));
         assert_eq!(
             line("NTP Flat below NTP (State"),
-            "NTP Flat below NTP (State input): **holds in part**; holds at 50 tasks: NTP (State) 0.200 vs NTP Flat (State) 0.010; does not hold at 100 tasks: NTP (State) 0.500 vs NTP Flat (State) 0.500."
+            "NTP Flat below NTP (State input): **holds in part**; \
+             holds at 50 tasks: NTP (State) 0.200 vs NTP Flat (State) 0.010; \
+             does not hold at 100 tasks: NTP (State) 0.500 vs NTP Flat (State) 0.500."
         );
         // No NTG on video: that relation is left out.
         assert!(!lines.iter().any(|l| l.starts_with("NTG (Vid)")));
@@ -2061,10 +2064,9 @@ mod tests {
             point(MethodId::Ntp, state, 1000, 0, 195),
         ]);
         let lines = trend_checks(&both);
-        assert!(
-            lines.contains(&"Not in the paper: NTG above NTP with the recommended recipe on both sides (State input): **holds**; holds at 1000 tasks: NTG (ours) (State) 0.950 vs NTP (State) 0.750.".to_owned()),
-            "{lines:?}"
-        );
+        let expected = "Not in the paper: NTG above NTP with the recommended recipe on both sides \
+                        (State input): **holds**; holds at 1000 tasks: NTG (ours) (State) 0.950 vs NTP (State) 0.750.";
+        assert!(lines.contains(&expected.to_owned()), "{lines:?}");
         assert!(
             !lines
                 .iter()
@@ -2299,7 +2301,8 @@ mod tests {
         let experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
         let quick = experiment.profiles.get(Profile::Quick);
         let state = &quick.panels[1];
-        // What reproduce.rs built in code before the figure was a file.
+        // The configurations the figure's committed results were measured
+        // with.
         let expected = |n: usize, epochs: usize, validation_tasks, cosine_decay| BlocksRunConfig {
             obs: ObsKind::State,
             train_tasks: n,
@@ -2398,7 +2401,7 @@ mod tests {
             "ntp_exp-vid-recommended-1000"
         );
         let c = quick_ntg_1000(recommended);
-        // 4 demos per task, chosen on validation (session 27).
+        // 4 demos per task, chosen on validation tasks.
         let mut expected = Recipe::Recommended.config(ObsKind::Vid, 1000, 4, 10, 0);
         expected.state_hidden_layers = 3;
         expected.pairwise = true;
@@ -2407,7 +2410,7 @@ mod tests {
         expected.optim.shards = 0; // unset in the file: one thread
         let video = expected.video.as_mut().unwrap();
         video.encoder.demos = 2000; // each task's first two videos
-        video.encoder.epochs = 5; // chosen on validation (session 26)
+        video.encoder.epochs = 5; // chosen on validation tasks
         assert_eq!(c, expected);
     }
 }

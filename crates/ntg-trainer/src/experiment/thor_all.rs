@@ -815,7 +815,8 @@ mod tests {
         assert_eq!(experiment.methods, [MethodId::Ntg, MethodId::Flat]);
         for method in [MethodId::Ntg, MethodId::Flat] {
             let ntg = method == MethodId::Ntg;
-            // What collect.rs built in code before the figure was a file.
+            // The configurations the figure's committed results were
+            // measured with.
             let expected = CollectRunConfig {
                 domain: "collect".into(),
                 method,
@@ -840,8 +841,8 @@ mod tests {
                     gcn_from_other_demo: false,
                 },
                 video: None,
-                // Session 26: every epoch scored on 50 held-out
-                // training-side tasks per N, the best one tested.
+                // Every epoch scored on 50 held-out training-side tasks
+                // per N, the best one tested.
                 validation_tasks_per_n: 50,
             };
             assert_eq!(
