@@ -13,6 +13,10 @@
 //! objects); fig.
 //! "jigsaws" reads `jigsaws.toml` through
 //! [`crate::jigsaws::JigsawsConfig::for_profile`].
+//!
+//! The prose of each figure's report section is a template in
+//! `crates/ntg-trainer/experiments/report/`, compiled in and filled from
+//! the figure's results ([`template`]).
 
 use std::path::Path;
 
