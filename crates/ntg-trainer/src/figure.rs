@@ -348,7 +348,7 @@ pub fn write_figure(panels: &[Panel], stem: &Path) -> anyhow::Result<()> {
     write_png(&png, size, |area| draw_all(area, panels))
 }
 
-// --- Bar charts (added with the JIGSAWS experiment, issue 7) ---
+// --- Bar charts (fig. jigsaws) ---
 
 /// One bar: a value with an error bar.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -46,10 +46,9 @@ pub struct RunRecord {
     pub run: String,
     /// The commit the writing binary was built from (`-dirty` with
     /// uncommitted changes to the code then; `unknown` when built outside
-    /// a git checkout). Records written before session 27 hold the
-    /// checkout's commit when written instead. Where
-    /// and with what each stretch of training ran is the run's
-    /// `sessions.jsonl` ([`note_session`]).
+    /// a git checkout). Older records hold the checkout's commit when
+    /// written instead. Where and with what each stretch of training ran
+    /// is the run's `sessions.jsonl` ([`note_session`]).
     pub commit: String,
     /// The CPU and thread count of the machine that wrote it.
     pub machine: String,
@@ -490,7 +489,11 @@ mod tests {
         write("embeddings.partial/index.json", "{}");
         write(
             "eval/full-2.json",
-            r#"{"success": {"successes": 1, "trials": 2}, "tasks": [{"task": "a", "success": true, "trace": ["pick(A)"], "transcription": ["pick(A)"], "demo_actions": ["pick(A)"]}, {"task": "b", "success": false, "trace": [], "transcription": ["pick(B)"], "demo_actions": ["pick(C)"]}]}"#,
+            concat!(
+                r#"{"success": {"successes": 1, "trials": 2}, "tasks": ["#,
+                r#"{"task": "a", "success": true, "trace": ["pick(A)"], "transcription": ["pick(A)"], "demo_actions": ["pick(A)"]}, "#,
+                r#"{"task": "b", "success": false, "trace": [], "transcription": ["pick(B)"], "demo_actions": ["pick(C)"]}]}"#
+            ),
         );
         let record = RunRecord::of_run(&run).unwrap();
         assert_eq!(record.run, "ntp_exp-state-5");

@@ -11,6 +11,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use crate::experiment::ntp_exp::{self, NtpExpPoint};
+use crate::experiment::template::REPORT;
 use crate::experiment::thor_all::{self, ThorAllResult};
 use crate::experiment::{Plan, Source};
 use crate::experiment::{ablation, qualitative};
@@ -180,31 +181,9 @@ pub fn reproduce(
     // same from one invocation to the next.
     missing.sort();
     let runs_missing = missing.len();
-    if !missing.is_empty() {
-        // By figure: the run name's prefix (`ntp_exp-...`, `ablation_b-...`).
-        let mut by_figure: Vec<(&str, Vec<&str>)> = Vec::new();
-        for name in &missing {
-            let figure = name.split('-').next().unwrap_or(name);
-            match by_figure.iter_mut().find(|(f, _)| *f == figure) {
-                Some((_, names)) => names.push(name),
-                None => by_figure.push((figure, vec![name])),
-            }
-        }
-        for (figure, names) in by_figure {
-            not_yet.push((
-                match names.len() {
-                    1 => format!("fig. {figure}: 1 run not trained yet"),
-                    n => format!("fig. {figure}: {n} runs not trained yet"),
-                },
-                format!("{MISSING_RUNS_PREFIX}{}", names.join(", ")),
-            ));
-        }
-    }
+    not_yet.extend(missing_runs_lines(&missing));
     if profile != Profile::Paper {
-        not_yet.push((
-            "seeds".into(),
-            "one seed per point at this profile; the paper profile has 3 at 1000 tasks, for the ablations and for thor_all (2 on video)".into(),
-        ));
+        not_yet.push(seeds_line());
     }
     let results = Results {
         profile,
@@ -240,15 +219,40 @@ pub fn reproduce(
     Ok(results)
 }
 
+/// The `not_yet` lines of the runs `missing` (sorted): one per figure, by
+/// the run name's prefix (`ntp_exp-...`, `ablation_b-...`).
+fn missing_runs_lines(missing: &[String]) -> Vec<(String, String)> {
+    let mut by_figure: Vec<(&str, Vec<&str>)> = Vec::new();
+    for name in missing {
+        let figure = name.split('-').next().unwrap_or(name);
+        match by_figure.iter_mut().find(|(f, _)| *f == figure) {
+            Some((_, names)) => names.push(name),
+            None => by_figure.push((figure, vec![name])),
+        }
+    }
+    by_figure
+        .into_iter()
+        .map(|(figure, names)| {
+            let what = match names.len() {
+                1 => REPORT.fill("not_yet_runs_one", &[("figure", &figure)]),
+                n => REPORT.fill("not_yet_runs", &[("figure", &figure), ("runs", &n)]),
+            };
+            (what, format!("{MISSING_RUNS_PREFIX}{}", names.join(", ")))
+        })
+        .collect()
+}
+
+/// The `not_yet` line of a profile other than the paper's: its seeds.
+fn seeds_line() -> (String, String) {
+    ("seeds".into(), REPORT.text("not_yet_seeds"))
+}
+
 /// A `not_yet` line: `what` needs the weights of `run`, which was restored
 /// from its record.
 fn weights_needed(what: &str, run: &Path) -> (String, String) {
     (
         what.into(),
-        format!(
-            "needs the weights of {}, restored from its record; retrain it (`--only`) to draw it",
-            run.display()
-        ),
+        REPORT.fill("not_yet_weights", &[("run", &run.display())]),
     )
 }
 
@@ -361,25 +365,30 @@ fn missing_runs(results: &Results) -> Vec<&str> {
         .collect()
 }
 
-/// How a `not_yet` line of missing runs starts, before their names.
+/// How a `not_yet` line of missing runs starts, before their names. Not a
+/// template's: it is also how [`missing_runs`] finds them in the results
+/// files written before, so it cannot change with the prose.
 const MISSING_RUNS_PREFIX: &str = "left out of the figure and tables above: ";
 
 /// The report section that puts each run's outcome beside the same run's
 /// at the paper profile (the committed `docs/figures/results.json`).
 fn beside_paper(results: &Results, paper: &Results) -> String {
     let mut s = String::new();
+    let profile = format!("{:?}", results.profile);
     let _ = writeln!(
         s,
-        "## Beside the paper profile\n\nEach run of this report beside the run of the same name in the committed paper-profile results (`docs/figures/REPORT.md`), where it has been trained (some runs of the reduced profiles, at scales the paper does not use, have none): success (partial progress) on unseen tasks. The paper profile trains on 100 demos per task for 30 epochs and tests on 1000 tasks.\n"
+        "{}",
+        REPORT.fill("beside_paper", &[("profile", &profile)])
     );
-    let _ = writeln!(s, "| run | {:?} | paper |\n|---|---|---|", results.profile);
     let committed = outcomes(paper);
     let missing = missing_runs(paper);
     for outcome in outcomes(results) {
         let there = match committed.iter().find(|c| c.name == outcome.name) {
             Some(c) => c.text(),
-            None if missing.contains(&outcome.name.as_str()) => "not trained yet".to_owned(),
-            None => "not a run of the paper profile".to_owned(),
+            None if missing.contains(&outcome.name.as_str()) => {
+                REPORT.text("beside_paper_not_trained")
+            }
+            None => REPORT.text("beside_paper_not_a_run"),
         };
         let _ = writeln!(s, "| {} | {} | {there} |", outcome.name, outcome.text());
     }
@@ -387,58 +396,84 @@ fn beside_paper(results: &Results, paper: &Results) -> String {
     s
 }
 
+/// `REPORT.md` of `results` (beside `paper`'s, if given), written by an
+/// invocation of `seconds`.
 fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
-    let compute = training_compute(results);
+    report_of(results, paper, seconds, &training_compute(results))
+}
+
+/// [`report`], with the runs' `compute` given.
+fn report_of(
+    results: &Results,
+    paper: Option<&Results>,
+    seconds: f64,
+    compute: &TrainingCompute,
+) -> String {
     let mut s = String::new();
-    let measured_on = format!(
-        "Measured on {} (wall time: other jobs on the machine lengthen it).",
-        crate::record::machine()
-    );
-    let _ = writeln!(s, "# Reproduced figures\n");
-    let _ = writeln!(
-        s,
-        "Profile `{:?}`, {:.0} s in the invocation that wrote this report (finished runs and their evaluations are reused; the training time column is each run's own). {} Seeds: model 0, shuffling 0 unless a row names another seed; demos and rollouts as documented in `ntg_trainer::blocks`. Intervals are 95% Wilson intervals over test tasks.\n",
-        results.profile,
-        seconds,
-        if results.profile == Profile::Paper {
-            format!(
-                "Each run trains on one thread{}; where each stretch of its training ran (commit, CPU, threads of the machine, threads it computed on) is in its record, `records/RUN.json` (`sessions.jsonl`).",
-                match compute.multi_threaded.as_slice() {
-                    [] => String::new(),
-                    runs => format!(
-                        " but {}",
-                        runs.iter()
-                            .map(|(name, threads)| format!("{name} ({threads} threads)"))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                }
-            )
-        } else {
-            measured_on
-        }
-    );
-    let cpu_note = match compute.with_cpu {
-        0 => String::new(),
-        n => format!(
-            " {n} of these runs recorded the CPU time of (some of) their epochs (`cpu_seconds`): {:.1} CPU core-hours, which took {:.1} hours of wall time (wall time overstates compute where a run shared its core).",
-            compute.cpu / 3600.0,
-            compute.wall_of_cpu_epochs / 3600.0
-        ),
+    let where_it_ran = if results.profile == Profile::Paper {
+        let exceptions = match compute.multi_threaded.as_slice() {
+            [] => String::new(),
+            runs => {
+                let runs: Vec<String> = runs
+                    .iter()
+                    .map(|(run, threads)| {
+                        REPORT.fill("threads_exception", &[("run", run), ("threads", threads)])
+                    })
+                    .collect();
+                format!(
+                    " {}",
+                    REPORT.fill("threads_exceptions", &[("runs", &runs.join(", "))])
+                )
+            }
+        };
+        REPORT.fill("threads", &[("exceptions", &exceptions)])
+    } else {
+        REPORT.fill("measured_on", &[("machine", &crate::record::machine())])
     };
+    let _ = writeln!(s, "{}\n", REPORT.text("title"));
     let _ = writeln!(
         s,
-        "**Compute.** The rollout figures' {} runs took {:.1} core-hours of training epochs (each epoch's CPU time where its run recorded it, else its wall time; each run's own, summed; a run shared by two figures counted once; evaluation and fig. jigsaws not included). The tables' training time is the same measure, per run.{cpu_note}{}\n",
-        compute.runs,
-        compute.core_seconds / 3600.0,
-        match results.runs_missing {
-            0 => String::new(),
-            n => format!(
-                " {n} more run{} of this profile {} not trained yet (\"Not reproduced yet\").",
-                if n == 1 { "" } else { "s" },
-                if n == 1 { "is" } else { "are" }
-            ),
+        "{}\n",
+        REPORT.fill(
+            "intro",
+            &[
+                ("profile", &format!("{:?}", results.profile)),
+                ("seconds", &format!("{seconds:.0}")),
+                ("where_it_ran", &where_it_ran),
+            ]
+        )
+    );
+    let cpu = match compute.with_cpu {
+        0 => String::new(),
+        n => {
+            let cpu_hours = format!("{:.1}", compute.cpu / 3600.0);
+            let wall_hours = format!("{:.1}", compute.wall_of_cpu_epochs / 3600.0);
+            let values: [(&str, &dyn std::fmt::Display); 3] = [
+                ("runs", &n),
+                ("cpu_hours", &cpu_hours),
+                ("wall_hours", &wall_hours),
+            ];
+            format!(" {}", REPORT.fill("compute_cpu", &values))
         }
+    };
+    let missing = match results.runs_missing {
+        0 => String::new(),
+        1 => format!(" {}", REPORT.text("compute_missing_one")),
+        n => format!(" {}", REPORT.fill("compute_missing", &[("runs", &n)])),
+    };
+    let core_hours = format!("{:.1}", compute.core_seconds / 3600.0);
+    let _ = writeln!(
+        s,
+        "{}\n",
+        REPORT.fill(
+            "compute",
+            &[
+                ("runs", &compute.runs),
+                ("core_hours", &core_hours),
+                ("cpu", &cpu),
+                ("missing", &missing),
+            ]
+        )
     );
     let note = |figure: &str| {
         results
@@ -469,12 +504,9 @@ fn report(results: &Results, paper: Option<&Results>, seconds: f64) -> String {
     if let Some(paper) = paper {
         s.push_str(&beside_paper(results, paper));
     }
-    let _ = writeln!(s, "## Not reproduced yet\n");
+    let _ = writeln!(s, "{}\n", REPORT.text("not_yet"));
     if results.not_yet.is_empty() {
-        let _ = writeln!(
-            s,
-            "Nothing: every run of this profile is trained and in the figures above."
-        );
+        let _ = writeln!(s, "{}", REPORT.text("not_yet_nothing"));
     }
     for (what, why) in &results.not_yet {
         let _ = writeln!(s, "- {what}: {why}");
@@ -740,6 +772,88 @@ mod tests {
         )
         .unwrap();
         assert_eq!(compute_threads(&run), vec![(None, 3)]);
+    }
+
+    /// The committed paper- and quick-profile results, and variants of
+    /// them that reach the report's other branches, fill every part of
+    /// every template file (and none has a placeholder without a value).
+    #[test]
+    fn every_part_of_every_template_is_filled() {
+        use crate::experiment::template::{ALL, FILLED};
+        use crate::method::ntg::Variant;
+        let read = |file: &str| -> Results {
+            let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures");
+            RunDir::read_json(&root.join(file)).unwrap()
+        };
+        let (paper, quick) = (read("results.json"), read("quick/results.json"));
+        let compute = TrainingCompute {
+            runs: 3,
+            core_seconds: 7200.0,
+            with_cpu: 2,
+            cpu: 3600.0,
+            wall_of_cpu_epochs: 4000.0,
+            multi_threaded: vec![("ntp_exp-vid-1000".into(), 2)],
+        };
+        let mut paper_missing = paper.clone();
+        let missing =
+            ["ablation-state-500", "ntp_exp-state-1000", "ntp_exp-vid-50"].map(String::from);
+        paper_missing.not_yet.extend(missing_runs_lines(&missing));
+        assert_eq!(missing_runs(&paper_missing), missing);
+        let beside = report_of(&quick, Some(&paper_missing), 1.0, &compute);
+        assert!(beside.contains(" | not trained yet |"), "{beside}");
+        report_of(&paper, None, 1.0, &compute);
+        let mut empty = quick.clone();
+        empty.ntp_exp.clear();
+        empty.ablation.clear();
+        empty.ablation_b.clear();
+        empty.trace_blocks = None;
+        empty.trace_sorting = None;
+        empty.structure.clear();
+        empty.thor_all.lines.clear();
+        empty.not_yet.clear();
+        for runs_missing in [0, 1, 2] {
+            empty.runs_missing = runs_missing;
+            report(&empty, None, 1.0);
+        }
+        weights_needed("trace_blocks", Path::new("runs/r"));
+        seeds_line();
+        ntp_exp::NtpExpExperiment::load(Source::BuiltIn)
+            .unwrap()
+            .recipe_note(Profile::Paper);
+        let part = |v: Variant| {
+            paper
+                .ablation
+                .iter()
+                .filter(move |p| p.ablation == v)
+                .cloned()
+        };
+        ablation::report_section(&part(Variant::Full).collect::<Vec<_>>(), "");
+        ablation::report_section(&part(Variant::NoGcn).collect::<Vec<_>>(), "");
+        for (learn_end, memory) in [(true, false), (false, true)] {
+            let mut thor_all = paper.thor_all.clone();
+            (thor_all.scale.learn_end, thor_all.scale.memory) = (learn_end, memory);
+            thor_all::report_section(&thor_all);
+        }
+        let mut jigsaws = paper.jigsaws.clone();
+        jigsaws.methods.reverse();
+        for (m, other) in jigsaws.methods.iter_mut().zip(&paper.jigsaws.methods) {
+            m.method = other.method;
+        }
+        jigsaws.graph.added_edges.clear();
+        crate::jigsaws::report_section(&jigsaws);
+        let mut points = paper.ntp_exp.clone();
+        for t in points.iter_mut().filter_map(|p| p.transcription.as_mut()) {
+            t.success_otherwise.trials = 0;
+        }
+        ntp_exp::report_section(&points, "");
+        let filled = FILLED.with(|f| f.borrow().clone());
+        let never: Vec<String> = ALL
+            .iter()
+            .flat_map(|t| t.parts().into_iter().map(|(part, _)| (t.file, part)))
+            .filter(|&(file, part)| !filled.contains(&(file, part.to_owned())))
+            .map(|(file, part)| format!("{file}: {part}"))
+            .collect();
+        assert!(never.is_empty(), "parts never filled: {never:?}");
     }
 
     /// The whole smoke profile end to end, then one run again with

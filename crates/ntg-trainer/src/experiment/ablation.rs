@@ -18,6 +18,7 @@ use serde::{Deserialize, Serialize};
 use crate::domain::DomainId;
 use crate::domain::sorting::{self, SortingRunConfig};
 use crate::experiment::ntp_exp::{self, NtpExpExperiment, NtpExpPoint};
+use crate::experiment::template::ABLATION;
 use crate::figure::{Panel, Point, Series};
 use crate::method::ntg::Variant;
 use crate::run_dir::RunDir;
@@ -153,7 +154,7 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
     };
     let mean = |seeds: &[&NtpExpPoint]| crate::stats::mean_rate(&ntp_exp::seed_rates(seeds));
     let Some(full) = of(Variant::Full) else {
-        return vec!["The whole model was not run: nothing to compare.".into()];
+        return vec![ABLATION.text("whole_model_not_run")];
     };
     let rate = |seeds: &[&NtpExpPoint]| match seeds {
         [p] => format!(
@@ -166,11 +167,13 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
     let mut lines = Vec::new();
     for v in [Variant::NoDemoInterpreter, Variant::NoNodeLocalizer] {
         if let Some(p) = of(v) {
-            lines.push(format!(
-                "Without {} almost no task is completed: **{}** ({}).",
-                ntp_exp::ablation_part(v),
-                holds(p.iter().all(|p| p.success.ci_high < 0.1)),
-                rate(&p)
+            lines.push(ABLATION.fill(
+                "near_zero",
+                &[
+                    ("part", &ntp_exp::ablation_part(v)),
+                    ("verdict", &holds(p.iter().all(|p| p.success.ci_high < 0.1))),
+                    ("rate", &rate(&p)),
+                ],
             ));
         }
     }
@@ -183,13 +186,16 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
                 .map(|z| mean(&z))
                 .reduce(f64::max),
         ) {
-            lines.push(format!(
-                "Without {} a smaller drop than without the demo interpreter or node localizer (below the whole model, above those): **{}** ({} against the whole model's {} and at most {:.3}).",
-                ntp_exp::ablation_part(v),
-                holds(mean(&p) <= mean(&full) && mean(&p) > drop_to_zero),
-                rate(&p),
-                rate(&full),
-                drop_to_zero
+            let smaller = mean(&p) <= mean(&full) && mean(&p) > drop_to_zero;
+            lines.push(ABLATION.fill(
+                "smaller_drop",
+                &[
+                    ("part", &ntp_exp::ablation_part(v)),
+                    ("verdict", &holds(smaller)),
+                    ("rate", &rate(&p)),
+                    ("full", &rate(&full)),
+                    ("near_zero", &format!("{drop_to_zero:.3}")),
+                ],
             ));
         }
     }
@@ -215,28 +221,21 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
 /// other trained variant (`variants` counts the whole model too).
 fn whole_model_best(variants: usize, full: String, best: impl FnOnce() -> bool) -> String {
     if variants < 2 {
-        format!("The whole model is best: **not checked**, no other variant trained yet ({full}).")
+        ABLATION.fill("best_not_checked", &[("full", &full)])
     } else {
         let verdict = if best() { "holds" } else { "does not hold" };
-        format!("The whole model is best: **{verdict}** ({full}).")
+        ABLATION.fill("best", &[("verdict", &verdict), ("full", &full)])
     }
 }
 
 /// The report section of fig. "ablation" (Markdown); `recipe_note` says
 /// what the file changes in the recipe.
 pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
-    let mut s = match super::open_section(
-        "## Fig. ablation (a): NTG without each part, block stacking\n\n![ablation](ablation.png)",
-        !points.is_empty(),
-    ) {
+    let mut s = match super::open_section(&ABLATION.text("head"), !points.is_empty()) {
         Ok(head) => head,
         Err(whole) => return whole,
     };
-    let _ = writeln!(
-        s,
-        "| variant | input | training tasks | demos/task | epochs (selected) | training time | test tasks | success (95% CI) | goals met |"
-    );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "{}", ABLATION.text("table_head"));
     for p in points {
         let _ = writeln!(
             s,
@@ -246,17 +245,15 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
             ntp_exp::outcome_cells(p)
         );
     }
-    let _ = writeln!(
-        s,
-        "\nEach variant is trained as the variant (the missing part's loss trains nothing; without the GCN the edge classifier learns on the GCN's task-independent initial node embeddings, the ones it gets when it acts) and selected on validation tasks like the whole model. Without the demo interpreter the task graph starts fully connected; without the node localizer or the edge classifier its term of the policy is a constant (uniform over nodes, over the node's successors), and the greedy policy breaks the exact ties this leaves between actions at random, seeded by the episode (taking the lowest action id instead, as before 2026-11-29, loops: a pick's successors include the pick itself, the retry of a slipped grasp). {recipe_note}\n\nThe paper's trend (its fig. 5(a), no numbers in the text), checked on these runs:\n"
-    );
+    let notes = ABLATION.fill("notes", &[("recipe_note", &recipe_note)]);
+    let _ = writeln!(s, "\n{notes}\n");
     for line in trend_checks(points) {
         let _ = writeln!(s, "- {line}");
     }
     let _ = writeln!(s);
     ntp_exp::bullet_list(
         &mut s,
-        ntp_exp::TRANSCRIPTION_TITLE,
+        &crate::experiment::template::NTP_EXP.text("transcription_title"),
         ntp_exp::transcription_lines(points),
     );
     s
@@ -494,19 +491,23 @@ pub fn trend_checks_b(points: &[SortingPoint]) -> Vec<String> {
     let holds = |ok: bool| if ok { "holds" } else { "does not hold" };
     let mut lines = Vec::new();
     if let Some(p) = of(Variant::NoEdgeClassifier) {
-        lines.push(format!(
-            "Without the edge classifier no task completes: **{}** ({}).",
-            holds(p.iter().all(|r| r.successes == 0)),
-            rate(&p)
+        lines.push(ABLATION.fill(
+            "b_no_edge_classifier",
+            &[
+                ("verdict", &holds(p.iter().all(|r| r.successes == 0))),
+                ("rate", &rate(&p)),
+            ],
         ));
     }
     if let (Some(full), Some(p)) = (of(Variant::Full), of(Variant::NoGcn)) {
         let full_low = crate::stats::interval_span(&full).0;
-        lines.push(format!(
-            "Without the GCN it gets stuck on the unseen order, well below the whole model (intervals apart): **{}** ({} against {}).",
-            holds(p.iter().all(|r| r.ci_high < full_low)),
-            rate(&p),
-            rate(&full)
+        lines.push(ABLATION.fill(
+            "b_no_gcn",
+            &[
+                ("verdict", &holds(p.iter().all(|r| r.ci_high < full_low))),
+                ("rate", &rate(&p)),
+                ("full", &rate(&full)),
+            ],
         ));
     }
     if let Some(full) = of(Variant::Full) {
@@ -526,17 +527,11 @@ pub fn trend_checks_b(points: &[SortingPoint]) -> Vec<String> {
 
 /// Panel (b)'s report section (Markdown).
 pub fn report_section_b(points: &[SortingPoint]) -> String {
-    let mut s = match super::open_section(
-        "## Fig. ablation (b): object sorting, another order than the demo's\n\nPanel (b) of [ablation.png](ablation.png).",
-        !points.is_empty(),
-    ) {
+    let mut s = match super::open_section(&ABLATION.text("b_head"), !points.is_empty()) {
         Ok(head) => head,
         Err(whole) => return whole,
     };
-    let _ = writeln!(
-        s,
-        "| variant | training maps | demos/map | epochs (selected) | training time | test scenes | success (95% CI) | objects sorted |\n|---|---|---|---|---|---|---|---|"
-    );
+    let _ = writeln!(s, "{}", ABLATION.text("b_table_head"));
     for p in points {
         let _ = writeln!(
             s,
@@ -565,14 +560,16 @@ pub fn report_section_b(points: &[SortingPoint]) -> String {
             p.goal_fraction
         );
     }
-    let _ = writeln!(
-        s,
-        "\nEight objects of four categories go into the bins their category maps to (256 maps: {} train, {} select epochs, {} unseen test maps). Training demos sort whole scenes, each in an order of its own; every test scene starts with 2 to 4 objects already in their bins, and the policy is conditioned on a demo of a whole scene, so the order it needs differs from the demo's. \"Objects sorted\" counts the presorted ones. State input, stochastic grasp and drop failures, step limit {}; each variant trained as the variant and its epoch selected on presorted scenes of the validation maps.\n\nThe paper's trend (its fig. 5(b), no numbers in the text), checked on these runs:\n",
-        sorting::TRAIN_POOL,
-        sorting::VALIDATION_TASKS,
-        sorting::TEST_TASKS,
-        sorting::STEP_LIMIT
+    let notes = ABLATION.fill(
+        "b_notes",
+        &[
+            ("train", &sorting::TRAIN_POOL),
+            ("validation", &sorting::VALIDATION_TASKS),
+            ("test", &sorting::TEST_TASKS),
+            ("step_limit", &sorting::STEP_LIMIT),
+        ],
     );
+    let _ = writeln!(s, "\n{notes}\n");
     for line in trend_checks_b(points) {
         let _ = writeln!(s, "- {line}");
     }

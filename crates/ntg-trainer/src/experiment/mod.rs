@@ -13,6 +13,10 @@
 //! objects); fig.
 //! "jigsaws" reads `jigsaws.toml` through
 //! [`crate::jigsaws::JigsawsConfig::for_profile`].
+//!
+//! The prose of each figure's report section is a template in
+//! `crates/ntg-trainer/experiments/report/`, compiled in and filled from
+//! the figure's results ([`template`]).
 
 use std::path::Path;
 
@@ -27,6 +31,7 @@ pub mod ablation;
 pub mod ntp_exp;
 pub mod qualitative;
 pub mod structure;
+pub mod template;
 pub mod thor_all;
 
 /// The experiment files compiled in: `(name, contents)`.
@@ -405,7 +410,7 @@ pub(crate) type Job<'a, T> = Box<dyn FnOnce() -> anyhow::Result<T> + Send + 'a>;
 /// (`current_num_threads / slots.count()`, at least one), so two at once
 /// use both cores of a 2-core machine without contending for one pool (the
 /// parallel kernels of two runs on one shared pool made each about 2.2x
-/// slower, session 25). After a job fails no
+/// slower). After a job fails no
 /// new one starts (here or in another figure), and the first failure in
 /// list order is returned. A line on stderr after each run says how many
 /// of `what` are done, and the time left at the pace so far (a rough
@@ -588,7 +593,7 @@ pub(crate) fn open_section(heading: &str, trained: bool) -> Result<String, Strin
     if trained {
         Ok(head)
     } else {
-        Err(head + "No run of it trained yet at this profile (see \"Not reproduced yet\").\n\n")
+        Err(head + &template::REPORT.text("not_trained") + "\n\n")
     }
 }
 

@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
+use crate::experiment::template::QUALITATIVE;
 use crate::run_dir::RunDir;
 use crate::trace::Trace;
 
@@ -224,40 +225,39 @@ pub fn sorting_trace(
 /// `folder` is the figure's folder relative to the report.
 pub fn sorting_report_section(figure: Option<&SortingTraceFigure>, folder: &str) -> String {
     let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "## Qualitative: object sorting finished in another order than the demo's\n"
-    );
+    let _ = writeln!(s, "{}\n", QUALITATIVE.text("sorting_head"));
     let Some(f) = figure else {
-        let _ = writeln!(
-            s,
-            "No successful test episode of the searched run (the whole sorting model's) left its demo's path, or that run is not trained yet at this profile.\n"
-        );
+        let _ = writeln!(s, "{}\n", QUALITATIVE.text("sorting_none"));
         return s;
     };
     let e = &f.episode;
-    let _ = writeln!(
-        s,
-        "Run `{}`, test episode {} ({}): the scene starts part-sorted, and NTG, conditioned on a demo of the whole scene, sorts the rest through {} transition(s) the demo's transcription never makes ({}): edges of the completed task graph. Every observation ([contact sheet]({folder}/contact-sheet.png)) and each step ([trace.txt]({folder}/trace.txt)).\n\n![sorting]({folder}/contact-sheet.png)\n",
-        f.run
-            .file_name()
-            .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
-        e.index,
-        e.task,
-        f.new_transitions.len(),
-        f.new_transitions
-            .iter()
-            .map(|(a, b)| format!("`{a} -> {b}`"))
-            .collect::<Vec<_>>()
-            .join(", ")
+    let transitions: Vec<String> = f
+        .new_transitions
+        .iter()
+        .map(|(a, b)| format!("`{a} -> {b}`"))
+        .collect();
+    let run = f.run.file_name().unwrap_or_default().to_string_lossy();
+    let text = QUALITATIVE.fill(
+        "sorting",
+        &[
+            ("run", &run),
+            ("episode", &e.index),
+            ("task", &e.task),
+            ("transitions", &f.new_transitions.len()),
+            ("transition_list", &transitions.join(", ")),
+            ("folder", &folder),
+        ],
     );
-    let _ = writeln!(
-        s,
-        "```\ndemo (expert):     {}\ntranscribed (NTG): {}\nexecuted:          {}\n```\n",
-        e.demo_actions.join(" "),
-        e.transcription.join(" "),
-        e.trace.join(" ")
+    let _ = writeln!(s, "{text}\n");
+    let sequences = QUALITATIVE.fill(
+        "sorting_sequences",
+        &[
+            ("demo", &e.demo_actions.join(" ")),
+            ("transcription", &e.transcription.join(" ")),
+            ("executed", &e.trace.join(" ")),
+        ],
     );
+    let _ = writeln!(s, "{sequences}\n");
     s
 }
 
@@ -265,40 +265,32 @@ pub fn sorting_report_section(figure: Option<&SortingTraceFigure>, folder: &str)
 /// (Markdown); `folder` is the figure's folder relative to the report.
 pub fn report_section(figure: Option<&BlocksTraceFigure>, folder: &str) -> String {
     let mut s = String::new();
-    let _ = writeln!(
-        s,
-        "## Qualitative: block stacking, one node visited twice, a different edge each time\n"
-    );
+    let _ = writeln!(s, "{}\n", QUALITATIVE.text("blocks_head"));
     let Some(f) = figure else {
-        let _ = writeln!(
-            s,
-            "No successful test rollout of the searched run was at one node twice with different actions.\n"
-        );
+        let _ = writeln!(s, "{}\n", QUALITATIVE.text("blocks_none"));
         return s;
     };
-    let run = f
-        .run
-        .file_name()
-        .map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-    let _ = writeln!(
-        s,
-        "Run `{run}`, unseen test task {} (test index {}, the first of {} searched in order that qualifies): the executor localised node `{}` at steps {} and chose {} there. Every observation ([contact sheet]({folder}/contact-sheet.png), left to right, top to bottom), the demo's completed task graph ([SVG]({folder}/ctg.svg)) and each step's localised node, chosen edge and the node's other successors ([trace.txt]({folder}/trace.txt); demo and transcription in [demo.txt]({folder}/demo.txt)).\n",
-        f.trace.task,
-        f.trace.index,
-        f.searched,
-        f.node,
-        f.visits
-            .iter()
-            .map(|(step, _)| step.to_string())
-            .collect::<Vec<_>>()
-            .join(", "),
-        f.visits
-            .iter()
-            .map(|(step, action)| format!("`{action}` (step {step})"))
-            .collect::<Vec<_>>()
-            .join(", ")
+    let run = f.run.file_name().unwrap_or_default().to_string_lossy();
+    let steps: Vec<String> = f.visits.iter().map(|(step, _)| step.to_string()).collect();
+    let chosen: Vec<String> = f
+        .visits
+        .iter()
+        .map(|(step, action)| format!("`{action}` (step {step})"))
+        .collect();
+    let text = QUALITATIVE.fill(
+        "blocks",
+        &[
+            ("run", &run),
+            ("task", &f.trace.task),
+            ("index", &f.trace.index),
+            ("searched", &f.searched),
+            ("node", &f.node),
+            ("steps", &steps.join(", ")),
+            ("chosen", &chosen.join(", ")),
+            ("folder", &folder),
+        ],
     );
-    let _ = writeln!(s, "![trace]({folder}/contact-sheet.png)\n");
+    let _ = writeln!(s, "{text}\n");
     let _ = writeln!(s, "```\n{}```\n", crate::trace::trace_table(&f.trace));
     s
 }

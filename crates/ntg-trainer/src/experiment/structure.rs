@@ -13,6 +13,7 @@ use crate::blocks::Recipe;
 use crate::domain::EvalSplit;
 use crate::experiment::Plan;
 use crate::experiment::ntp_exp::{NtpExpPoint, curve_name};
+use crate::experiment::template::STRUCTURE;
 use crate::method::MethodId;
 use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
@@ -88,17 +89,11 @@ pub fn run(points: &[NtpExpPoint], plan: &Plan<'_>) -> anyhow::Result<Vec<Struct
 
 /// The report section (Markdown).
 pub fn report_section(points: &[StructurePoint]) -> String {
-    let mut s = match super::open_section(
-        "## Beyond the paper: block stacking split by structure\n\nEach curve of fig. ntp_exp at its largest number of training tasks, scored on as many tasks whose structure (the goals once cube names are ignored) no training-pool task has: of the 33 structures of at most eight cubes the standard set has the 23 with towers of two to four cubes, and these tasks have a tower of five to eight (`ntg eval --split structure`; every seed of that point).",
-        !points.is_empty(),
-    ) {
+    let mut s = match super::open_section(&STRUCTURE.text("head"), !points.is_empty()) {
         Ok(head) => head,
         Err(whole) => return whole,
     };
-    let _ = writeln!(
-        s,
-        "| method | input | training tasks | seed | standard test tasks | structure split (95% CI) | goals met |\n|---|---|---|---|---|---|---|"
-    );
+    let _ = writeln!(s, "{}", STRUCTURE.text("table_head"));
     for p in points {
         let _ = writeln!(
             s,

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use crate::collect::{CollectRunConfig, EVAL_OBJECTS, NPoint, evaluate, train_run};
 use crate::domain::DomainId;
 use crate::experiment::Profiles;
+use crate::experiment::template::THOR_ALL;
 use crate::figure::{Panel, Point, Series, write_figure as draw};
 use crate::method::MethodId;
 use crate::run_dir::RunDir;
@@ -459,18 +460,12 @@ fn obs_name(obs: ObsKind) -> &'static str {
 
 /// The protocol sentence of the report: how episodes end and what the
 /// policies remember.
-fn protocol(sc: &ThorAllScale) -> &'static str {
-    match (sc.learn_end, sc.memory) {
-        (true, true) => {
-            "the final `<end>` is a learned action, as in the paper (an episode ends when the policy chooses `<end>`, or at the step limit of twice the expert's worst case; success is judged then); since a single observation cannot show whether every target has been delivered, both policies have an execution memory, the actions they have taken so far in the episode (the Flat Policy adds them to its attention query, NTG's edge classifier reads the nodes of its task graph it has not executed yet; without it, both end episodes too early: see the README);"
-        }
-        (true, false) => {
-            "the final `<end>` is a learned action, as in the paper (an episode ends when the policy chooses `<end>`, or at the step limit); both policies are reactive (no memory), so they cannot see from the last frame whether every target has been delivered;"
-        }
-        (false, _) => {
-            "the final `<end>` decision is not trained (the last frame cannot show whether every target has been delivered), so episodes end at the step limit, where success is judged;"
-        }
-    }
+fn protocol(sc: &ThorAllScale) -> String {
+    THOR_ALL.text(match (sc.learn_end, sc.memory) {
+        (true, true) => "protocol_memory",
+        (true, false) => "protocol_reactive",
+        (false, _) => "protocol_end_not_learned",
+    })
 }
 
 /// "seed 0", or "seeds 0, 1, 2": the seeds the figure's lines were trained
@@ -490,45 +485,44 @@ fn seeds_phrase(lines: &[ThorAllLine]) -> String {
 pub fn report_section(result: &ThorAllResult) -> String {
     use std::fmt::Write as _;
     let sc = &result.scale;
-    let mut s = match super::open_section(
-        "## Fig. thor_all (b): object collection, generalising to other numbers of objects\n\n![thor_all](thor_all.png)",
-        !result.lines.is_empty(),
-    ) {
+    let mut s = match super::open_section(&THOR_ALL.text("head"), !result.lines.is_empty()) {
         Ok(head) => head,
         Err(whole) => return whole,
     };
-    let _ = writeln!(
-        s,
-        "Input: **the {}**{}. Trained on N = {:?} only: {} training-side tasks per N × {} demos, batch {}, Adam at {} (NTG: {} epochs, the rate decaying per step along a half cosine to a tenth; Flat Policy: {} epochs at a constant rate; each the setting under which it trained well), {}. Tested on {} episodes per N (tasks from the held-out side of the split; the conditioning demo and the rollout are different scenes).\n\nProtocol (both methods, see `ntg_trainer::collect`): {} each training demo is imitated while conditioned on *another* demo of its task (the Flat Policy attends over it; NTG's GCN completes its path, whose `NE_gcn` the edge classifier reads), as at test time; NTG's demo interpreter {} and also learns from one random contiguous stretch of each demo.\n",
-        obs_name(sc.obs),
-        if sc.obs == ObsKind::State {
-            ", not the 64×64 frames: the frame encoders are too slow to train on 2 CPU cores within this profile's budget (`ntg train --domain collect --obs vid` trains on frames)"
-        } else {
-            ""
-        },
-        result.train_objects,
-        sc.tasks_per_n,
-        sc.demos_per_task,
-        sc.batch_size,
-        sc.learning_rate,
-        sc.ntg_epochs,
-        sc.flat_epochs,
-        seeds_phrase(&result.lines),
-        sc.test_episodes,
-        protocol(sc),
-        match sc.obs {
-            ObsKind::State =>
-                "is the paper's seq2seq with Luong attention made length-independent (local annotations, input feeding, location-aware attention whose weights start biased towards the next frame (`--location-step-prior`, 0.3: without it one seed in four never learned to step), a decoder without memory; `--interpreter luong` trains the paper's)",
-            ObsKind::Vid =>
-                "is the paper's seq2seq with Luong attention (on demo videos, whose actions span 2 to 9 frames, the length-independent stepping variant of the state input stalls: it moves its attention at most 2 frames per token)",
-        },
+    let state_input = match sc.obs {
+        ObsKind::State => format!(", {}", THOR_ALL.text("state_input")),
+        ObsKind::Vid => String::new(),
+    };
+    let interpreter = THOR_ALL.text(match sc.obs {
+        ObsKind::State => "interpreter_state",
+        ObsKind::Vid => "interpreter_vid",
+    });
+    let setup = THOR_ALL.fill(
+        "setup",
+        &[
+            ("obs", &obs_name(sc.obs)),
+            ("state_input", &state_input),
+            ("train_objects", &format!("{:?}", result.train_objects)),
+            ("tasks_per_n", &sc.tasks_per_n),
+            ("demos", &sc.demos_per_task),
+            ("batch", &sc.batch_size),
+            ("learning_rate", &sc.learning_rate),
+            ("ntg_epochs", &sc.ntg_epochs),
+            ("flat_epochs", &sc.flat_epochs),
+            ("seeds", &seeds_phrase(&result.lines)),
+            ("test_episodes", &sc.test_episodes),
+            ("protocol", &protocol(sc)),
+            ("interpreter", &interpreter),
+        ],
     );
+    let _ = writeln!(s, "{setup}\n");
     let validated = sc.validation_tasks_per_n > 0;
     if validated {
+        let tasks = sc.validation_tasks_per_n;
         let _ = writeln!(
             s,
-            "Model selection: after every epoch each run is rolled out on {} held-out training-side tasks per training N (tasks in neither the training pool nor the test side), and the epoch with the best validation success (then goals met) is the one tested (column \"epoch\", from 1; the epoch counts above are the most each trains: a run stops at an epoch whose validation score is perfect, every task completed and every goal met, since no later epoch could be selected over it).\n",
-            sc.validation_tasks_per_n
+            "{}\n",
+            THOR_ALL.fill("selection", &[("validation_tasks", &tasks)])
         );
     }
     let _ = write!(s, "| method | training time |");
@@ -581,10 +575,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
         .filter(|l| !l.transcribed.is_empty())
         .collect();
     if !transcribing.is_empty() {
-        let _ = writeln!(
-            s,
-            "\n**The demo interpreter, per N.** Test demos transcribed exactly (the expert's action sequence, token for token):\n"
-        );
+        let _ = writeln!(s, "\n{}\n", THOR_ALL.text("transcription_title"));
         for line in transcribing {
             let per_n: Vec<String> = line
                 .points
@@ -595,18 +586,13 @@ pub fn report_section(result: &ThorAllResult) -> String {
             let _ = writeln!(s, "- {}: {}", line_name(line), per_n.join(", "));
         }
     }
-    let _ = writeln!(
-        s,
-        "\nPaper's trend: NTG well above the Flat Policy at every N, including N = 1, 3 and 5, never trained on.\n"
-    );
+    let _ = writeln!(s, "\n{}\n", THOR_ALL.text("trend"));
     if let Some(sentence) = comparison_sentence(result) {
         let _ = writeln!(s, "{sentence}\n");
     }
     if let Some(without) = compare(result, false) {
-        let _ = writeln!(
-            s,
-            "Without the execution memory (both methods reactive: exactly the same information, the demo and the current observation): {without}.\n"
-        );
+        let without = THOR_ALL.fill("without_memory", &[("comparison", &without)]);
+        let _ = writeln!(s, "{without}\n");
     }
     s
 }
@@ -630,7 +616,7 @@ fn line_name(line: &ThorAllLine) -> String {
 /// within overlapping intervals, tied, or below. `None` when a method is
 /// missing.
 pub fn comparison_sentence(result: &ThorAllResult) -> Option<String> {
-    compare(result, true).map(|c| format!("Measured: {c}."))
+    compare(result, true).map(|c| THOR_ALL.fill("measured", &[("comparison", &c)]))
 }
 
 /// [`comparison_sentence`]'s comparison (without "Measured"), of the lines
@@ -829,7 +815,8 @@ mod tests {
         assert_eq!(experiment.methods, [MethodId::Ntg, MethodId::Flat]);
         for method in [MethodId::Ntg, MethodId::Flat] {
             let ntg = method == MethodId::Ntg;
-            // What collect.rs built in code before the figure was a file.
+            // The configurations the figure's committed results were
+            // measured with.
             let expected = CollectRunConfig {
                 domain: "collect".into(),
                 method,
@@ -854,8 +841,8 @@ mod tests {
                     gcn_from_other_demo: false,
                 },
                 video: None,
-                // Session 26: every epoch scored on 50 held-out
-                // training-side tasks per N, the best one tested.
+                // Every epoch scored on 50 held-out training-side tasks
+                // per N, the best one tested.
                 validation_tasks_per_n: 50,
             };
             assert_eq!(

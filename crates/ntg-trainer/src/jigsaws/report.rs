@@ -1,6 +1,7 @@
 //! Outputs of the experiment: `jigsaws.json`, the bar chart and the report section.
 
 use super::*;
+use crate::experiment::template::JIGSAWS;
 
 /// Runs the experiment at `profile` (synthetic data, seed 0, unless `root`
 /// names a JIGSAWS copy), and writes `<out>/jigsaws.{svg,png}` (the bar
@@ -100,27 +101,24 @@ pub fn report_section(result: &JigsawsResult) -> String {
             )
         })
         .collect();
-    let _ = writeln!(
-        s,
-        "## Fig. jigsaws: cross-task NLL on {TEST_TASK}\n\n![jigsaws](jigsaws.png)\n\nData: {}. Trained on {} {} + {} demos for up to {} epochs; the model of each method is the one with the lowest NLL on held-out {} and {} demos (every {}-th trial), checked every {} epochs: {} epochs (the two full methods are one training run). Each of the {} {TEST_TASK} demos conditions one policy, scored on all the others. Per-step NLL in nats with ε = {} smoothing (a probability-0 step costs ln(16/ε); such steps are counted); ± is the standard deviation over conditioning demos. Definitions: module docs of `ntg_trainer::jigsaws`.\n",
-        result.source,
-        result.train_demos,
-        TRAIN_TASKS[0],
-        TRAIN_TASKS[1],
-        result.config.optim.epochs,
-        TRAIN_TASKS[0],
-        TRAIN_TASKS[1],
-        result.config.validation_every,
-        result.config.eval_every,
-        selected.join("; "),
-        result.test_demos,
-        result.config.smoothing
+    let head = JIGSAWS.fill(
+        "head",
+        &[
+            ("test_task", &TEST_TASK),
+            ("source", &result.source),
+            ("train_demos", &result.train_demos),
+            ("train_task_a", &TRAIN_TASKS[0]),
+            ("train_task_b", &TRAIN_TASKS[1]),
+            ("epochs", &result.config.optim.epochs),
+            ("validation_every", &result.config.validation_every),
+            ("eval_every", &result.config.eval_every),
+            ("selected", &selected.join("; ")),
+            ("test_demos", &result.test_demos),
+            ("smoothing", &result.config.smoothing),
+        ],
     );
-    let _ = writeln!(
-        s,
-        "| method | NLL (mean ± std) | min–max over demos | steps at probability 0 | training time |"
-    );
-    let _ = writeln!(s, "|---|---|---|---|---|");
+    let _ = writeln!(s, "{head}\n");
+    let _ = writeln!(s, "{}", JIGSAWS.text("table_head"));
     for m in &result.methods {
         let time = result
             .runs
@@ -146,20 +144,18 @@ pub fn report_section(result: &JigsawsResult) -> String {
         nll(Method::Full),
     );
     let verdict = if f < ng && ng < u {
-        "the same order here".to_owned()
+        JIGSAWS.text("order_same")
     } else {
-        format!("**not the order measured here** (full {f:.3}, no graph {ng:.3}, uniform {u:.3})")
+        let (f, ng, u) = (format!("{f:.3}"), format!("{ng:.3}"), format!("{u:.3}"));
+        JIGSAWS.fill(
+            "order_other",
+            &[("full", &f), ("no_graph", &ng), ("uniform", &u)],
+        )
     };
-    let _ = writeln!(
-        s,
-        "\nPaper: uniform worst, no graph better, full NTG best (no numbers in the text): {verdict}. **Deviation from the paper:** \"NTG (full)\" uses the completed graph as a prior on the no-graph model's node localizer and edge classifier, `ε(a|n,o) ∝ C_na^τ · ε₀(a|n,o)`, with τ chosen on the held-out training-task demos; \"NTG, own head\" is the full model with the paper's wiring (an edge classifier reading the GCN's embeddings), shown for comparison.\n"
-    );
+    let _ = writeln!(s, "\n{}\n", JIGSAWS.fill("paper", &[("verdict", &verdict)]));
     if let Some(table) = &result.seeds {
-        let _ = writeln!(
-            s,
-            "**Seed sensitivity.** The same experiment with one seed changed at a time (synthetic data, or both models' initial weights); mean NLL over conditioning demos, τ the selected prior weight of NTG (full):\n\n{}",
-            seed_table_markdown(table)
-        );
+        let title = JIGSAWS.text("seeds_title");
+        let _ = writeln!(s, "{title}\n\n{}", seed_table_markdown(table));
     }
     let g = &result.graph;
     let short = |v: &[String]| {
@@ -170,26 +166,27 @@ pub fn report_section(result: &JigsawsResult) -> String {
         }
     };
     if result.seeds.is_none() {
-        let _ = writeln!(
-            s,
-            "**Seed sensitivity.** Not run here: `ntg jigsaws nll --seed-table` repeats the experiment with one seed changed at a time (the paper profile of `ntg reproduce` includes it; the table measured at the quick profile is in the docs of `ntg_trainer::jigsaws`).\n"
-        );
+        let _ = writeln!(s, "{}\n", JIGSAWS.text("seeds_not_run"));
     }
-    let _ = writeln!(
-        s,
-        "Predicted graph for {} ([SVG](jigsaws_graph.svg), [DOT](jigsaws_graph.dot); dashed: added by the GCN, with its probability): transcription `{}` (expert: `{}`); the path has {} edges, the completed graph {} ({} of them in the ground-truth {TEST_TASK} graph of {} edges, the union of all its demos); added by the GCN: {}.\n",
-        g.trial,
-        short(&g.transcription),
-        short(&g.demo_gestures),
-        g.path_edges,
-        g.graph_edges,
-        g.correct_edges,
-        g.truth_edges,
-        if g.added_edges.is_empty() {
-            "none".to_owned()
-        } else {
-            g.added_edges.join(", ")
-        }
+    let added = if g.added_edges.is_empty() {
+        JIGSAWS.text("graph_none_added")
+    } else {
+        g.added_edges.join(", ")
+    };
+    let graph = JIGSAWS.fill(
+        "graph",
+        &[
+            ("trial", &g.trial),
+            ("transcription", &short(&g.transcription)),
+            ("expert", &short(&g.demo_gestures)),
+            ("path_edges", &g.path_edges),
+            ("graph_edges", &g.graph_edges),
+            ("correct_edges", &g.correct_edges),
+            ("test_task", &TEST_TASK),
+            ("truth_edges", &g.truth_edges),
+            ("added", &added),
+        ],
     );
+    let _ = writeln!(s, "{graph}\n");
     s
 }

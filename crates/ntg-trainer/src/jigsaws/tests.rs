@@ -498,7 +498,7 @@ fn smoothed_nll_of_known_distributions() {
 }
 
 /// The built-in `experiments/jigsaws.toml` gives the configurations the
-/// figure was measured with (built in code before the figure was a file).
+/// figure was measured with.
 #[test]
 fn the_built_in_file_gives_the_configurations_the_figure_was_measured_with() {
     let source = DataSource::Synthetic {
