@@ -4,11 +4,9 @@
 //! [`CAMERA_EYE`] with a narrow field of view (21.5°) and up vector
 //! (1, 0, 0), like NTP's, so that the stacking order of every tower shows
 //! (the side faces of its cubes) and a 5 cm cube spans about 5 pixels.
-//! Until 2026-11-25 the camera looked down at NTP's 74° from 0.55 m (60°
-//! field of view): a tower's lower cubes were hidden under its top one, and
-//! NTG's frame encoder named the cube a block had just been placed on for
-//! 75% of held-out keyframes (99% of picks). On validation-task videos
-//! (stage A, 3000 videos, 4 epochs) this camera raised held-out keyframe
+//! NTP's own camera (74° down from 0.55 m, 60° field of view) hides a
+//! tower's lower cubes under its top one; on validation-task videos (stage
+//! A, 3000 videos, 4 epochs) this camera raises held-out keyframe
 //! localization from 0.659 to 0.892 (`docs/results/video-2026-11-24.md`).
 //!
 //! Every pixel's primary ray is fixed, so the table (a plane at z = 0) is

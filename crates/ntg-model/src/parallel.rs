@@ -95,7 +95,7 @@ fn allowed_cores() -> Vec<core_affinity::CoreId> {
 /// shards of a data-parallel step ran 8-12% slower each than one shard
 /// alone while unpinned threads moved between the vCPUs; pinned, the
 /// two-shard state step's speedup over one thread rose from ~1.62 to
-/// ~1.73 (`docs/results/speed-2026-11-27.md`, session 33).
+/// ~1.73 (`docs/results/speed-2026-11-27.md`).
 pub fn pinned_pool_builder(threads: usize) -> rayon::ThreadPoolBuilder {
     let cores = allowed_cores();
     if threads == 0 || cores.len() < threads {

@@ -69,9 +69,12 @@ pub trait Domain: Sync {
 pub struct RowDomain<T, E, X> {
     vocabulary: Vocabulary,
     obs_dim: usize,
-    env: Box<dyn Fn(&T) -> anyhow::Result<E> + Sync>,
+    env: MakeEnv<T, E>,
     expert: Box<dyn Fn() -> X + Sync>,
 }
+
+/// What builds a [`RowDomain`]'s environment of a task.
+type MakeEnv<T, E> = Box<dyn Fn(&T) -> anyhow::Result<E> + Sync>;
 
 impl<T, E, X> RowDomain<T, E, X>
 where

@@ -47,7 +47,9 @@ use ntg_trainer::video::{
     EncoderEpochMetrics, EncoderStage, FrameStageStep, STAGE_A_DIR, frame_dataset,
 };
 
-const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | errors RUN [TASKS] | decisions RUN [TASKS] | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] [keypoints] [tasks=TASKS]";
+const USAGE: &str = "usage: encoder_heldout score RUN [TASKS] | errors RUN [TASKS] | decisions RUN [TASKS] \
+                     | train FRAMES OUT DEMOS EPOCHS HIDDEN [lr=LR] [batch=B] [recon=W] [he] [centre] [coords] \
+                     [keypoints] [tasks=TASKS]";
 
 fn count(args: &[String], i: usize, name: &str, default: Option<usize>) -> anyhow::Result<usize> {
     match (args.get(i), default) {

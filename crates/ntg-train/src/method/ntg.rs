@@ -872,7 +872,10 @@ mod tests {
         m.edge_f1 = Some(0.5);
         assert_eq!(m.edge_f1_text(), "0.500");
         // Metrics logged before the field was optional still read.
-        let old = r#"{"epoch":0,"loss":1.0,"interpreter_loss":0.0,"token_accuracy":0.0,"gcn_loss":0.0,"edge_f1":1.0,"localizer_loss":0.0,"localizer_accuracy":0.0,"edge_loss":0.0,"step_accuracy":0.0,"seconds":0.0}"#;
+        let old = concat!(
+            r#"{"epoch":0,"loss":1.0,"interpreter_loss":0.0,"token_accuracy":0.0,"gcn_loss":0.0,"edge_f1":1.0,"#,
+            r#""localizer_loss":0.0,"localizer_accuracy":0.0,"edge_loss":0.0,"step_accuracy":0.0,"seconds":0.0}"#
+        );
         let parsed: EpochMetrics = serde_json::from_str(old).unwrap();
         assert_eq!(parsed.edge_f1, Some(1.0));
     }

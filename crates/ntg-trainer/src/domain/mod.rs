@@ -231,7 +231,9 @@ impl TrainFlags {
     pub fn check_encoder_flags(&self) -> anyhow::Result<()> {
         if self.obs == ObsKind::State && self.sets_the_frame_encoder() {
             anyhow::bail!(
-                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr, --encoder-reconstruction, --encoder-keypoints, --encoder-retry-repeats and --encoder-progress set the frame encoder of --obs vid runs"
+                "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr, \
+                 --encoder-reconstruction, --encoder-keypoints, --encoder-retry-repeats and --encoder-progress \
+                 set the frame encoder of --obs vid runs"
             );
         }
         Ok(())

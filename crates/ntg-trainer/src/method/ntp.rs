@@ -813,7 +813,12 @@ impl DecisionReport {
             ));
         }
         out.push_str(&format!(
-            "(eop / program / argument / scope: decisions wrong by that head)\ndecisions right {}/{} = {:.4}; {:.1} decisions per episode; episodes with every decision right {}/{} = {:.3} (if each step erred independently at its rate: {:.3}), but for scopes {}/{} = {:.3}\n",
+            concat!(
+                "(eop / program / argument / scope: decisions wrong by that head)\n",
+                "decisions right {}/{} = {:.4}; {:.1} decisions per episode; ",
+                "episodes with every decision right {}/{} = {:.3} ",
+                "(if each step erred independently at its rate: {:.3}), but for scopes {}/{} = {:.3}\n",
+            ),
             self.right,
             self.decisions,
             self.right as f64 / self.decisions.max(1) as f64,
