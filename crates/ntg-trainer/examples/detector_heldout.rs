@@ -62,11 +62,11 @@ fn main() -> anyhow::Result<()> {
             _ => bail!("unknown option {option:?}; {USAGE}"),
         }
     }
-    config.detector = Some(settings);
     let split = env_blocks::standard_split()?;
     let run = RunDir::create(&out)?;
     let device = ntg_model::cpu_device().autodiff();
-    blocks::train_ntp_detector(&run, &config, split.train(config.train_tasks)?, &device)?;
+    let tasks = split.train(config.train_tasks)?;
+    blocks::train_ntp_detector(&run, &config, &settings, tasks, &device)?;
     let path = out
         .join(ntg_trainer::method::detector::DETECTOR_STAGE_DIR)
         .join("held_out.json");

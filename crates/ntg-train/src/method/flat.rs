@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::DemoDataset;
 use crate::fit::{StepContext, StepReport, TrainStep};
+use crate::method::input::{Demos, EpochReport, TrainInput};
 use crate::method::{Agent, Model, TrainedPolicy};
 
 /// Metrics of one Flat Policy epoch, as logged to `metrics.jsonl`.
@@ -50,6 +51,57 @@ pub struct FlatTraining {
     /// The attention query also reads the set of actions taken so far
     /// ([`ntg_model::executed_actions`]).
     pub memory: bool,
+}
+
+/// The Flat Policy's options, read from a run's configuration (see
+/// [`crate::method::input::options_of`]); absent keys are off.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+pub struct FlatOptions {
+    /// Also imitate the final `<end>` decision.
+    #[serde(default)]
+    pub learn_end: bool,
+    /// The attention query also reads the set of actions taken so far.
+    #[serde(default)]
+    pub memory: bool,
+}
+
+/// Trains the Flat Policy on `input` with `options` (behind the frozen
+/// frame encoder when the demos come with one).
+pub fn train(
+    input: TrainInput<'_>,
+    options: &FlatOptions,
+    on_epoch: &mut dyn FnMut(&EpochReport),
+) -> anyhow::Result<Model> {
+    let Demos { dataset, frames } = input.load_demos()?;
+    let n = input.vocabulary.len();
+    let policy = ntg_model::FlatPolicyConfig::new(n, input.encoders.sequence.clone())
+        .with_seed(input.model_seed)
+        .with_memory_dim(options.memory.then_some(n))
+        .init(input.device)?;
+    let training = FlatTraining {
+        learn_end: options.learn_end,
+        memory: options.memory,
+    };
+    let step = FlatStep::new(&policy, &dataset, training, input.device)?;
+    let log = |m: &FlatEpochMetrics| {
+        on_epoch(&EpochReport {
+            epoch: m.epoch,
+            line: m.log_line(),
+        })
+    };
+    use super::ntg::fit_on;
+    Ok(match frames {
+        None => Box::new(fit_on(policy, &step, &input, log)?),
+        Some(frames) => {
+            let policy = super::on_frames::OnFrames::new(frames, policy)?;
+            Box::new(fit_on(
+                policy,
+                &super::on_frames::OnFramesStep(step),
+                &input,
+                log,
+            )?)
+        }
+    })
 }
 
 /// The Flat Policy's [`TrainStep`] on a dataset of demonstrations.
@@ -177,6 +229,24 @@ impl crate::method::Method for Flat {
     }
     fn load(&self, dir: &std::path::Path, device: &Device) -> anyhow::Result<Model> {
         super::on_frames::load_either::<FlatPolicy>(dir, device)
+    }
+    fn train(
+        &self,
+        input: TrainInput<'_>,
+        config: &serde_json::Value,
+        on_epoch: &mut dyn FnMut(&EpochReport),
+    ) -> anyhow::Result<Model> {
+        let options: FlatOptions = crate::method::input::options_of(self.legend(), config)?;
+        self.check(config)?;
+        train(input, &options, on_epoch)
+    }
+    fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
+        if let Some(prior) = config.get("location_step_prior").filter(|v| !v.is_null()) {
+            bail!(
+                "--location-step-prior {prior}: a location step prior is NTG's stepping interpreter's; the Flat Policy has no location-aware attention"
+            );
+        }
+        Ok(())
     }
 }
 

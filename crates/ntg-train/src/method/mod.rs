@@ -5,8 +5,9 @@
 //! [`crate::fit::TrainedModel`] with a [`crate::fit::TrainStep`]), and that,
 //! once trained, is a [`TrainedPolicy`]: conditioned on one demonstration it
 //! gives an [`Agent`], the reactive policy every domain's evaluation rolls
-//! out ([`crate::domain::evaluate`]). Its [`Method`] value names it and loads
-//! it from a run folder. An application registers the methods it offers
+//! out ([`crate::domain::evaluate`]). Its [`Method`] value names it, trains
+//! it on the one value a domain provides ([`TrainInput`]) and loads it from
+//! a run folder. An application registers the methods it offers
 //! (the `ntg` binary's list adds the NTP family).
 
 use std::any::Any;
@@ -16,8 +17,11 @@ use burn::tensor::Device;
 use ctg_graph::{ActionId, Vocabulary};
 
 pub mod flat;
+pub mod input;
 pub mod ntg;
 pub mod on_frames;
+
+pub use input::{Demos, EpochReport, RowEncoders, TrainInput};
 
 /// A registered method: its names and how to load a trained model of it.
 pub trait Method: Sync {
@@ -28,6 +32,24 @@ pub trait Method: Sync {
     fn legend(&self) -> &'static str;
     /// Loads a trained model saved in `dir`.
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model>;
+    /// Refuses, naming the flag, the options this method reads from the
+    /// run's configuration `config` when they cannot be trained (called by
+    /// [`Method::train`] too; a domain calls it before it creates a run
+    /// folder).
+    fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
+        let _ = config;
+        Ok(())
+    }
+    /// Trains a model on what a domain provides (`input`), with the options
+    /// this method reads from the run's configuration `config` (its own
+    /// options type names the keys), reporting each epoch to `on_epoch`;
+    /// refuses, naming the flag, what it cannot train.
+    fn train(
+        &self,
+        input: TrainInput<'_>,
+        config: &serde_json::Value,
+        on_epoch: &mut dyn FnMut(&EpochReport),
+    ) -> anyhow::Result<Model>;
 }
 
 /// A trained model of any method, ready to be conditioned on demos.

@@ -38,6 +38,7 @@ use crate::dataset::DemoDataset;
 use crate::fit::{
     OptimConfig, Selection, StepContext, StepReport, TrainStep, Validator, fit, scalar,
 };
+use crate::method::input::{Demos, EpochReport, TrainInput};
 use crate::method::{Agent, Model, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::symmetry::{ObjectSymmetry, Relabeling, RenamingFilter};
@@ -628,6 +629,298 @@ pub fn state_model(dataset: &DemoDataset, seed: u64, device: &Device) -> anyhow:
     Ok(NtgModel::new(config, device)?)
 }
 
+/// NTG's options, read from a run's configuration (see
+/// [`crate::method::input::options_of`]): top-level keys, and the few that
+/// runs keep under `optim` and `video`. An absent key means the paper's
+/// method, so configurations saved before a key existed read as they were
+/// trained.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+pub struct NtgOptions {
+    /// The part of NTG trained without ([`Variant::trains`]; `full`: none).
+    #[serde(default)]
+    pub ablation: Variant,
+    /// Edge-loss weight of recovery steps ([`NtgTraining::retry_weight`]).
+    #[serde(default)]
+    pub retry_weight: f32,
+    /// Keep the edge loss out of the GCN
+    /// ([`NtgTraining::detach_gcn_from_edges`]).
+    #[serde(default)]
+    pub detach_gcn_from_edges: bool,
+    /// Soft edges ([`ntg_model::NtgConfig::soft_edges`]).
+    #[serde(default)]
+    pub soft_edges: bool,
+    /// Hidden width of the edge classifier's fusion layer (0: the paper's
+    /// linear `W`).
+    #[serde(default)]
+    pub edge_fusion_hidden: usize,
+    /// The interpreter also learns from random stretches of demos
+    /// ([`NtgTraining::segments`]).
+    #[serde(default)]
+    pub segments: bool,
+    /// Train the final `<end>` decision (false: [`NtgTraining::skip_end`]).
+    #[serde(default = "yes")]
+    pub learn_end: bool,
+    /// The edge classifier reads the nodes not yet executed
+    /// ([`NtgTraining::memory`]).
+    #[serde(default)]
+    pub memory: bool,
+    /// The demo interpreter (absent: the paper's).
+    #[serde(default)]
+    pub interpreter: Option<InterpreterKind>,
+    /// With the stepping interpreter: the initial weight of its
+    /// location-aware attention's shift +1 (absent: 0).
+    #[serde(default)]
+    pub location_step_prior: Option<f32>,
+    /// The options runs keep under `optim`.
+    #[serde(default)]
+    pub optim: NtgOptimOptions,
+    /// The options runs from demo videos keep under `video`.
+    #[serde(default)]
+    pub video: Option<NtgVideoOptions>,
+}
+
+fn yes() -> bool {
+    true
+}
+
+impl Default for NtgOptions {
+    /// The paper's method.
+    fn default() -> Self {
+        NtgOptions::deserialize(serde_json::json!({})).expect("every option has a default")
+    }
+}
+
+/// NTG's options under a run configuration's `optim`.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+pub struct NtgOptimOptions {
+    /// Decoder token dropout ([`NtgTraining::token_dropout`]).
+    #[serde(default)]
+    pub token_dropout: f32,
+    /// The GCN reads another demo of the task, seeded per step
+    /// ([`GcnSource::OtherSeeded`]).
+    #[serde(default)]
+    pub gcn_from_other_demo: bool,
+}
+
+/// NTG's options under a video run configuration's `video`.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+pub struct NtgVideoOptions {
+    /// The current node is the last action executed, not the localizer's.
+    #[serde(default)]
+    pub executed_node: bool,
+    /// The demo interpreter reads frames averaged in windows of this many.
+    #[serde(default)]
+    pub interpreter_frame_pool: usize,
+}
+
+impl NtgOptions {
+    /// Refuses what cannot be trained, naming the flag.
+    pub fn check(&self) -> anyhow::Result<()> {
+        if !self.ablation.trains() {
+            anyhow::bail!(
+                "--ablation {}: a run is trained full or without one part (no-demo-interpreter, no-node-localizer, no-edge-classifier, no-gcn); {} is an evaluation setting (ntg eval --variant)",
+                self.ablation.name(),
+                self.ablation.name()
+            );
+        }
+        if self.location_step_prior.is_some() && self.interpreter != Some(InterpreterKind::Stepping)
+        {
+            anyhow::bail!(
+                "--location-step-prior: a location step prior needs NTG with the stepping interpreter (--interpreter stepping; the paper's interpreter has no location-aware attention)"
+            );
+        }
+        if let Some(w) = self.location_step_prior
+            && !w.is_finite()
+        {
+            anyhow::bail!("--location-step-prior must be finite, got {w}");
+        }
+        Ok(())
+    }
+
+    /// The untrained model's configuration for `input`'s vocabulary and
+    /// encoders.
+    pub fn model_config(&self, input: &TrainInput<'_>) -> ntg_model::NtgConfig {
+        let n = input.vocabulary.len();
+        let mut config = ntg_model::NtgConfig::for_domain(n, input.encoders.sequence.clone());
+        config.localizer.encoder = input.encoders.observation.clone();
+        config.edge.encoder = input.encoders.observation.clone();
+        if self.edge_fusion_hidden > 0 {
+            config.edge.fusion_hidden = Some(self.edge_fusion_hidden);
+        }
+        if self.soft_edges {
+            config.soft_edges = Some(true);
+        }
+        if let Some(interpreter) = self.interpreter {
+            interpreter.apply(&mut config.interpreter, self.location_step_prior);
+        }
+        config.edge.memory_dim = self.memory.then_some(n);
+        let video = self.video.clone().unwrap_or_default();
+        if video.interpreter_frame_pool > 1 {
+            config.interpreter.frame_pool = Some(video.interpreter_frame_pool);
+        }
+        // The trained part switched off; the current node from the agent's
+        // record only where the run asks (an ablation's own choice of it
+        // is an evaluation setting).
+        let executed_node = video
+            .executed_node
+            .then_some(true)
+            .or(config.ablation.executed_node);
+        config.ablation = self.ablation.ablation();
+        config.ablation.executed_node = executed_node;
+        config.seed = input.model_seed;
+        config
+    }
+
+    /// What training adds to the paper's losses, for `input`.
+    pub fn training<'a>(&self, input: &TrainInput<'a>) -> NtgTraining<'a> {
+        NtgTraining {
+            gcn_source: if input.other_demo_each_epoch {
+                GcnSource::OtherFromEpoch
+            } else if self.optim.gcn_from_other_demo {
+                GcnSource::OtherSeeded
+            } else {
+                GcnSource::Own
+            },
+            token_dropout: self.optim.token_dropout,
+            segments: self.segments,
+            skip_end: !self.learn_end,
+            memory: self.memory,
+            retry_weight: self.retry_weight,
+            detach_gcn_from_edges: self.detach_gcn_from_edges,
+            permute_objects: input.renaming.map(|r| r.symmetry),
+            accept_renaming: input.renaming.and_then(|r| r.accept),
+            gcn_loss_last: input.other_demo_each_epoch,
+        }
+    }
+}
+
+/// Trains NTG on `input` with `options` (on frame embeddings behind the
+/// frozen frame encoder when the demos come with one), selecting the epoch
+/// on the input's validation, if any.
+pub fn train(
+    input: TrainInput<'_>,
+    options: &NtgOptions,
+    on_epoch: &mut dyn FnMut(&EpochReport),
+) -> anyhow::Result<Model> {
+    options.check()?;
+    let Demos { dataset, frames } = input.load_demos()?;
+    let model = NtgModel::new(options.model_config(&input), input.device)?;
+    let training = options.training(&input);
+    let step = NtgStep::new(&model, &dataset, training, input.device)?;
+    let log = |m: &EpochMetrics| {
+        on_epoch(&EpochReport {
+            epoch: m.epoch,
+            line: m.log_line(),
+        })
+    };
+    Ok(match frames {
+        None => Box::new(fit_on(model, &step, &input, log)?),
+        Some(frames) => {
+            let model = super::on_frames::OnFrames::new(frames, model)?;
+            Box::new(fit_on(
+                model,
+                &super::on_frames::OnFramesStep(step),
+                &input,
+                log,
+            )?)
+        }
+    })
+}
+
+/// [`fit`] of `model` with `step` on `input`'s optimisation, run folder
+/// and device, validated as `input` says: the loop every method of the
+/// library trains through.
+pub fn fit_on<M, S>(
+    model: M,
+    step: &S,
+    input: &TrainInput<'_>,
+    on_epoch: impl FnMut(&S::Metrics),
+) -> anyhow::Result<M>
+where
+    M: crate::fit::TrainedModel + TrainedPolicy + Send,
+    S: TrainStep<M> + Sync,
+{
+    let Some(validation) = input.validation else {
+        return fit(
+            model,
+            step,
+            input.optim,
+            input.run,
+            input.device,
+            None,
+            on_epoch,
+        );
+    };
+    let mut validator = |m: &M| (validation.score)(m);
+    let selection = Selection {
+        validator: &mut validator as &mut dyn Validator<M>,
+        every: validation.every,
+    };
+    fit(
+        model,
+        step,
+        input.optim,
+        input.run,
+        input.device,
+        Some(selection),
+        on_epoch,
+    )
+}
+
+/// Which demo interpreter NTG uses (see [`ntg_model::DemoInterpreterConfig`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum InterpreterKind {
+    /// The paper's: a forward GRU over the frames, Luong attention without
+    /// input feeding, the decoder starting from the encoder's final state.
+    Luong,
+    /// The same seq2seq with Luong attention, made length-independent:
+    /// local annotations (each frame with its two neighbours) instead of
+    /// GRU states, input feeding, location-aware attention and a decoder
+    /// without memory. The attention steps through the demo one frame per
+    /// token and every token (`<end>` included) is read from where it
+    /// looks, not from a count of what was written, so it carries over to
+    /// longer demos than any seen in training.
+    Stepping,
+}
+
+impl InterpreterKind {
+    /// Sets the interpreter options of `config` for this kind, with the
+    /// location-aware attention's initial shift +1 weight `step_prior`.
+    pub fn apply(self, config: &mut ntg_model::DemoInterpreterConfig, step_prior: Option<f32>) {
+        let on = match self {
+            InterpreterKind::Luong => None,
+            InterpreterKind::Stepping => Some(true),
+        };
+        config.bidirectional = None;
+        config.input_feeding = on;
+        config.location_attention = on;
+        config.stateless_decoder = on;
+        config.local_annotations = on;
+        config.location_step_prior = step_prior;
+    }
+}
+
+impl crate::spec::Choice for InterpreterKind {
+    const ALL: &'static [Self] = &[InterpreterKind::Luong, InterpreterKind::Stepping];
+
+    fn name(self) -> &'static str {
+        match self {
+            InterpreterKind::Luong => "luong",
+            InterpreterKind::Stepping => "stepping",
+        }
+    }
+
+    fn help(self) -> &'static str {
+        match self {
+            InterpreterKind::Luong => "The paper's: a GRU over the frames and Luong attention",
+            InterpreterKind::Stepping => {
+                "Length-independent: local annotations, input feeding, location-aware attention"
+            }
+        }
+    }
+}
+
 /// NTG's policy variants: the full model and its ablations, at evaluation
 /// (`ntg eval --variant`) and, for the paper's ablations, in training too
 /// (`ntg train --ablation`, fig. "ablation" (a); see [`Variant::trains`]).
@@ -763,6 +1056,18 @@ impl crate::method::Method for Ntg {
     }
     fn load(&self, dir: &std::path::Path, device: &Device) -> anyhow::Result<Model> {
         super::on_frames::load_either::<NtgModel>(dir, device)
+    }
+    fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
+        crate::method::input::options_of::<NtgOptions>(self.legend(), config)?.check()
+    }
+    fn train(
+        &self,
+        input: TrainInput<'_>,
+        config: &serde_json::Value,
+        on_epoch: &mut dyn FnMut(&EpochReport),
+    ) -> anyhow::Result<Model> {
+        let options: NtgOptions = crate::method::input::options_of(self.legend(), config)?;
+        train(input, &options, on_epoch)
     }
 }
 

@@ -22,15 +22,13 @@ use crate::dataset::DemoDataset;
 use crate::domain::{
     self, Domain, DomainFlags, DomainRuns, Episode, EpisodeRecord, EvalFlags, TrainFlags,
 };
-use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore, fit};
+use crate::fit::{OptimConfig, PAPER_LEARNING_RATE, ValidationScore};
 use crate::method::detector::DetectorSettings;
+use crate::method::input::{Renaming, Validation};
 pub use crate::method::ntg::Variant;
-use crate::method::ntg::{EpochMetrics, GcnSource, NtgStep, NtgTraining, TrainExtras, train_with};
-use crate::method::ntp::{
-    NtpDataset, NtpEpochMetrics, NtpKind, NtpModel, NtpRenaming, NtpStep, ntp_config,
-};
-use crate::method::on_frames::{NtgBased, OnFramesStep, VideoNtgModel};
-use crate::method::{MethodId, Model};
+use crate::method::ntp::{EncodeRows, NtpDataset, NtpRenaming, PrimitiveInput, PrimitiveLevel};
+use crate::method::on_frames::{NtgBased, VideoNtgModel};
+use crate::method::{Demos, EpochReport, MethodId, Model, RowEncoders, TrainInput};
 use crate::run_dir::RunDir;
 pub use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
@@ -256,24 +254,7 @@ pub struct BlocksVideo {
 /// encoder is trained instead on the frames NTP acts on (the scene before
 /// each primitive and the last), labelled with NTP's own lowest-level
 /// supervision: the primitive just taken and the next.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum FrameLabels {
-    /// NTG's flat actions, on every frame of the demo videos (stage A as
-    /// NTG's, shared with NTG's run of the point).
-    #[default]
-    Flat,
-    /// NTP's primitives, on the frame before each primitive of its
-    /// primitive-level episodes (NTP and NTP Flat on video only).
-    Primitive,
-}
-
-impl FrameLabels {
-    /// Whether these are NTG's flat labels (the default).
-    pub fn is_flat(&self) -> bool {
-        *self == FrameLabels::Flat
-    }
-}
+pub use crate::method::ntp::FrameLabels;
 
 fn is_one(n: &usize) -> bool {
     *n == 1
@@ -551,43 +532,109 @@ impl TrainedBlocks {
     }
 }
 
-/// Refuses an ablation that is not one of the paper's (see
-/// [`Variant::trains`]) or that is asked of another method than NTG.
-fn check_ablation(config: &BlocksRunConfig) -> anyhow::Result<()> {
-    let ablation = config.ablation;
-    if !ablation.trains() {
-        bail!(
-            "ablation {}: a run is trained full or without one part (no-demo-interpreter, no-node-localizer, no-edge-classifier, no-gcn); {} is an evaluation setting (ntg eval --variant)",
-            ablation.name(),
-            ablation.name()
-        );
-    }
-    if !ablation.is_full() && !config.method.is_ntg() {
-        bail!(
-            "ablation {}: the ablations are NTG's; {} is trained whole",
-            ablation.name(),
-            config.method.name()
-        );
-    }
-    Ok(())
+/// Trains (or resumes) a block-stacking run in `run` with the method its
+/// configuration names, returning the model: the domain provides the
+/// vocabulary, the demos (state rows, or the frame embeddings of its demo
+/// videos behind a frozen stage A, [`crate::video`]), the encoders, cube
+/// renaming, validation on held-out tasks and, for the NTP family, the
+/// primitive level ([`BlocksPrimitive`]); the method trains.
+pub fn train_model(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    device: &Device,
+    mut on_epoch: impl FnMut(&EpochReport),
+) -> anyhow::Result<Model> {
+    // One writer from the first cache this run builds (demos, frame
+    // embeddings, stages) to its last epoch, not only during epochs.
+    let _writer = run.lock()?;
+    let json = serde_json::to_value(config)?;
+    config.method.method().check(&json)?;
+    check_encoder_labels(config)?;
+    let split = task_split(config.tasks.as_deref())?;
+    let tasks = split.train(config.train_tasks)?;
+    let demos = || -> anyhow::Result<Demos> {
+        match config.obs {
+            ObsKind::State => {
+                let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || {
+                    build_dataset(config, tasks)
+                })?;
+                Ok(Demos {
+                    dataset,
+                    frames: None,
+                })
+            }
+            ObsKind::Vid => with_video_run(config, |_, video_run, _| {
+                let frames = crate::video::train_encoder(run, video_run, device)?;
+                let dataset = crate::video::embeddings(run, video_run, &frames)?;
+                Ok(Demos {
+                    dataset,
+                    frames: Some(frames),
+                })
+            }),
+        }
+    };
+    let symmetry = object_symmetry();
+    let held_out = HeldOutConfigurations::for_run(config)?;
+    let accept = held_out
+        .as_ref()
+        .map(|h| move |task: usize, perm: &[usize]| !h.contains_renamed(&tasks[task], perm));
+    // Cube renaming is for state rows; a video run renames cubes in its
+    // demo videos instead (`BlocksVideo::demos_per_renaming`).
+    let renaming = (config.permute_objects && config.obs == ObsKind::State).then(|| Renaming {
+        symmetry: &symmetry,
+        accept: accept.as_ref().map(|f| f as RenamingFilter<'_>),
+    });
+    let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
+    let domain = BlocksDomain::new(config.obs, config.failures);
+    let score = |model: &dyn crate::method::TrainedPolicy| {
+        let result = evaluate_on(&domain, model, "full", &validation, Seeds::VALIDATION)?;
+        Ok(validation_result(&result))
+    };
+    let vocabulary = flat_vocabulary();
+    let primitive = PrimitiveInput(Box::new(BlocksPrimitive::new(config)?));
+    let input = TrainInput {
+        vocabulary: &vocabulary,
+        demos: &demos,
+        encoders: RowEncoders {
+            sequence: encoder(config.obs, 1, false),
+            observation: encoder(config.obs, config.state_hidden_layers, config.pairwise),
+        },
+        renaming,
+        validation: (!validation.is_empty()).then_some(Validation {
+            score: &score,
+            every: config.validate_every,
+        }),
+        other_demo_each_epoch: false,
+        model_seed: config.model_seed,
+        optim: &config.optim,
+        run,
+        device,
+        extension: Some(&primitive),
+    };
+    config.method.method().train(input, &json, &mut on_epoch)
 }
 
-/// Trains (or resumes) a block-stacking run in `run`, returning the model.
+/// Trains (or resumes) an NTG run of block stacking (see [`train_model`]).
 pub fn train_run(
     run: &RunDir,
     config: &BlocksRunConfig,
     device: &Device,
-    on_epoch: impl FnMut(&EpochMetrics),
+    on_epoch: impl FnMut(&EpochReport),
 ) -> anyhow::Result<TrainedBlocks> {
-    // One writer from the first cache this run builds (demos, frame
-    // embeddings, stages) to its last epoch, not only during epochs.
-    let _writer = run.lock()?;
-    check_ablation(config)?;
-    check_encoder_labels(config)?;
-    match config.obs {
-        ObsKind::State => train_state_run(run, config, device, on_epoch).map(TrainedBlocks::State),
-        ObsKind::Vid => train_video_run(run, config, device, on_epoch).map(TrainedBlocks::Video),
+    if !config.method.is_ntg() {
+        bail!(
+            "{} is not NTG: train it with train_model",
+            config.method.legend()
+        );
     }
+    let model = train_model(run, config, device, on_epoch)?;
+    let any = model.as_any();
+    if let Some(m) = any.downcast_ref::<NtgModel>() {
+        return Ok(TrainedBlocks::State(m.clone()));
+    }
+    any.downcast_ref::<VideoNtgModel>()
+        .map(|m| TrainedBlocks::Video(m.clone()))
+        .context("NTG trained on block stacking is NTG on states or on frames")
 }
 
 /// `task` with cube `i` renamed `perm[i]`.
@@ -749,69 +796,6 @@ fn with_video_run<R>(
     train(&plan, &video_run, &validation)
 }
 
-/// Trains (or resumes) a block-stacking video run: stage A (the shared
-/// frame encoder) then stage B (NTG on its embeddings); see
-/// [`crate::video`].
-pub fn train_video_run(
-    run: &RunDir,
-    config: &BlocksRunConfig,
-    device: &Device,
-    mut on_epoch: impl FnMut(&EpochMetrics),
-) -> anyhow::Result<VideoNtgModel> {
-    with_video_run(config, |_, video_run, validation| {
-        let frames = crate::video::train_encoder(run, video_run, device)?;
-        let ntg = new_model(config, device)?;
-        let mut validator = |model: &VideoNtgModel| {
-            validation_score(model, ObsKind::Vid, config.failures, validation)
-        };
-        let selection = (!validation.is_empty()).then_some(crate::fit::Selection {
-            validator: &mut validator as &mut dyn crate::fit::Validator<VideoNtgModel>,
-            every: config.validate_every,
-        });
-        let training = NtgTraining {
-            gcn_source: if config.optim.gcn_from_other_demo {
-                GcnSource::OtherSeeded
-            } else {
-                GcnSource::Own
-            },
-            token_dropout: config.optim.token_dropout,
-            retry_weight: config.retry_weight,
-            detach_gcn_from_edges: config.detach_gcn_from_edges,
-            ..NtgTraining::default()
-        };
-        let embeddings = crate::video::embeddings(run, video_run, &frames)?;
-        let model = VideoNtgModel::new(frames, ntg)?;
-        let step = OnFramesStep(NtgStep::new(&model.policy, &embeddings, training, device)?);
-        fit(
-            model,
-            &step,
-            &config.optim,
-            run,
-            device,
-            selection,
-            &mut on_epoch,
-        )
-    })
-}
-
-/// The full model's score on the validation tasks `tasks`.
-fn validation_score<M: NtgBased>(
-    model: &M,
-    obs: ObsKind,
-    failures: bool,
-    tasks: &[StackTask],
-) -> anyhow::Result<ValidationScore> {
-    let result = evaluate_tasks(
-        model,
-        obs,
-        failures,
-        tasks,
-        Seeds::VALIDATION,
-        Variant::Full,
-    )?;
-    Ok(validation_result(&result))
-}
-
 /// The score of a validation evaluation (printed by `fit`).
 fn validation_result(result: &EvalResult) -> ValidationScore {
     ValidationScore {
@@ -825,177 +809,84 @@ fn obs_dim_frames() -> usize {
     3 * 64 * 64
 }
 
-/// Trains (or resumes) a block-stacking run on state observations.
-fn train_state_run(
-    run: &RunDir,
-    config: &BlocksRunConfig,
-    device: &Device,
-    mut on_epoch: impl FnMut(&EpochMetrics),
-) -> anyhow::Result<NtgModel> {
-    let split = task_split(config.tasks.as_deref())?;
-    let tasks = split.train(config.train_tasks)?;
-    let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config, tasks))?;
-    let model = new_model(config, device)?;
-    let symmetry = config.permute_objects.then(object_symmetry);
-    let held_out = HeldOutConfigurations::for_run(config)?;
-    let accept_renaming = held_out
-        .as_ref()
-        .map(|h| move |task: usize, perm: &[usize]| !h.contains_renamed(&tasks[task], perm));
-    let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
-    let mut validator =
-        |model: &NtgModel| validation_score(model, config.obs, config.failures, &validation);
-    let extras = TrainExtras {
-        validator: if validation.is_empty() {
-            None
-        } else {
-            Some(&mut validator)
-        },
-        validate_every: config.validate_every,
-        training: NtgTraining {
-            retry_weight: config.retry_weight,
-            detach_gcn_from_edges: config.detach_gcn_from_edges,
-            permute_objects: symmetry.as_ref(),
-            accept_renaming: accept_renaming.as_ref().map(|f| f as RenamingFilter<'_>),
-            ..NtgTraining::default()
-        },
-    };
-    train_with(
-        model,
-        &dataset,
-        &config.optim,
-        run,
-        device,
-        &mut on_epoch,
-        extras,
-    )
+/// Block stacking's primitive level, as the NTP family trains on it
+/// ([`PrimitiveLevel`]): the expert's primitive-level episodes of the run's
+/// training tasks (the tasks and seeds of NTG's demos), its frame encoder
+/// and detector stages, and validation acting at the primitive level.
+pub struct BlocksPrimitive {
+    config: BlocksRunConfig,
+    tasks: std::sync::Arc<Vec<StackTask>>,
+    validation: Vec<StackTask>,
+    accept: Option<OwnedFilter>,
 }
 
-/// Trains (or resumes) an NTP baseline's block-stacking run: the expert's
-/// primitive-level episodes of the training tasks (the same tasks and seeds
-/// as NTG's demos), NTP's encoder as the recipe's state encoder, cube
-/// renaming as the recipe's, validation on the same tasks as NTG. NTP and
-/// NTP Flat read states; NTP (Detector) first trains its detector on
-/// rendered frames ([`train_ntp_detector`]), then NTP on true states,
-/// validated through the detector on frames.
-pub fn train_ntp_run(
-    run: &RunDir,
-    config: &BlocksRunConfig,
-    device: &Device,
-    mut on_epoch: impl FnMut(&NtpEpochMetrics),
-) -> anyhow::Result<Model> {
-    // One writer from the first cache (demos, frames, the detector stage)
-    // to the last epoch, as in `train_run`.
-    let _writer = run.lock()?;
-    check_ablation(config)?;
-    check_encoder_labels(config)?;
-    let kind = match config.method {
-        MethodId::Ntp | MethodId::NtpDetector => NtpKind::Hierarchical,
-        MethodId::NtpFlat => NtpKind::Flat,
-        other => bail!("{} is not an NTP baseline", other.name()),
-    };
-    if config.method == MethodId::NtpDetector && config.obs != ObsKind::Vid {
-        bail!("ntp-detector is the video baseline (--obs vid); NTP on true states is ntp");
+/// A renaming filter that owns what it reads (see [`RenamingFilter`]).
+type OwnedFilter = Box<dyn Fn(usize, &[usize]) -> bool + Send + Sync>;
+
+impl BlocksPrimitive {
+    /// The primitive level of the run `config`.
+    pub fn new(config: &BlocksRunConfig) -> anyhow::Result<Self> {
+        let split = task_split(config.tasks.as_deref())?;
+        let tasks = std::sync::Arc::new(split.train(config.train_tasks)?.to_vec());
+        let accept = HeldOutConfigurations::for_run(config)?.map(|held_out| {
+            let tasks = tasks.clone();
+            Box::new(move |task: usize, perm: &[usize]| {
+                !held_out.contains_renamed(&tasks[task], perm)
+            }) as Box<dyn Fn(usize, &[usize]) -> bool + Send + Sync>
+        });
+        Ok(BlocksPrimitive {
+            validation: validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?,
+            config: config.clone(),
+            tasks,
+            accept,
+        })
     }
-    if config.obs == ObsKind::Vid && config.method != MethodId::NtpDetector {
-        return train_ntp_video_run(run, config, kind, device, on_epoch);
-    }
-    let split = task_split(config.tasks.as_deref())?;
-    let tasks = split.train(config.train_tasks)?;
-    // Trained first, so a bad setting fails before NTP's demos are recorded.
-    let detector = match config.method {
-        MethodId::NtpDetector => Some(train_ntp_detector(run, config, tasks, device)?),
-        _ => None,
-    };
-    let dataset = match &detector {
-        // NTP (Detector) trained on the detector's estimates of its
-        // episodes' frames, the rows it will be fed.
-        Some(detector) if config.detector.as_ref().is_some_and(|d| d.ntp_on_estimates) => {
-            let detector = burn::module::Module::valid(detector);
-            let estimate = |rows: &[Vec<f32>]| Ok(detector.predict_rows(rows)?);
-            // Cached (with the estimates of a fixed frame, so another
-            // detector's are never read), in parts: a resumed run reads it.
-            let probe = estimate(&[vec![0.5; obs_dim_frames()]])?.concat();
-            NtpDataset::load_or_build_in_parts(
-                &run.root().join(crate::method::ntp::NTP_FRAMES_DIR),
-                &probe,
-                &NtpDataset::pairs(tasks.len(), config.demos_per_task, TRAIN_SEED_BASE),
-                crate::method::ntp::NTP_PART_EPISODES,
-                |pairs, part| {
-                    record_ntp_frames(
-                        pairs,
-                        |t| tasks[t].clone(),
-                        config.failures,
-                        &format!("NTP frames through the detector{part}"),
-                        estimate,
-                    )
-                },
-            )?
-        }
-        _ => {
-            let env = env_config(ObsKind::State, config.failures);
-            NtpDataset::record(tasks, config.demos_per_task, TRAIN_SEED_BASE, env, |o| {
-                featurize(o, ObsKind::State)
-            })?
-        }
-    };
-    let encoder = encoder(ObsKind::State, config.state_hidden_layers, config.pairwise);
-    let net = NtpModel::init(&ntp_config(encoder, true, config.model_seed), device)?;
-    let held_out = HeldOutConfigurations::for_run(config)?;
-    let accept = held_out
-        .as_ref()
-        .map(|h| move |task: usize, perm: &[usize]| !h.contains_renamed(&tasks[task], perm));
-    let renaming = config.permute_objects.then(|| NtpRenaming {
-        symmetry: crate::symmetry::ObjectSymmetry {
-            action_families: Vec::new(),
-            ..object_symmetry()
-        },
-        accept: accept.as_ref().map(|f| f as RenamingFilter<'_>),
-    });
-    let step = NtpStep::new(&dataset, kind, renaming, device)?;
-    let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
-    Ok(match detector {
-        None => Box::new(fit_validated(
-            net,
-            &step,
-            config,
-            &validation,
-            run,
-            device,
-            &mut on_epoch,
-        )?),
-        Some(detector) => Box::new(fit_validated(
-            crate::method::ntp_detector::NtpOnDetector::new(detector, net)?,
-            &OnFramesStep(step),
-            config,
-            &validation,
-            run,
-            device,
-            &mut on_epoch,
-        )?),
-    })
 }
 
-/// NTP or NTP Flat from demo videos, in the stages NTG (Vid) trains in
-/// (see [`crate::video`]): stage A, the shared frame encoder, exactly as
-/// NTG's (the same videos, cube renaming for frames, settings and
-/// validation), or with [`FrameLabels::Primitive`] the same settings on
-/// the frames of the same demos at NTP's primitive level, labelled with
-/// their primitives (validated on the same tasks); then, the encoder frozen, NTP on the embeddings of its
-/// primitive-level episodes' frames (one before each primitive and the
-/// last, of the same renamed tasks and seeds as the videos;
-/// [`ntp_video_dataset`]), the same network as on states but for its
-/// encoder's input and the argument read off cube positions, which frames
-/// do not have.
-fn train_ntp_video_run(
-    run: &RunDir,
-    config: &BlocksRunConfig,
-    kind: NtpKind,
-    device: &Device,
-    mut on_epoch: impl FnMut(&NtpEpochMetrics),
-) -> anyhow::Result<Model> {
-    with_video_run(config, |plan, video_run, validation| {
-        let frames = match config.video.as_ref().map(|v| v.encoder_labels) {
-            Some(FrameLabels::Primitive) => {
+impl PrimitiveLevel for BlocksPrimitive {
+    fn obs(&self) -> ObsKind {
+        self.config.obs
+    }
+
+    fn encoder(&self, on_frames: bool) -> ntg_model::EncoderConfig {
+        let c = &self.config;
+        match on_frames {
+            false => encoder(ObsKind::State, c.state_hidden_layers, c.pairwise),
+            true => encoder(ObsKind::Vid, c.state_hidden_layers, false),
+        }
+    }
+
+    fn state_episodes(&self) -> anyhow::Result<NtpDataset> {
+        let env = env_config(ObsKind::State, self.config.failures);
+        NtpDataset::record(
+            &self.tasks,
+            self.config.demos_per_task,
+            TRAIN_SEED_BASE,
+            env,
+            |o| featurize(o, ObsKind::State),
+        )
+    }
+
+    fn renaming(&self) -> Option<NtpRenaming<'_>> {
+        self.config.permute_objects.then(|| NtpRenaming {
+            symmetry: ObjectSymmetry {
+                action_families: Vec::new(),
+                ..object_symmetry()
+            },
+            accept: self.accept.as_deref().map(|f| f as RenamingFilter<'_>),
+        })
+    }
+
+    fn frame_encoder(
+        &self,
+        labels: FrameLabels,
+        run: &RunDir,
+        device: &Device,
+    ) -> anyhow::Result<ntg_model::FrameStageNet> {
+        let config = &self.config;
+        with_video_run(config, |plan, video_run, validation| match labels {
+            FrameLabels::Flat => crate::video::train_encoder(run, video_run, device),
+            FrameLabels::Primitive => {
                 let vocab = primitive_vocabulary();
                 let record = |virtual_task: usize, seed: u64| {
                     record_primitive_video(plan.task(virtual_task), config.failures, seed)
@@ -1015,34 +906,72 @@ fn train_ntp_video_run(
                     encoder: video_run.encoder,
                     seed: video_run.seed,
                 };
-                crate::video::train_encoder(run, &primitive_run, device)?
+                crate::video::train_encoder(run, &primitive_run, device)
             }
-            _ => crate::video::train_encoder(run, video_run, device)?,
+        })
+    }
+
+    fn frame_episodes(
+        &self,
+        run: &RunDir,
+        encode: EncodeRows<'_>,
+        what: &str,
+    ) -> anyhow::Result<NtpDataset> {
+        let config = &self.config;
+        // The demo videos' (renamed) tasks and seeds, or without videos
+        // the training tasks and NTG's demo seeds.
+        let plan = match &config.video {
+            Some(video) => Some(VideoPlan::new(config, video)?),
+            None => None,
         };
-        let dataset = NtpDataset::load_or_build_in_parts(
+        let pairs = match &plan {
+            Some(plan) => plan.pairs(config.demos_per_task),
+            None => NtpDataset::pairs(self.tasks.len(), config.demos_per_task, TRAIN_SEED_BASE),
+        };
+        let task = |t: usize| match &plan {
+            Some(plan) => plan.task(t),
+            None => self.tasks[t].clone(),
+        };
+        // Cached with what `encode` makes of a fixed frame, so another
+        // encoder's rows are never read.
+        let probe = encode(&[vec![0.5; obs_dim_frames()]])?.concat();
+        NtpDataset::load_or_build_in_parts(
             &run.root().join(crate::method::ntp::NTP_FRAMES_DIR),
-            &encoder_probe(&frames)?,
-            &plan.pairs(config.demos_per_task),
+            &probe,
+            &pairs,
             crate::method::ntp::NTP_PART_EPISODES,
             |pairs, part| {
-                let what = format!("NTP frames{part}");
-                ntp_video_dataset(plan, pairs, config.failures, &frames, &what)
+                record_ntp_frames(
+                    pairs,
+                    task,
+                    config.failures,
+                    &format!("{what}{part}"),
+                    encode,
+                )
             },
-        )?;
-        let encoder = encoder(ObsKind::Vid, config.state_hidden_layers, false);
-        let net = NtpModel::init(&ntp_config(encoder, false, config.model_seed), device)?;
-        let step = NtpStep::new(&dataset, kind, None, device)?;
-        let model = crate::method::on_frames::OnFrames::new(frames, net)?;
-        Ok::<Model, _>(Box::new(fit_validated(
+        )
+    }
+
+    fn detector(
+        &self,
+        settings: &DetectorSettings,
+        run: &RunDir,
+        device: &Device,
+    ) -> anyhow::Result<ntg_model::Detector> {
+        train_ntp_detector(run, &self.config, settings, &self.tasks, device)
+    }
+
+    fn score(&self, model: &dyn crate::method::TrainedPolicy) -> anyhow::Result<ValidationScore> {
+        let c = &self.config;
+        let result = evaluate_ntp_tasks(
             model,
-            &OnFramesStep(step),
-            config,
-            validation,
-            run,
-            device,
-            &mut on_epoch,
-        )?))
-    })
+            c.obs,
+            c.failures,
+            &self.validation,
+            Seeds::VALIDATION,
+        )?;
+        Ok(validation_result(&result))
+    }
 }
 
 /// Refuses NTP's primitive frame labels ([`FrameLabels::Primitive`]) for a
@@ -1097,15 +1026,6 @@ pub fn record_primitive_video(
         demo.actions,
         &primitive_vocabulary(),
     )?)
-}
-
-/// What `frames`' encoder gives for a fixed frame (every value 0.5): a
-/// fingerprint of the encoder that encoded a cache.
-fn encoder_probe(frames: &ntg_model::FrameStageNet) -> anyhow::Result<Vec<f32>> {
-    let net = burn::module::Module::valid(frames);
-    let probe = vec![0.5; frames.encoder.input_dim()];
-    let mut encoded = crate::method::on_frames::encode_rows(&net, &[probe])?;
-    encoded.pop().context("the encoder gave no row")
 }
 
 /// NTP's training episodes on frames: the training demos `pairs` of `plan`
@@ -1171,38 +1091,6 @@ fn record_ntp_frames(
     Ok(NtpDataset::new(episodes))
 }
 
-/// [`fit`] with the epoch selected on `validation` (an NTP baseline's
-/// rollouts at the primitive level on `config.obs`), unless it is empty.
-fn fit_validated<M, S>(
-    model: M,
-    step: &S,
-    config: &BlocksRunConfig,
-    validation: &[StackTask],
-    run: &RunDir,
-    device: &Device,
-    on_epoch: impl FnMut(&S::Metrics),
-) -> anyhow::Result<M>
-where
-    M: crate::fit::TrainedModel + crate::method::TrainedPolicy + Send,
-    S: crate::fit::TrainStep<M> + Sync,
-{
-    let mut validator = |model: &M| {
-        let result = evaluate_ntp_tasks(
-            model,
-            config.obs,
-            config.failures,
-            validation,
-            Seeds::VALIDATION,
-        )?;
-        Ok(validation_result(&result))
-    };
-    let selection = (!validation.is_empty()).then_some(crate::fit::Selection {
-        validator: &mut validator as &mut dyn crate::fit::Validator<M>,
-        every: config.validate_every,
-    });
-    fit(model, step, &config.optim, run, device, selection, on_epoch)
-}
-
 /// The detector stage of an NTP (Detector) run: frames of
 /// `config.detector.episodes` primitive-level expert episodes of the
 /// training tasks (their first demos are NTP's own training episodes),
@@ -1211,14 +1099,11 @@ where
 pub fn train_ntp_detector(
     run: &RunDir,
     config: &BlocksRunConfig,
+    settings: &DetectorSettings,
     tasks: &[StackTask],
     device: &Device,
 ) -> anyhow::Result<ntg_model::Detector> {
     use crate::method::detector::{DetectorDataset, DetectorFrames, train_detector};
-    let settings = config
-        .detector
-        .clone()
-        .context("an NTP (Detector) run's configuration needs its `detector` settings")?;
     settings.validate()?;
     let env = env_config(ObsKind::Vid, config.failures);
     let validation = validation_tasks_of(config.tasks.as_deref(), 2 * settings.validation_tasks)?;
@@ -1233,7 +1118,7 @@ pub fn train_ntp_detector(
     train_detector(
         run,
         frames,
-        &settings,
+        settings,
         config.train_tasks,
         config.failures,
         config.model_seed,
@@ -1791,6 +1676,16 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
     }
 }
 
+/// The methods block stacking's evaluation (`ntg eval`, the experiments)
+/// reads: NTG, at the level of its demos, and the NTP family, at the
+/// primitive level.
+pub const EVALUATED_METHODS: &[MethodId] = &[
+    MethodId::Ntg,
+    MethodId::Ntp,
+    MethodId::NtpFlat,
+    MethodId::NtpDetector,
+];
+
 /// Block stacking in the domain registry (`ntg train --domain blocks`,
 /// `ntg eval` on its runs).
 pub struct Blocks;
@@ -1846,19 +1741,16 @@ impl DomainRuns for Blocks {
                 "--encoder-labels sets the frame encoder NTP and NTP Flat read videos through: it needs --obs vid and --method ntp or ntp-flat"
             );
         }
-        check_ablation(&config)?;
-        match config.method {
-            MethodId::Ntg => {}
-            MethodId::Ntp | MethodId::NtpFlat => {}
-            MethodId::NtpDetector if config.obs == ObsKind::Vid => {}
-            MethodId::NtpDetector => bail!(
-                "--method ntp-detector is the video baseline: it needs --obs vid (NTP on true states is --method ntp)"
-            ),
-            other => bail!(
-                "--method {}: block stacking trains ntg, ntp, ntp-flat or ntp-detector",
-                other.name()
-            ),
+        if !EVALUATED_METHODS.contains(&config.method) {
+            bail!(
+                "--method {}: block stacking trains and evaluates ntg, ntp, ntp-flat or ntp-detector",
+                config.method.name()
+            );
         }
+        config
+            .method
+            .method()
+            .check(&serde_json::to_value(&config)?)?;
         task_split(config.tasks.as_deref())
             .with_context(|| "--tasks")?
             .train(config.train_tasks)
@@ -1879,11 +1771,7 @@ impl DomainRuns for Blocks {
             config.optim.epochs,
             run.root().display()
         );
-        if config.method.is_ntp() {
-            train_ntp_run(&run, &config, &device, |m| eprintln!("{}", m.log_line()))?;
-        } else {
-            train_run(&run, &config, &device, |m| eprintln!("{}", m.log_line()))?;
-        }
+        train_model(&run, &config, &device, |r| eprintln!("{r}"))?;
         match crate::fit::selected_epoch(&run)? {
             Some(best) => eprintln!(
                 "done: epoch {} scored best on the validation tasks (success {:.3}, goals met {:.3}); its weights are in {}",
@@ -1953,7 +1841,7 @@ pub fn ntp_decisions(
     seeds: Seeds,
     device: &Device,
 ) -> anyhow::Result<crate::method::ntp::DecisionReport> {
-    use crate::method::ntp::{CheckedEpisode, DecisionReport, check_episodes};
+    use crate::method::ntp::{CheckedEpisode, DecisionReport, NtpKind, NtpModel, check_episodes};
     type Front<'a> = Box<dyn Fn(&[Vec<f32>]) -> anyhow::Result<Vec<Vec<f32>>> + 'a>;
     let kind = match config.method {
         MethodId::NtpFlat => NtpKind::Flat,

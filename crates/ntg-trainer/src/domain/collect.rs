@@ -18,10 +18,9 @@
 
 use anyhow::{Context, bail, ensure};
 use burn::tensor::Device;
-use clap::ValueEnum;
 
 use env_collect::{CollectConfig, CollectEnv, CollectExpert, CollectObservation, Split, Task};
-use ntg_model::{EncoderConfig, FlatPolicyConfig, NtgConfig, NtgModel};
+use ntg_model::EncoderConfig;
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
@@ -31,11 +30,9 @@ use crate::dataset::DemoDataset;
 use crate::domain::{
     self, Domain, DomainFlags, DomainRuns, Episode, EpisodeRecord, EvalFlags, TrainFlags,
 };
-use crate::fit::{OptimConfig, Selection, TrainStep, ValidationScore, Validator, fit};
-use crate::method::flat::{FlatStep, FlatTraining};
-use crate::method::ntg::{GcnSource, NtgStep, NtgTraining};
-use crate::method::on_frames::{EmbeddingReader, OnFrames, OnFramesStep};
-use crate::method::{MethodId, Model, TrainedPolicy};
+use crate::fit::{OptimConfig, ValidationScore};
+use crate::method::input::Validation;
+use crate::method::{Demos, EpochReport, MethodId, Model, RowEncoders, TrainInput, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
@@ -94,56 +91,32 @@ pub fn env_config(kind: ObsKind) -> CollectConfig {
     }
 }
 
-/// Which demo interpreter NTG uses (see [`ntg_model::DemoInterpreterConfig`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum InterpreterKind {
-    /// The paper's: a forward GRU over the frames, Luong attention without
-    /// input feeding, the decoder starting from the encoder's final state.
-    Luong,
-    /// The same seq2seq with Luong attention, made length-independent:
-    /// local annotations (each frame with its two neighbours) instead of
-    /// GRU states, input feeding, location-aware attention and a decoder
-    /// without memory. The attention steps through the demo one frame per
-    /// token and every token (`<end>` included) is read from where it
-    /// looks, not from a count of what was written, so it carries over to
-    /// longer demos than any seen in training.
-    Stepping,
-}
+pub use crate::method::ntg::InterpreterKind;
 
-impl InterpreterKind {
-    /// Sets the interpreter options of `config` for this kind, with the
-    /// location-aware attention's initial shift +1 weight `step_prior`.
-    pub fn apply(self, config: &mut ntg_model::DemoInterpreterConfig, step_prior: Option<f32>) {
-        let on = match self {
-            InterpreterKind::Luong => None,
-            InterpreterKind::Stepping => Some(true),
-        };
-        config.bidirectional = None;
-        config.input_feeding = on;
-        config.location_attention = on;
-        config.stateless_decoder = on;
-        config.local_annotations = on;
-        config.location_step_prior = step_prior;
-    }
-
+/// Object collection's defaults for NTG's interpreter.
+pub trait InterpreterDefaults: Sized {
     /// The interpreter new NTG runs on `obs` use: stepping on state
     /// sequences (one row per action, any length), the paper's on demo
     /// videos. The stepping interpreter's location-aware attention moves
     /// −1..=2 frames per token, and a video has 2–9 frames per action:
     /// on videos its training token accuracy stalled at 0.76 where the
     /// paper's reached 0.98 (`docs/results/video-2026-11-24.md`).
-    pub fn default_for(obs: ObsKind) -> Self {
+    fn default_for(obs: ObsKind) -> Self;
+    /// The initial weight of the location-aware attention's shift +1 that
+    /// new runs of this kind start from ([`LOCATION_STEP_PRIOR`] for
+    /// `Stepping`; the paper's interpreter has no location-aware attention).
+    fn default_step_prior(self) -> Option<f32>;
+}
+
+impl InterpreterDefaults for InterpreterKind {
+    fn default_for(obs: ObsKind) -> Self {
         match obs {
             ObsKind::State => InterpreterKind::Stepping,
             ObsKind::Vid => InterpreterKind::Luong,
         }
     }
 
-    /// The initial weight of the location-aware attention's shift +1 that
-    /// new runs of this kind start from ([`LOCATION_STEP_PRIOR`] for
-    /// `Stepping`; the paper's interpreter has no location-aware attention).
-    pub fn default_step_prior(self) -> Option<f32> {
+    fn default_step_prior(self) -> Option<f32> {
         match self {
             InterpreterKind::Luong => None,
             InterpreterKind::Stepping => Some(LOCATION_STEP_PRIOR),
@@ -333,16 +306,15 @@ impl CollectRunConfig {
             );
             video.frames.validate()?;
         }
+        // JSON has no NaN (it would be read back as no prior at all).
         if let Some(w) = self.location_step_prior {
             ensure!(
-                self.method == MethodId::Ntg && self.interpreter == InterpreterKind::Stepping,
-                "a location step prior needs NTG with the stepping interpreter (the Flat Policy and the paper's interpreter have no location-aware attention)"
-            );
-            ensure!(
                 w.is_finite(),
-                "the location step prior must be finite, got {w}"
+                "--location-step-prior must be finite, got {w}"
             );
         }
+        // The method's own options (NTG's interpreter and step prior).
+        self.method.method().check(&serde_json::to_value(self)?)?;
         Ok(())
     }
 }
@@ -418,110 +390,93 @@ pub fn build_dataset(config: &CollectRunConfig) -> anyhow::Result<DemoDataset> {
     domain::record_demos(&domain, &tasks, config.demos_per_task, TRAIN_SEED_BASE)
 }
 
-/// Trains (or resumes) a run in `run`, returning the model; `on_epoch`
-/// gets each epoch's log line. Both methods
-/// imitate each training demo conditioned on *another* demo of its task
-/// (the Flat Policy attends over it; NTG's GCN completes its path, whose
-/// `NE_gcn` the edge classifier reads), as at test time: trained on its
-/// own demo's path, NTG's edge classifier learns that the node before
+/// Trains (or resumes) a run in `run` with the method its configuration
+/// names, returning the model; `on_epoch` gets each epoch's report. Every
+/// method imitates each training demo conditioned on *another* demo of its
+/// task (the Flat Policy attends over it; NTG's GCN completes its path,
+/// whose `NE_gcn` the edge classifier reads), as at test time: trained on
+/// its own demo's path, NTG's edge classifier learns that the node before
 /// `<end>` in *that* path ends the task, and at test time, in a scene where
 /// objects are found in another order, ends the episode there.
 pub fn train_run(
     run: &RunDir,
     config: &CollectRunConfig,
     device: &Device,
-    mut on_epoch: impl FnMut(String),
+    mut on_epoch: impl FnMut(&EpochReport),
 ) -> anyhow::Result<Model> {
     // One writer from the first cache this run builds (demos, frame
     // embeddings, stages) to its last epoch, not only during epochs.
     let _writer = run.lock()?;
     config.validate()?;
-    let n = env_collect::vocabulary().len();
     // On demo videos: stage A trains the shared encoder, stage B the
     // method on the frames' embeddings (see `crate::video`).
-    let (frames, dataset, row_encoder) = match &config.video {
-        Some(video) => {
-            let tasks = training_tasks(config)?;
-            let record = |t: usize, seed: u64| record_video_chw(&tasks[t], seed, &video.frames);
-            let validation = validation_tasks(config, VALIDATION_TASKS_PER_N)?;
-            let record_validation =
-                |i: usize, seed: u64| record_video_chw(&validation[i], seed, &video.frames);
-            let video_run = VideoRun {
-                vocabulary: env_collect::vocabulary(),
-                pairs: crate::video::spread_pairs(
-                    tasks.len(),
-                    config.demos_per_task,
-                    TRAIN_SEED_BASE,
-                ),
-                record: &record,
-                frame_dim: env_collect::FRAME_DIM,
-                encoder: &video.encoder,
-                seed: config.model_seed,
-                validation: Some(crate::video::ValidationVideos {
-                    pairs: (0..validation.len())
-                        .map(|i| (i, VALIDATION_SEED_BASE + i as u64))
-                        .collect(),
-                    record: &record_validation,
-                }),
-            };
-            let frames = crate::video::train_encoder(run, &video_run, device)?;
-            let embeddings = crate::video::embeddings(run, &video_run, &frames)?;
-            (
-                Some(frames),
-                embeddings,
-                EncoderConfig::state(video.encoder.embedding_dim()),
-            )
-        }
-        None => (
-            None,
-            DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config))?,
-            encoder(config.obs),
-        ),
+    let demos = || -> anyhow::Result<Demos> {
+        let Some(video) = &config.video else {
+            let dataset = DemoDataset::load_or_build(&run.dataset_dir(), || build_dataset(config))?;
+            return Ok(Demos {
+                dataset,
+                frames: None,
+            });
+        };
+        let tasks = training_tasks(config)?;
+        let record = |t: usize, seed: u64| record_video_chw(&tasks[t], seed, &video.frames);
+        let validation = validation_tasks(config, VALIDATION_TASKS_PER_N)?;
+        let record_validation =
+            |i: usize, seed: u64| record_video_chw(&validation[i], seed, &video.frames);
+        let video_run = VideoRun {
+            vocabulary: env_collect::vocabulary(),
+            pairs: crate::video::spread_pairs(tasks.len(), config.demos_per_task, TRAIN_SEED_BASE),
+            record: &record,
+            frame_dim: env_collect::FRAME_DIM,
+            encoder: &video.encoder,
+            seed: config.model_seed,
+            validation: Some(crate::video::ValidationVideos {
+                pairs: (0..validation.len())
+                    .map(|i| (i, VALIDATION_SEED_BASE + i as u64))
+                    .collect(),
+                record: &record_validation,
+            }),
+        };
+        let frames = crate::video::train_encoder(run, &video_run, device)?;
+        let dataset = crate::video::embeddings(run, &video_run, &frames)?;
+        Ok(Demos {
+            dataset,
+            frames: Some(frames),
+        })
     };
-    match config.method {
-        MethodId::Ntg => {
-            let mut model_config = NtgConfig::for_domain(n, row_encoder);
-            model_config.seed = config.model_seed;
-            config
-                .interpreter
-                .apply(&mut model_config.interpreter, config.location_step_prior);
-            model_config.edge.memory_dim = config.memory.then_some(n);
-            let model = NtgModel::new(model_config, device)?;
-            let training = NtgTraining {
-                gcn_source: GcnSource::OtherFromEpoch,
-                token_dropout: config.optim.token_dropout,
-                segments: config.segments,
-                skip_end: !config.learn_end,
-                memory: config.memory,
-                gcn_loss_last: true,
-                ..NtgTraining::default()
-            };
-            let step = NtgStep::new(&model, &dataset, training, device)?;
-            fit_either(model, step, frames, config, run, device, |m| {
-                on_epoch(m.log_line())
-            })
-        }
-        MethodId::Flat => {
-            let policy = FlatPolicyConfig::new(n, row_encoder)
-                .with_seed(config.model_seed)
-                .with_memory_dim(config.memory.then_some(n))
-                .init(device)?;
-            let training = FlatTraining {
-                learn_end: config.learn_end,
-                memory: config.memory,
-            };
-            let step = FlatStep::new(&policy, &dataset, training, device)?;
-            fit_either(policy, step, frames, config, run, device, |m| {
-                on_epoch(m.log_line())
-            })
-        }
-        other => {
-            bail!(
-                "object collection trains NTG or the Flat Policy, not {}",
-                other.name()
-            )
-        }
-    }
+    let row_encoder = match &config.video {
+        Some(video) => EncoderConfig::state(video.encoder.embedding_dim()),
+        None => encoder(config.obs),
+    };
+    let episodes = validation_episodes(config)?;
+    let domain = CollectDomain::for_run(config);
+    let score = |model: &dyn TrainedPolicy| -> anyhow::Result<ValidationScore> {
+        let records = domain::evaluate(&domain, model, &episodes)?;
+        Ok(ValidationScore {
+            success: domain::success_rate(&records).rate,
+            goal_fraction: domain::mean_goal_fraction(&records),
+        })
+    };
+    let input = TrainInput {
+        vocabulary: env_collect::vocabulary(),
+        demos: &demos,
+        encoders: RowEncoders::same(row_encoder),
+        renaming: None,
+        validation: (!episodes.is_empty()).then_some(Validation {
+            score: &score,
+            every: 1,
+        }),
+        other_demo_each_epoch: true,
+        model_seed: config.model_seed,
+        optim: &config.optim,
+        run,
+        device,
+        extension: None,
+    };
+    config
+        .method
+        .method()
+        .train(input, &serde_json::to_value(config)?, &mut on_epoch)
 }
 
 /// The demo video of `task` recorded with `seed`, frames featurised.
@@ -532,95 +487,6 @@ fn record_video_chw(
 ) -> anyhow::Result<ctg_graph::VideoDemonstration<Vec<f32>>> {
     let v = env_collect::record_video_demo(task.clone(), env_config(ObsKind::Vid), seed, frames)?;
     Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
-}
-
-/// Trains `model` with `step` on state rows, or (given the trained frame
-/// encoder) behind the frozen encoder on frame embeddings.
-fn fit_either<M, S>(
-    model: M,
-    step: S,
-    frames: Option<ntg_model::FrameStageNet>,
-    config: &CollectRunConfig,
-    run: &RunDir,
-    device: &Device,
-    on_epoch: impl FnMut(&S::Metrics),
-) -> anyhow::Result<Model>
-where
-    M: crate::fit::TrainedModel
-        + burn::module::ModuleDisplay
-        + EmbeddingReader
-        + TrainedPolicy
-        + 'static,
-    S: TrainStep<M> + Sync,
-    OnFrames<M>: TrainedPolicy,
-{
-    let episodes = validation_episodes(config)?;
-    let domain = CollectDomain::for_run(config);
-    let score = |model: &dyn TrainedPolicy| -> anyhow::Result<ValidationScore> {
-        let records = domain::evaluate(&domain, model, &episodes)?;
-        Ok(ValidationScore {
-            success: domain::success_rate(&records).rate,
-            goal_fraction: domain::mean_goal_fraction(&records),
-        })
-    };
-    let validate = !episodes.is_empty();
-    Ok(match frames {
-        Some(frames) => Box::new(fit_validated(
-            OnFrames::new(frames, model)?,
-            &OnFramesStep(step),
-            config,
-            run,
-            device,
-            validate.then_some(&score),
-            on_epoch,
-        )?),
-        None => Box::new(fit_validated(
-            model,
-            &step,
-            config,
-            run,
-            device,
-            validate.then_some(&score),
-            on_epoch,
-        )?),
-    })
-}
-
-/// Scores a model on the validation episodes.
-type ScoreFn<'a> = dyn Fn(&dyn TrainedPolicy) -> anyhow::Result<ValidationScore> + 'a;
-
-/// [`fit`] with `score` (the validation episodes' rollouts, if any)
-/// after every epoch, the best epoch kept.
-fn fit_validated<T, S>(
-    model: T,
-    step: &S,
-    config: &CollectRunConfig,
-    run: &RunDir,
-    device: &Device,
-    score: Option<&ScoreFn<'_>>,
-    on_epoch: impl FnMut(&S::Metrics),
-) -> anyhow::Result<T>
-where
-    T: crate::fit::TrainedModel + TrainedPolicy + Send,
-    S: TrainStep<T> + Sync,
-{
-    let Some(score) = score else {
-        return fit(model, step, &config.optim, run, device, None, on_epoch);
-    };
-    let mut validator = |m: &T| score(m);
-    let selection = Selection {
-        validator: &mut validator as &mut dyn Validator<T>,
-        every: 1,
-    };
-    fit(
-        model,
-        step,
-        &config.optim,
-        run,
-        device,
-        Some(selection),
-        on_epoch,
-    )
 }
 
 /// Loads the trained model of a run (inference device).
@@ -814,7 +680,7 @@ pub struct CollectFlags {
     pub memory: bool,
     /// NTG: which demo interpreter [default: stepping for --obs state,
     /// luong (the paper's) for --obs vid].
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = crate::spec::parse::choice::<InterpreterKind>())]
     pub interpreter: Option<InterpreterKind>,
     /// NTG with the stepping interpreter: initial weight of its
     /// location-aware attention's shift +1, a bias towards reading the next
@@ -912,7 +778,7 @@ impl DomainRuns for Collect {
             run.root().display()
         );
         let device = crate::spec::device().autodiff();
-        train_run(&run, &config, &device, |line| eprintln!("{line}"))?;
+        train_run(&run, &config, &device, |r| eprintln!("{}", r.line))?;
         eprintln!("done: weights in {}", run.checkpoint_dir().display());
         Ok(())
     }

@@ -22,11 +22,13 @@ use crate::domain::{
 };
 use crate::fit::{OptimConfig, ValidationScore};
 use crate::method::MethodId;
-use crate::method::ntg::{EpochMetrics, TrainExtras, Variant, train_with};
+use crate::method::input::Validation;
+use crate::method::ntg::{Ntg, Variant};
+use crate::method::{Demos, EpochReport, Method, TrainInput, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::spec::ObsKind;
 use crate::stats::SuccessRate;
-use ntg_model::{NtgConfig, NtgModel};
+use ntg_model::NtgModel;
 
 /// Sorting tasks a run may train on (a prefix of the standard list).
 pub const TRAIN_POOL: usize = 200;
@@ -222,16 +224,14 @@ pub fn episodes(tasks: &[SortTask], count: usize, seeds: [u64; 3]) -> Vec<Episod
         .collect()
 }
 
-/// The untrained model of a sorting run.
-pub fn new_model(config: &SortingRunConfig, device: &Device) -> anyhow::Result<NtgModel> {
-    let vocab = env_blocks::vocabulary(true, env_blocks::ActionLevel::Flat);
+/// The encoders of a sorting run's state rows: the demo interpreter's
+/// plain, the localizer's and edge classifier's as the run says.
+pub fn encoders(config: &SortingRunConfig) -> crate::method::RowEncoders {
     let state = |layers, pairwise| crate::block_world::encoder(ObsKind::State, layers, pairwise);
-    let mut model_config = NtgConfig::for_domain(vocab.len(), state(1, false));
-    model_config.localizer.encoder = state(config.state_hidden_layers, config.pairwise);
-    model_config.edge.encoder = state(config.state_hidden_layers, config.pairwise);
-    model_config.ablation = config.ablation.ablation();
-    model_config.seed = config.model_seed;
-    Ok(NtgModel::new(model_config, device)?)
+    crate::method::RowEncoders {
+        sequence: state(1, false),
+        observation: state(config.state_hidden_layers, config.pairwise),
+    }
 }
 
 /// Success and goals met of `model` on `episodes` (its ablation as
@@ -276,7 +276,7 @@ pub fn train_run(
     run: &RunDir,
     config: &SortingRunConfig,
     device: &Device,
-    mut on_epoch: impl FnMut(&EpochMetrics),
+    mut on_epoch: impl FnMut(&EpochReport),
 ) -> anyhow::Result<NtgModel> {
     // One writer from the first cache this run builds (demos, frame
     // embeddings, stages) to its last epoch, not only during epochs.
@@ -285,35 +285,45 @@ pub fn train_run(
     let (pool, validation, _) = split()?;
     let tasks = &pool[..config.train_tasks];
     let domain = SortingDomain::new(config.failures, config.step_limit);
-    let dataset = crate::dataset::DemoDataset::load_or_build(&run.dataset_dir(), || {
-        crate::domain::record_demos(&domain, tasks, config.demos_per_task, TRAIN_SEED_BASE)
-    })?;
-    let validation = episodes(&validation, config.validation_episodes, VALIDATION_SEEDS);
-    let mut validator = |model: &NtgModel| {
-        let result = evaluate(model, config, &validation, Variant::Full)?;
-        Ok(ValidationScore {
-            success: result.success.rate,
-            goal_fraction: result.goal_fraction,
+    let demos = || {
+        let dataset = crate::dataset::DemoDataset::load_or_build(&run.dataset_dir(), || {
+            crate::domain::record_demos(&domain, tasks, config.demos_per_task, TRAIN_SEED_BASE)
+        })?;
+        Ok(Demos {
+            dataset,
+            frames: None,
         })
     };
-    let extras = TrainExtras {
-        validator: if validation.is_empty() {
-            None
-        } else {
-            Some(&mut validator)
-        },
-        validate_every: config.validate_every,
-        ..TrainExtras::default()
+    let validation = episodes(&validation, config.validation_episodes, VALIDATION_SEEDS);
+    let score = |model: &dyn TrainedPolicy| {
+        let records = crate::domain::evaluate(&domain, model, &validation)?;
+        Ok(ValidationScore {
+            success: crate::domain::success_rate(&records).rate,
+            goal_fraction: crate::domain::mean_goal_fraction(&records),
+        })
     };
-    train_with(
-        new_model(config, device)?,
-        &dataset,
-        &config.optim,
+    let input = TrainInput {
+        vocabulary: domain.vocabulary(),
+        demos: &demos,
+        encoders: encoders(config),
+        renaming: None,
+        validation: (!validation.is_empty()).then_some(Validation {
+            score: &score,
+            every: config.validate_every,
+        }),
+        other_demo_each_epoch: false,
+        model_seed: config.model_seed,
+        optim: &config.optim,
         run,
         device,
-        &mut on_epoch,
-        extras,
-    )
+        extension: None,
+    };
+    let model = Ntg.train(input, &serde_json::to_value(config)?, &mut on_epoch)?;
+    model
+        .as_any()
+        .downcast_ref::<NtgModel>()
+        .cloned()
+        .context("object sorting trains NTG on state rows")
 }
 
 /// The run's selected (or last) model.
@@ -388,12 +398,7 @@ impl DomainRuns for Sorting {
             run.root().display()
         );
         let device = crate::spec::device().autodiff();
-        train_run(&run, &config, &device, |m| {
-            eprintln!(
-                "epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
-                m.epoch, m.loss, m.token_accuracy, m.step_accuracy
-            )
-        })?;
+        train_run(&run, &config, &device, |r| eprintln!("{r}"))?;
         eprintln!("done: weights in {}", run.checkpoint_dir().display());
         Ok(())
     }

@@ -421,12 +421,8 @@ pub fn run_b(
                 );
                 let device = crate::spec::device().autodiff();
                 let result = run.cached_eval(&eval_file, || {
-                    let model = sorting::train_run(&run, &config, &device, |m| {
-                        eprintln!(
-                            "  [{name}] epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
-                            m.epoch, m.loss, m.token_accuracy, m.step_accuracy
-                        )
-                    })?;
+                    let model =
+                        sorting::train_run(&run, &config, &device, |r| eprintln!("  [{name}] {r}"))?;
                     let (_, _, test) = sorting::split()?;
                     sorting::evaluate(
                         &model,

@@ -680,12 +680,7 @@ fn run_point(
     // is not saved yet.
     let result = run.cached_eval(&eval_file, || {
         if method.is_ntg() {
-            let model = blocks::train_run(&run, &config, &device, |m| {
-                eprintln!(
-                    "  [{name}] epoch {:>3}: loss {:.3}, tokens {:.3}, steps {:.3}",
-                    m.epoch, m.loss, m.token_accuracy, m.step_accuracy
-                )
-            })?;
+            let model = blocks::train_run(&run, &config, &device, |r| eprintln!("  [{name}] {r}"))?;
             model.evaluate(
                 config.tasks.as_deref(),
                 config.failures,
@@ -693,12 +688,8 @@ fn run_point(
                 Variant::Full,
             )
         } else {
-            let model = blocks::train_ntp_run(&run, &config, &device, |m| {
-                eprintln!(
-                    "  [{name}] epoch {:>3}: loss {:.3}, programs {:.3}, arguments {:.3}",
-                    m.epoch, m.loss, m.program_accuracy, m.argument_accuracy
-                )
-            })?;
+            let model =
+                blocks::train_model(&run, &config, &device, |r| eprintln!("  [{name}] {r}"))?;
             blocks::evaluate_ntp(
                 model.as_ref(),
                 config.tasks.as_deref(),

@@ -4,10 +4,10 @@
 //! NTP and NTP Flat ([`ntp`]), NTP (Detector) ([`ntp_detector`]) and its
 //! frame detector ([`detector`]).
 //!
-//! Adding a method: a new file (its model, step, [`Method`],
-//! [`TrainedPolicy`] and [`Agent`]), and one line in the `methods!` list
-//! below. A domain that trains it maps its run configuration onto the
-//! method's options in its `train_run`.
+//! Adding a method: a new file (its model, step, options, [`Method`] with
+//! `train`, [`TrainedPolicy`] and [`Agent`]), and one line in the
+//! `methods!` list below. Every domain then trains it through the one
+//! [`TrainInput`] it builds, with no arm per method.
 
 use std::path::Path;
 

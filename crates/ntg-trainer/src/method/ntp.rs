@@ -42,8 +42,11 @@ use rand::seq::IndexedRandom;
 use serde::{Deserialize, Serialize};
 
 use crate::evaluate::in_parallel;
+use crate::fit::ValidationScore;
 use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel};
-use crate::method::{Agent, Model, TrainedPolicy};
+use crate::method::{Agent, EpochReport, Model, TrainInput, TrainedPolicy};
+use crate::run_dir::RunDir;
+use crate::spec::ObsKind;
 use crate::symmetry::{ObjectSymmetry, RenamingFilter};
 
 /// Programs the stack may nest: root, `pick_place`, `pick`/`place`.
@@ -881,6 +884,238 @@ pub fn check_episodes(
     Ok(())
 }
 
+/// What NTP and NTP Flat's frame encoder (stage A) is trained to tell
+/// apart, on a run from demo videos: NTG's flat actions on every frame of
+/// the demo videos (the encoder NTG's run of the same videos trains, so
+/// they share it), or NTP's own lowest-level supervision on the frames NTP
+/// acts on (the scene before each primitive and the last): the primitive
+/// just taken and the next.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum FrameLabels {
+    /// NTG's flat actions, on every frame of the demo videos (stage A as
+    /// NTG's, shared with NTG's run of the point).
+    #[default]
+    Flat,
+    /// NTP's primitives, on the frame before each primitive of its
+    /// primitive-level episodes (NTP and NTP Flat on video only).
+    Primitive,
+}
+
+impl FrameLabels {
+    /// Whether these are NTG's flat labels (the default).
+    pub fn is_flat(&self) -> bool {
+        *self == FrameLabels::Flat
+    }
+}
+
+/// Maps an episode's frame rows to the rows NTP reads (a frozen encoder's
+/// embeddings, a detector's estimated states).
+pub type EncodeRows<'a> = &'a dyn Fn(&[Vec<f32>]) -> anyhow::Result<Vec<Vec<f32>>>;
+
+/// What a domain whose expert also acts at NTP's primitive level
+/// (`move(X)`, `grasp`, `drop`) gives the NTP family to train on, in
+/// [`TrainInput::extension`] as a [`PrimitiveInput`]. NTP's programs are
+/// block stacking's, so block stacking is the one domain that provides it.
+pub trait PrimitiveLevel: Send + Sync {
+    /// What the run's networks see.
+    fn obs(&self) -> ObsKind;
+    /// NTP's encoder of true-state rows (`on_frames` false) or of frame
+    /// embeddings.
+    fn encoder(&self, on_frames: bool) -> ntg_model::EncoderConfig;
+    /// The expert's primitive-level episodes of the training tasks on true
+    /// states (the tasks and seeds of NTG's demos).
+    fn state_episodes(&self) -> anyhow::Result<NtpDataset>;
+    /// Cube renaming in training on states, if the run asks for it.
+    fn renaming(&self) -> Option<NtpRenaming<'_>>;
+    /// The frozen frame encoder, trained (or read from `run`) on the run's
+    /// demo videos with `labels`.
+    fn frame_encoder(
+        &self,
+        labels: FrameLabels,
+        run: &RunDir,
+        device: &Device,
+    ) -> anyhow::Result<ntg_model::FrameStageNet>;
+    /// The training episodes on frames (the run's demo videos' tasks and
+    /// seeds, or without videos the training tasks'), each episode's frame
+    /// rows mapped by `encode`, cached in parts in `run` (fingerprinted by
+    /// what `encode` makes of a fixed frame); the progress bar says `what`.
+    fn frame_episodes(
+        &self,
+        run: &RunDir,
+        encode: EncodeRows<'_>,
+        what: &str,
+    ) -> anyhow::Result<NtpDataset>;
+    /// The detector of NTP (Detector), trained (or read) in `run`'s detector
+    /// stage with `settings`.
+    fn detector(
+        &self,
+        settings: &crate::method::detector::DetectorSettings,
+        run: &RunDir,
+        device: &Device,
+    ) -> anyhow::Result<ntg_model::Detector>;
+    /// The score of a model acting at the primitive level on the run's
+    /// validation tasks.
+    fn score(&self, model: &dyn TrainedPolicy) -> anyhow::Result<ValidationScore>;
+}
+
+/// A [`PrimitiveLevel`], as a domain puts it in [`TrainInput::extension`].
+pub struct PrimitiveInput(pub Box<dyn PrimitiveLevel>);
+
+/// The primitive level `input` provides, or an error saying `method` needs
+/// it.
+pub fn primitive_level<'a>(
+    input: &TrainInput<'a>,
+    method: &str,
+) -> anyhow::Result<&'a dyn PrimitiveLevel> {
+    input
+        .extension
+        .and_then(|e| e.downcast_ref::<PrimitiveInput>())
+        .map(|p| p.0.as_ref())
+        .with_context(|| {
+            format!(
+                "--method {method}: NTP's programs act at block stacking's primitive level; this domain has none (--domain blocks)"
+            )
+        })
+}
+
+/// The NTP family's options, read from a run's configuration.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+pub struct NtpOptions {
+    /// NTP (Detector)'s detector stage.
+    #[serde(default)]
+    pub detector: Option<crate::method::detector::DetectorSettings>,
+    /// The options runs from demo videos keep under `video`.
+    #[serde(default)]
+    pub video: Option<NtpVideoOptions>,
+    /// NTG's ablations (refused here).
+    #[serde(default)]
+    pub ablation: crate::method::ntg::Variant,
+}
+
+/// NTP's options under a video run configuration's `video`.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+pub struct NtpVideoOptions {
+    /// What the frame encoder is trained to tell apart.
+    #[serde(default)]
+    pub encoder_labels: FrameLabels,
+}
+
+impl NtpOptions {
+    /// The frame encoder's labels (flat without video settings).
+    pub fn encoder_labels(&self) -> FrameLabels {
+        self.video
+            .as_ref()
+            .map(|v| v.encoder_labels)
+            .unwrap_or_default()
+    }
+
+    /// Refuses what NTP and NTP Flat (`method`) cannot train, naming the
+    /// flag.
+    pub fn check(&self, method: &str) -> anyhow::Result<()> {
+        self.check_whole(method)?;
+        if self.detector.is_some() {
+            anyhow::bail!(
+                "--detector-episodes, --detector-epochs and --ntp-on-true-states train NTP (Detector): they need --method ntp-detector"
+            );
+        }
+        Ok(())
+    }
+
+    /// Refuses an NTG ablation, naming the flag.
+    pub fn check_whole(&self, method: &str) -> anyhow::Result<()> {
+        if !self.ablation.is_full() {
+            anyhow::bail!(
+                "--ablation {}: the ablations are NTG's; {method} is trained whole",
+                self.ablation.name()
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Trains NTP or NTP Flat (`kind`) on `input`'s primitive level: on true
+/// states with the run's cube renaming, or from demo videos in stages, the
+/// frame encoder first, then NTP on the embeddings of the frames it acts
+/// on, the same network as on states but for its encoder's input and the
+/// argument read off cube positions, which frames do not have.
+pub fn train(
+    kind: NtpKind,
+    input: TrainInput<'_>,
+    options: &NtpOptions,
+    on_epoch: &mut dyn FnMut(&EpochReport),
+) -> anyhow::Result<Model> {
+    let method = match kind {
+        NtpKind::Hierarchical => "ntp",
+        NtpKind::Flat => "ntp-flat",
+    };
+    options.check(method)?;
+    let level = primitive_level(&input, method)?;
+    let log = |m: &NtpEpochMetrics| {
+        on_epoch(&EpochReport {
+            epoch: m.epoch,
+            line: m.log_line(),
+        })
+    };
+    match level.obs() {
+        ObsKind::State => {
+            if !options.encoder_labels().is_flat() {
+                anyhow::bail!("--encoder-labels sets the frame encoder: it needs --obs vid");
+            }
+            let dataset = level.state_episodes()?;
+            let net = NtpModel::init(
+                &ntp_config(level.encoder(false), true, input.model_seed),
+                input.device,
+            )?;
+            let step = NtpStep::new(&dataset, kind, level.renaming(), input.device)?;
+            Ok(Box::new(fit_primitive(net, &step, &input, level, log)?))
+        }
+        ObsKind::Vid => {
+            let frames = level.frame_encoder(options.encoder_labels(), input.run, input.device)?;
+            let net = Module::valid(&frames);
+            let encode = |rows: &[Vec<f32>]| crate::method::on_frames::encode_rows(&net, rows);
+            let dataset = level.frame_episodes(input.run, &encode, "NTP frames")?;
+            let ntp = NtpModel::init(
+                &ntp_config(level.encoder(true), false, input.model_seed),
+                input.device,
+            )?;
+            let step = NtpStep::new(&dataset, kind, None, input.device)?;
+            let model = crate::method::on_frames::OnFrames::new(frames, ntp)?;
+            let step = crate::method::on_frames::OnFramesStep(step);
+            Ok(Box::new(fit_primitive(model, &step, &input, level, log)?))
+        }
+    }
+}
+
+/// [`crate::fit::fit`] on `input`'s optimisation and run folder, the epoch
+/// selected on `level`'s primitive-level score when `input` validates.
+pub fn fit_primitive<M, S>(
+    model: M,
+    step: &S,
+    input: &TrainInput<'_>,
+    level: &dyn PrimitiveLevel,
+    on_epoch: impl FnMut(&S::Metrics),
+) -> anyhow::Result<M>
+where
+    M: TrainedModel + TrainedPolicy + Send,
+    S: TrainStep<M> + Sync,
+{
+    let mut validator = |m: &M| level.score(m);
+    let selection = input.validation.map(|v| crate::fit::Selection {
+        validator: &mut validator as &mut dyn crate::fit::Validator<M>,
+        every: v.every,
+    });
+    crate::fit::fit(
+        model,
+        step,
+        input.optim,
+        input.run,
+        input.device,
+        selection,
+        on_epoch,
+    )
+}
+
 /// NTP in the method registry.
 pub struct Ntp;
 
@@ -897,6 +1132,18 @@ impl crate::method::Method for Ntp {
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
         crate::method::on_frames::load_either::<NtpModel>(dir, device)
     }
+    fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
+        crate::method::input::options_of::<NtpOptions>(self.legend(), config)?.check(self.name())
+    }
+    fn train(
+        &self,
+        input: TrainInput<'_>,
+        config: &serde_json::Value,
+        on_epoch: &mut dyn FnMut(&EpochReport),
+    ) -> anyhow::Result<Model> {
+        let options = crate::method::input::options_of(self.legend(), config)?;
+        train(NtpKind::Hierarchical, input, &options, on_epoch)
+    }
 }
 
 impl crate::method::Method for NtpFlat {
@@ -908,6 +1155,18 @@ impl crate::method::Method for NtpFlat {
     }
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
         crate::method::on_frames::load_either::<NtpModel>(dir, device)
+    }
+    fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
+        crate::method::input::options_of::<NtpOptions>(self.legend(), config)?.check(self.name())
+    }
+    fn train(
+        &self,
+        input: TrainInput<'_>,
+        config: &serde_json::Value,
+        on_epoch: &mut dyn FnMut(&EpochReport),
+    ) -> anyhow::Result<Model> {
+        let options = crate::method::input::options_of(self.legend(), config)?;
+        train(NtpKind::Flat, input, &options, on_epoch)
     }
 }
 

@@ -24,8 +24,12 @@ use ntg_model::Detector;
 
 use crate::fit::TrainedModel;
 use crate::method::ntp::NtpModel;
+use crate::method::ntp::{
+    NtpEpochMetrics, NtpKind, NtpOptions, NtpStep, fit_primitive, ntp_config, primitive_level,
+};
 use crate::method::on_frames::FrozenFront;
-use crate::method::{Agent, Model, TrainedPolicy};
+use crate::method::{Agent, EpochReport, Model, TrainInput, TrainedPolicy};
+use crate::spec::ObsKind;
 
 /// Folder of the detector inside a saved [`NtpOnDetector`].
 pub const DETECTOR_DIR: &str = "detector";
@@ -87,6 +91,80 @@ impl crate::method::Method for NtpDetector {
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
         Ok(Box::new(NtpOnDetector::load_from(dir, device)?))
     }
+    fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
+        let options: NtpOptions = crate::method::input::options_of(self.legend(), config)?;
+        options.check_whole(self.name())?;
+        if config.get("obs").and_then(serde_json::Value::as_str) != Some(ObsKind::Vid.name()) {
+            anyhow::bail!(
+                "--method ntp-detector is the video baseline: it needs --obs vid (NTP on true states is --method ntp)"
+            );
+        }
+        Ok(())
+    }
+    fn train(
+        &self,
+        input: TrainInput<'_>,
+        config: &serde_json::Value,
+        on_epoch: &mut dyn FnMut(&EpochReport),
+    ) -> anyhow::Result<Model> {
+        let options = crate::method::input::options_of(self.legend(), config)?;
+        train(input, &options, on_epoch)
+    }
+}
+
+/// Trains NTP (Detector) on `input`'s primitive level: its detector first
+/// (so a bad setting fails before NTP's episodes are recorded), then NTP
+/// on the detector's estimates of its episodes' frames, the rows it will
+/// be fed (or, with `ntp_on_estimates` off, on the true states), validated
+/// through the detector on frames.
+pub fn train(
+    input: TrainInput<'_>,
+    options: &NtpOptions,
+    on_epoch: &mut dyn FnMut(&EpochReport),
+) -> anyhow::Result<Model> {
+    options.check_whole("ntp-detector")?;
+    let level = primitive_level(&input, "ntp-detector")?;
+    if level.obs() != ObsKind::Vid {
+        anyhow::bail!(
+            "--method ntp-detector is the video baseline: it needs --obs vid (NTP on true states is --method ntp)"
+        );
+    }
+    if !options.encoder_labels().is_flat() {
+        anyhow::bail!(
+            "--encoder-labels primitive trains the frame encoder of NTP and NTP Flat; NTP (Detector) reads frames through its detector"
+        );
+    }
+    let settings = options
+        .detector
+        .clone()
+        .context("an NTP (Detector) run's configuration needs its `detector` settings")?;
+    let detector = level.detector(&settings, input.run, input.device)?;
+    let dataset = if settings.ntp_on_estimates {
+        let valid = Module::valid(&detector);
+        let estimate = |rows: &[Vec<f32>]| Ok(valid.predict_rows(rows)?);
+        level.frame_episodes(input.run, &estimate, "NTP frames through the detector")?
+    } else {
+        level.state_episodes()?
+    };
+    let net = NtpModel::init(
+        &ntp_config(level.encoder(false), true, input.model_seed),
+        input.device,
+    )?;
+    let step = NtpStep::new(
+        &dataset,
+        NtpKind::Hierarchical,
+        level.renaming(),
+        input.device,
+    )?;
+    let log = |m: &NtpEpochMetrics| {
+        on_epoch(&EpochReport {
+            epoch: m.epoch,
+            line: m.log_line(),
+        })
+    };
+    let model = NtpOnDetector::new(detector, net)?;
+    let step = crate::method::on_frames::OnFramesStep(step);
+    Ok(Box::new(fit_primitive(model, &step, &input, level, log)?))
 }
 
 impl TrainedPolicy for NtpOnDetector {
