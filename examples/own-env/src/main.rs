@@ -6,7 +6,7 @@
 //! choosing uniformly among a node's successors (no edge classifier).
 use std::sync::LazyLock;
 
-use ctg_graph::{ActionId, CtgError, Environment, Expert, Result, Step, Vocabulary};
+use ctg_graph::{ActionId, CtgError, Environment, Expert, Result, Step, Vocabulary, check_environment};
 use ntg_train::domain::{Episode, RowDomain, evaluate, record_demos, success_rate};
 use ntg_train::{fit::OptimConfig, method::ntg, run_dir::RunDir};
 
@@ -32,7 +32,7 @@ impl Environment for Lamps {
     }
     fn reset(&mut self, seed: u64) -> Result<(Vec<f32>, ())> {
         *self = Lamps { task: std::mem::take(&mut self.task), steps: Some(0), seed, ..Lamps::default() };
-        Ok((self.observe(), ()))
+        Ok((observe(self), ()))
     }
     fn step(&mut self, action: ActionId) -> Result<Step<Vec<f32>, ()>> {
         let steps = self.steps.ok_or(CtgError::NotReset)?;
@@ -54,7 +54,7 @@ impl Environment for Lamps {
             (lamp.is_none(), lamp.is_some() && steps + 1 >= self.max_episode_steps());
         self.steps = (!terminated && !truncated).then_some(steps + 1);
         let reward = (terminated && self.is_success()) as u8 as f32;
-        Ok(Step { observation: self.observe(), reward, terminated, truncated, info: () })
+        Ok(Step { observation: observe(self), reward, terminated, truncated, info: () })
     }
     fn is_success(&self) -> bool {
         self.lit == self.task
@@ -64,11 +64,9 @@ impl Environment for Lamps {
     }
 }
 
-impl Lamps {
-    fn observe(&self) -> Vec<f32> {
-        let lit = (0..LAMPS).map(|l| self.lit.contains(&l) as u8 as f32);
-        lit.chain((0..LAMPS).map(|l| (self.pressed == Some(l)) as u8 as f32)).collect()
-    }
+fn observe(lamps: &Lamps) -> Vec<f32> {
+    let lit = (0..LAMPS).map(|l| lamps.lit.contains(&l) as u8 as f32);
+    lit.chain((0..LAMPS).map(|l| (lamps.pressed == Some(l)) as u8 as f32)).collect()
 }
 
 /// Presses the task's next unlit lamp until all are lit, in order.
@@ -83,8 +81,7 @@ impl Expert<Lamps> for Electrician {
 
 fn main() -> ntg_train::anyhow::Result<()> {
     let make_env = |task: &Vec<usize>| Ok(Lamps { task: task.clone(), ..Lamps::default() });
-    let report =
-        ctg_graph::check_environment(|| make_env(&vec![4, 0, 2]).unwrap(), &mut Electrician, &[1, 2])?;
+    let report = check_environment(|| make_env(&vec![4, 0, 2]).unwrap(), &mut Electrician, &[1, 2])?;
     println!("{report:?}");
     let lamps = RowDomain::new(&vec![0, 1, 2], make_env, || Electrician)?;
     // Every order of three lamps; those whose lamps sum to a multiple of 3 are held out.
@@ -93,18 +90,15 @@ fn main() -> ntg_train::anyhow::Result<()> {
     let (test, train): (Vec<_>, Vec<_>) = orders.partition(|t| t.iter().sum::<usize>() % 3 == 0);
     let dataset = record_demos(&lamps, &train, 10, 0)?;
     let device = ntg_model::cpu_device().autodiff();
-    let folder = std::env::temp_dir().join(format!("ntg-own-env-{}", std::process::id()));
-    let run = RunDir::create(&folder)?;
-    let model = ntg::state_model(&dataset, 0, &device)?;
+    let run = RunDir::create(&std::env::temp_dir().join(format!("ntg-own-env-{}", std::process::id())))?;
     let optim = OptimConfig::stage(12, 32, 3e-3, 0, 1);
-    let log = |m: &ntg::EpochMetrics| println!("{}", m.log_line());
-    let mut model = ntg::train_with(model, &dataset, &optim, &run, &device, log, Default::default())?;
+    let mut model = ntg::train_on_rows(&dataset, &optim, &run, &device, &mut |r| println!("{r}"))?;
     let episodes = Episode::for_tasks(&test, 5, 1_000_000);
     let learned = success_rate(&evaluate(&lamps, &model, &episodes)?);
     model.config.ablation = ntg::Variant::NoEdgeClassifier.ablation_of(&model.config.ablation);
     let uniform = success_rate(&evaluate(&lamps, &model, &episodes)?);
     println!("{} unseen orders: NTG {learned}; uniform over its graph's edges {uniform}", test.len());
-    std::fs::remove_dir_all(&folder)?;
+    std::fs::remove_dir_all(run.root())?;
     assert!(learned.rate > uniform.rate, "NTG must beat the uniform-edge policy");
     Ok(())
 }

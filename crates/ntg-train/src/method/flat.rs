@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::dataset::DemoDataset;
 use crate::fit::{StepContext, StepReport, TrainStep};
-use crate::method::input::{Demos, EpochReport, TrainInput};
+use crate::method::input::{Demos, EpochLog, EpochReport, TrainInput, fit_model};
 use crate::method::{Agent, Model, TrainedPolicy};
 
 /// Metrics of one Flat Policy epoch, as logged to `metrics.jsonl`.
@@ -31,6 +31,15 @@ pub struct FlatEpochMetrics {
     pub step_accuracy: f32,
     /// Wall-clock seconds of the epoch.
     pub seconds: f32,
+}
+
+impl EpochLog for FlatEpochMetrics {
+    fn epoch(&self) -> usize {
+        self.epoch
+    }
+    fn log_line(&self) -> String {
+        FlatEpochMetrics::log_line(self)
+    }
 }
 
 impl FlatEpochMetrics {
@@ -83,25 +92,7 @@ pub fn train(
         memory: options.memory,
     };
     let step = FlatStep::new(&policy, &dataset, training, input.device)?;
-    let log = |m: &FlatEpochMetrics| {
-        on_epoch(&EpochReport {
-            epoch: m.epoch,
-            line: m.log_line(),
-        })
-    };
-    use super::ntg::fit_on;
-    Ok(match frames {
-        None => Box::new(fit_on(policy, &step, &input, log)?),
-        Some(frames) => {
-            let policy = super::on_frames::OnFrames::new(frames, policy)?;
-            Box::new(fit_on(
-                policy,
-                &super::on_frames::OnFramesStep(step),
-                &input,
-                log,
-            )?)
-        }
-    })
+    fit_model(policy, step, frames, &input, input.validation, on_epoch)
 }
 
 /// The Flat Policy's [`TrainStep`] on a dataset of demonstrations.
@@ -239,6 +230,9 @@ impl crate::method::Method for Flat {
         let options: FlatOptions = crate::method::input::options_of(self.legend(), config)?;
         self.check(config)?;
         train(input, &options, on_epoch)
+    }
+    fn options(&self) -> &'static [&'static str] {
+        &["learn_end", "memory"]
     }
     fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
         if let Some(prior) = config.get("location_step_prior").filter(|v| !v.is_null()) {

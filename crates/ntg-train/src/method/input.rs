@@ -14,9 +14,12 @@ use burn::tensor::Device;
 use ctg_graph::Vocabulary;
 use ntg_model::{EncoderConfig, FrameStageNet};
 
+use burn::module::ModuleDisplay;
+
 use crate::dataset::DemoDataset;
-use crate::fit::{OptimConfig, ValidationScore};
-use crate::method::TrainedPolicy;
+use crate::fit::{OptimConfig, Selection, TrainStep, TrainedModel, ValidationScore, Validator};
+use crate::method::on_frames::{EmbeddingReader, OnFrames, OnFramesStep};
+use crate::method::{Model, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::symmetry::{ObjectSymmetry, RenamingFilter};
 
@@ -83,6 +86,24 @@ pub struct EpochReport {
     pub epoch: usize,
     /// Its metrics in one line (the method's `log_line`).
     pub line: String,
+}
+
+/// A method's metrics of one epoch, as it reports them.
+pub trait EpochLog {
+    /// The epoch, from 0.
+    fn epoch(&self) -> usize;
+    /// The metrics in one line.
+    fn log_line(&self) -> String;
+}
+
+impl EpochReport {
+    /// The report of `metrics`.
+    pub fn of(metrics: &impl EpochLog) -> Self {
+        EpochReport {
+            epoch: metrics.epoch(),
+            line: metrics.log_line(),
+        }
+    }
 }
 
 impl std::fmt::Display for EpochReport {
@@ -173,4 +194,72 @@ pub fn options_of<T: serde::de::DeserializeOwned>(
 ) -> anyhow::Result<T> {
     T::deserialize(config)
         .map_err(|e| anyhow::anyhow!("the run configuration's options of {method}: {e}"))
+}
+
+/// [`crate::fit::fit`] of `model` with `step` on `input`'s optimisation,
+/// run folder and device, the epoch selected by `validation` if given (a
+/// method passes `input.validation`, or its own score on the same
+/// episodes): the loop every method trains through.
+pub fn fit_on<M, S>(
+    model: M,
+    step: &S,
+    input: &TrainInput<'_>,
+    validation: Option<Validation<'_>>,
+    on_epoch: &mut dyn FnMut(&EpochReport),
+) -> anyhow::Result<M>
+where
+    M: TrainedModel + TrainedPolicy + Send,
+    S: TrainStep<M> + Sync,
+    S::Metrics: EpochLog,
+{
+    let log = |m: &S::Metrics| on_epoch(&EpochReport::of(m));
+    let Some(validation) = validation else {
+        return crate::fit::fit(model, step, input.optim, input.run, input.device, None, log);
+    };
+    let mut validator = |m: &M| (validation.score)(m);
+    let selection = Selection {
+        validator: &mut validator as &mut dyn Validator<M>,
+        every: validation.every,
+    };
+    crate::fit::fit(
+        model,
+        step,
+        input.optim,
+        input.run,
+        input.device,
+        Some(selection),
+        log,
+    )
+}
+
+/// [`fit_on`] of a model that reads rows: on the rows themselves, or, given
+/// the frozen frame encoder whose embeddings they are, behind it (the
+/// second stage of a run from demo videos).
+pub fn fit_model<M, S>(
+    model: M,
+    step: S,
+    frames: Option<ntg_model::FrameStageNet>,
+    input: &TrainInput<'_>,
+    validation: Option<Validation<'_>>,
+    on_epoch: &mut dyn FnMut(&EpochReport),
+) -> anyhow::Result<Model>
+where
+    M: TrainedModel + TrainedPolicy + ModuleDisplay + EmbeddingReader + Send + 'static,
+    S: TrainStep<M> + Sync,
+    S::Metrics: EpochLog,
+    OnFrames<M>: TrainedPolicy,
+{
+    Ok(match frames {
+        None => Box::new(fit_on(model, &step, input, validation, on_epoch)?),
+        Some(frames) => {
+            let model = OnFrames::new(frames, model)?;
+            Box::new(fit_on(
+                model,
+                &OnFramesStep(step),
+                input,
+                validation,
+                on_epoch,
+            )?)
+        }
+    })
 }

@@ -32,6 +32,18 @@ pub trait Method: Sync {
     fn legend(&self) -> &'static str;
     /// Loads a trained model saved in `dir`.
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model>;
+    /// The run-configuration options this method reads (its options type's
+    /// keys: top-level, or `optim.KEY` / `video.KEY` for those runs keep
+    /// there). A domain asks [`Method::reads`] before it writes an option's
+    /// default or accepts its flag, instead of naming methods.
+    fn options(&self) -> &'static [&'static str] {
+        &[]
+    }
+    /// Whether this method reads the run-configuration option `option` (see
+    /// [`Method::options`]).
+    fn reads(&self, option: &str) -> bool {
+        self.options().contains(&option)
+    }
     /// Refuses, naming the flag, the options this method reads from the
     /// run's configuration `config` when they cannot be trained (called by
     /// [`Method::train`] too; a domain calls it before it creates a run

@@ -38,7 +38,7 @@ use crate::dataset::DemoDataset;
 use crate::fit::{
     OptimConfig, Selection, StepContext, StepReport, TrainStep, Validator, fit, scalar,
 };
-use crate::method::input::{Demos, EpochReport, TrainInput};
+use crate::method::input::{Demos, EpochLog, EpochReport, TrainInput, fit_model};
 use crate::method::{Agent, Model, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::symmetry::{ObjectSymmetry, Relabeling, RenamingFilter};
@@ -71,6 +71,15 @@ pub struct EpochMetrics {
     pub step_accuracy: f32,
     /// Wall-clock seconds of the epoch.
     pub seconds: f32,
+}
+
+impl EpochLog for EpochMetrics {
+    fn epoch(&self) -> usize {
+        self.epoch
+    }
+    fn log_line(&self) -> String {
+        EpochMetrics::log_line(self)
+    }
 }
 
 impl EpochMetrics {
@@ -619,14 +628,38 @@ pub fn train_with(
     fit(model, &step, optim, run, device, selection, on_epoch)
 }
 
-/// A fresh NTG model for `dataset`'s vocabulary and state rows (an MLP
-/// row encoder over its `obs_dim` values), its weights seeded with `seed`:
-/// the model [`train_with`] takes, for a domain of one's own.
-pub fn state_model(dataset: &DemoDataset, seed: u64, device: &Device) -> anyhow::Result<NtgModel> {
-    let encoder = ntg_model::EncoderConfig::state(dataset.obs_dim());
-    let mut config = ntg_model::NtgConfig::for_domain(dataset.vocabulary().len(), encoder);
-    config.seed = seed;
-    Ok(NtgModel::new(config, device)?)
+/// Trains the paper's NTG on `dataset`'s observation rows (each encoded by
+/// an MLP over its values, weights seeded by `optim.seed`, no validation)
+/// in `run`: the shortest way to NTG on a domain of one's own, through the
+/// same [`TrainInput`] and [`train`] every domain uses.
+pub fn train_on_rows(
+    dataset: &DemoDataset,
+    optim: &OptimConfig,
+    run: &RunDir,
+    device: &Device,
+    on_epoch: &mut dyn FnMut(&EpochReport),
+) -> anyhow::Result<NtgModel> {
+    let demos = || {
+        Ok(Demos {
+            dataset: dataset.clone(),
+            frames: None,
+        })
+    };
+    let input = TrainInput::of_rows(
+        &demos,
+        dataset.vocabulary(),
+        dataset.obs_dim(),
+        optim,
+        run,
+        device,
+    );
+    let model = train(input, &NtgOptions::default(), on_epoch)?;
+    use anyhow::Context;
+    model
+        .as_any()
+        .downcast_ref::<NtgModel>()
+        .cloned()
+        .context("NTG on rows is an NtgModel")
 }
 
 /// NTG's options, read from a run's configuration (see
@@ -634,7 +667,7 @@ pub fn state_model(dataset: &DemoDataset, seed: u64, device: &Device) -> anyhow:
 /// runs keep under `optim` and `video`. An absent key means the paper's
 /// method, so configurations saved before a key existed read as they were
 /// trained.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NtgOptions {
     /// The part of NTG trained without ([`Variant::trains`]; `full`: none).
     #[serde(default)]
@@ -691,7 +724,7 @@ impl Default for NtgOptions {
 }
 
 /// NTG's options under a run configuration's `optim`.
-#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct NtgOptimOptions {
     /// Decoder token dropout ([`NtgTraining::token_dropout`]).
     #[serde(default)]
@@ -703,7 +736,7 @@ pub struct NtgOptimOptions {
 }
 
 /// NTG's options under a video run configuration's `video`.
-#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct NtgVideoOptions {
     /// The current node is the last action executed, not the localizer's.
     #[serde(default)]
@@ -714,6 +747,25 @@ pub struct NtgVideoOptions {
 }
 
 impl NtgOptions {
+    /// The keys of the run configuration these options are read from
+    /// ([`crate::method::Method::options`]).
+    pub const KEYS: &'static [&'static str] = &[
+        "ablation",
+        "retry_weight",
+        "detach_gcn_from_edges",
+        "soft_edges",
+        "edge_fusion_hidden",
+        "segments",
+        "learn_end",
+        "memory",
+        "interpreter",
+        "location_step_prior",
+        "optim.token_dropout",
+        "optim.gcn_from_other_demo",
+        "video.executed_node",
+        "video.interpreter_frame_pool",
+    ];
+
     /// Refuses what cannot be trained, naming the flag.
     pub fn check(&self) -> anyhow::Result<()> {
         if !self.ablation.trains() {
@@ -807,64 +859,7 @@ pub fn train(
     let model = NtgModel::new(options.model_config(&input), input.device)?;
     let training = options.training(&input);
     let step = NtgStep::new(&model, &dataset, training, input.device)?;
-    let log = |m: &EpochMetrics| {
-        on_epoch(&EpochReport {
-            epoch: m.epoch,
-            line: m.log_line(),
-        })
-    };
-    Ok(match frames {
-        None => Box::new(fit_on(model, &step, &input, log)?),
-        Some(frames) => {
-            let model = super::on_frames::OnFrames::new(frames, model)?;
-            Box::new(fit_on(
-                model,
-                &super::on_frames::OnFramesStep(step),
-                &input,
-                log,
-            )?)
-        }
-    })
-}
-
-/// [`fit`] of `model` with `step` on `input`'s optimisation, run folder
-/// and device, validated as `input` says: the loop every method of the
-/// library trains through.
-pub fn fit_on<M, S>(
-    model: M,
-    step: &S,
-    input: &TrainInput<'_>,
-    on_epoch: impl FnMut(&S::Metrics),
-) -> anyhow::Result<M>
-where
-    M: crate::fit::TrainedModel + TrainedPolicy + Send,
-    S: TrainStep<M> + Sync,
-{
-    let Some(validation) = input.validation else {
-        return fit(
-            model,
-            step,
-            input.optim,
-            input.run,
-            input.device,
-            None,
-            on_epoch,
-        );
-    };
-    let mut validator = |m: &M| (validation.score)(m);
-    let selection = Selection {
-        validator: &mut validator as &mut dyn Validator<M>,
-        every: validation.every,
-    };
-    fit(
-        model,
-        step,
-        input.optim,
-        input.run,
-        input.device,
-        Some(selection),
-        on_epoch,
-    )
+    fit_model(model, step, frames, &input, input.validation, on_epoch)
 }
 
 /// Which demo interpreter NTG uses (see [`ntg_model::DemoInterpreterConfig`]).
@@ -1057,6 +1052,9 @@ impl crate::method::Method for Ntg {
     fn load(&self, dir: &std::path::Path, device: &Device) -> anyhow::Result<Model> {
         super::on_frames::load_either::<NtgModel>(dir, device)
     }
+    fn options(&self) -> &'static [&'static str] {
+        NtgOptions::KEYS
+    }
     fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
         crate::method::input::options_of::<NtgOptions>(self.legend(), config)?.check()
     }
@@ -1108,6 +1106,33 @@ impl Agent for NtgPolicy {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_listed_option_keys_are_the_keys_the_options_are_read_from() {
+        let options = NtgOptions {
+            video: Some(NtgVideoOptions::default()),
+            ..NtgOptions::default()
+        };
+        let serde_json::Value::Object(top) = serde_json::to_value(&options).unwrap() else {
+            panic!("options serialise to an object");
+        };
+        let mut keys = Vec::new();
+        for (key, value) in top {
+            match value {
+                serde_json::Value::Object(inner) => {
+                    keys.extend(inner.keys().map(|k| format!("{key}.{k}")))
+                }
+                _ => keys.push(key),
+            }
+        }
+        let mut listed: Vec<String> = NtgOptions::KEYS.iter().map(|k| k.to_string()).collect();
+        keys.sort();
+        listed.sort();
+        assert_eq!(keys, listed);
+        // Read back from the same keys, the options are what was written.
+        let json = serde_json::to_value(&options).unwrap();
+        assert_eq!(NtgOptions::deserialize(json).unwrap(), options);
+    }
 
     #[test]
     fn full_keeps_the_trained_source_of_the_current_node_and_others_name_theirs() {

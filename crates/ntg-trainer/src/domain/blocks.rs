@@ -400,13 +400,13 @@ impl Recipe {
 
 impl Recipe {
     /// `config` (a configuration of this recipe, made for NTG) turned into
-    /// `method`'s. NTP (Detector) reads no demo video (its demo is one frame
-    /// per primitive) and trains a detector (default settings unless
-    /// `config` has some); its NTP reads state rows, whose cubes this
-    /// recipe renames as on state input.
+    /// `method`'s. A method with a detector stage (NTP (Detector)) reads no
+    /// demo video (its demo is one frame per primitive) and trains its
+    /// detector (default settings unless `config` has some); its NTP reads
+    /// state rows, whose cubes this recipe renames as on state input.
     pub fn for_method(self, mut config: BlocksRunConfig, method: MethodId) -> BlocksRunConfig {
         config.method = method;
-        if method == MethodId::NtpDetector {
+        if method.method().reads("detector") {
             let renames = self == Recipe::Recommended;
             config.permute_objects |= renames;
             config.exclude_held_out_renamings |= renames;
@@ -975,22 +975,17 @@ impl PrimitiveLevel for BlocksPrimitive {
 }
 
 /// Refuses NTP's primitive frame labels ([`FrameLabels::Primitive`]) for a
-/// method that does not read frames at NTP's level: NTG (its stage A reads
-/// flat actions) and NTP (Detector) (its detector reads frames).
+/// method that does not read them (NTG's stage A reads flat actions, NTP
+/// (Detector) reads frames through its detector).
 fn check_encoder_labels(config: &BlocksRunConfig) -> anyhow::Result<()> {
     let primitive = config
         .video
         .as_ref()
         .is_some_and(|v| v.encoder_labels == FrameLabels::Primitive);
-    if primitive && !matches!(config.method, MethodId::Ntp | MethodId::NtpFlat) {
+    if primitive && !config.method.method().reads("video.encoder_labels") {
         bail!(
-            "video.encoder_labels = \"primitive\" trains the frame encoder of NTP and NTP Flat; {} reads {}",
-            config.method.legend(),
-            if config.method.is_ntg() {
-                "frames through a stage A trained on flat actions"
-            } else {
-                "frames through its detector"
-            }
+            "video.encoder_labels = \"primitive\" (--encoder-labels) trains the frame encoder of NTP and NTP Flat on NTP's primitives; {} does not read it",
+            config.method.legend()
         );
     }
     Ok(())
@@ -1700,43 +1695,43 @@ impl DomainRuns for Blocks {
         let config = train_config(flags, own);
         // Checked before the run folder exists, so a corrected command is
         // not refused as "already exists".
-        if config.permute_objects
-            && config.obs != ObsKind::State
-            && config.method != MethodId::NtpDetector
-        {
+        let method = config.method.method();
+        let vid = config.obs == ObsKind::Vid;
+        // Each method-specific flag is accepted only for a method that reads
+        // its option (`Method::reads`).
+        if config.permute_objects && vid && !method.reads("permute_objects") {
             bail!(
-                "--permute-objects renames cubes in state observations; it does not apply to --obs vid"
+                "--permute-objects renames cubes in state observations; with --obs vid {} reads none (--video-renaming-group renames cubes in demo videos)",
+                method.legend()
             );
         }
         flags.check_encoder_flags()?;
-        if config.method == MethodId::NtpDetector && flags.sets_the_frame_encoder() {
+        if config.video.is_none() && flags.sets_the_frame_encoder() {
             bail!(
-                "--encoder-* flags set the frame encoder that NTG, NTP and NTP Flat read videos through; NTP (Detector) reads frames through its detector (--detector-episodes, --detector-epochs)"
+                "--encoder-* flags set the frame encoder of a run from demo videos; {} reads no demo video",
+                method.legend()
             );
         }
-        if config.method != MethodId::NtpDetector
-            && (own.detector_episodes.is_some()
-                || own.detector_epochs.is_some()
-                || own.ntp_on_true_states)
-        {
+        let detector_flags = own.detector_episodes.is_some()
+            || own.detector_epochs.is_some()
+            || own.ntp_on_true_states;
+        if detector_flags && !method.reads("detector") {
             bail!(
-                "--detector-episodes, --detector-epochs and --ntp-on-true-states train NTP (Detector): they need --method ntp-detector"
+                "--detector-episodes, --detector-epochs and --ntp-on-true-states train a detector stage; {} has none (--method ntp-detector has)",
+                method.legend()
             );
         }
         if own.video_renaming_group.is_some() && config.video.is_none() {
             bail!("--video-renaming-group renames cubes in demo videos: it needs --obs vid");
         }
         if own.interpreter_frame_pool.is_some()
-            && (config.obs != ObsKind::Vid || config.method != MethodId::Ntg)
+            && !(vid && method.reads("video.interpreter_frame_pool"))
         {
             bail!(
                 "--interpreter-frame-pool sets NTG's demo interpreter on videos: it needs --obs vid and --method ntg"
             );
         }
-        if own.encoder_labels.is_some()
-            && (config.obs != ObsKind::Vid
-                || !matches!(config.method, MethodId::Ntp | MethodId::NtpFlat))
-        {
+        if own.encoder_labels.is_some() && !(vid && method.reads("video.encoder_labels")) {
             bail!(
                 "--encoder-labels sets the frame encoder NTP and NTP Flat read videos through: it needs --obs vid and --method ntp or ntp-flat"
             );
@@ -1843,10 +1838,7 @@ pub fn ntp_decisions(
 ) -> anyhow::Result<crate::method::ntp::DecisionReport> {
     use crate::method::ntp::{CheckedEpisode, DecisionReport, NtpKind, NtpModel, check_episodes};
     type Front<'a> = Box<dyn Fn(&[Vec<f32>]) -> anyhow::Result<Vec<Vec<f32>>> + 'a>;
-    let kind = match config.method {
-        MethodId::NtpFlat => NtpKind::Flat,
-        _ => NtpKind::Hierarchical,
-    };
+    let kind = NtpKind::of(config.method.method());
     let any = model.as_any();
     let (net, front): (&ntg_model::NtpNet, Front<'_>) =
         if let Some(model) = any.downcast_ref::<NtpModel>() {

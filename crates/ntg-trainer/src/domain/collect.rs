@@ -124,6 +124,13 @@ impl InterpreterDefaults for InterpreterKind {
     }
 }
 
+/// The location step prior a new run of `method` with `interpreter`
+/// starts from: the interpreter's, for a method that reads one.
+fn default_step_prior(method: MethodId, interpreter: InterpreterKind) -> Option<f32> {
+    let reads = method.method().reads("location_step_prior");
+    reads.then(|| interpreter.default_step_prior()).flatten()
+}
+
 /// The initial weight `w₊₁` of the stepping interpreter's location-aware
 /// attention for the frame after the one read last (see
 /// `DemoInterpreterConfig::location_step_prior`): the attention starts
@@ -247,10 +254,7 @@ impl CollectRunConfig {
             learn_end: false,
             memory: false,
             interpreter,
-            location_step_prior: match method {
-                MethodId::Ntg => interpreter.default_step_prior(),
-                _ => None,
-            },
+            location_step_prior: default_step_prior(method, interpreter),
             model_seed: seed,
             optim: OptimConfig {
                 epochs,
@@ -709,14 +713,17 @@ impl CollectFlags {
     /// explicit 0 is no prior, as in runs saved before the option existed,
     /// so those resume with `--location-step-prior 0`.
     pub fn location_step_prior(&self, obs: ObsKind, method: MethodId) -> Option<f32> {
-        match (self.location_step_prior, method) {
-            (Some(0.0), _) => None,
-            (Some(w), _) => Some(w),
-            (None, MethodId::Ntg) => self.interpreter(obs).default_step_prior(),
-            (None, _) => None,
+        match self.location_step_prior {
+            Some(0.0) => None,
+            Some(w) => Some(w),
+            None => default_step_prior(method, self.interpreter(obs)),
         }
     }
 }
+
+/// The methods object collection trains and evaluates: those that need
+/// nothing but its demos (NTP's programs are block stacking's).
+pub const EVALUATED_METHODS: &[MethodId] = &[MethodId::Ntg, MethodId::Flat];
 
 /// Object collection in the domain registry (`ntg train --domain collect`,
 /// `ntg eval` on its runs).
@@ -734,7 +741,7 @@ impl DomainRuns for Collect {
                 "--ablation trains NTG without a part in block stacking and object sorting; object collection trains its models whole"
             );
         }
-        if !matches!(flags.method, MethodId::Ntg | MethodId::Flat) {
+        if !EVALUATED_METHODS.contains(&flags.method) {
             bail!(
                 "--method {}: object collection trains ntg or flat (NTP's programs are block stacking's)",
                 flags.method.name()
@@ -845,10 +852,7 @@ mod tests {
             learn_end: true,
             memory: true,
             interpreter: InterpreterKind::Stepping,
-            location_step_prior: match method {
-                MethodId::Ntg => Some(LOCATION_STEP_PRIOR),
-                _ => None,
-            },
+            location_step_prior: default_step_prior(method, InterpreterKind::Stepping),
             model_seed: 0,
             optim: OptimConfig {
                 epochs,

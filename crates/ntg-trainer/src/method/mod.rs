@@ -52,9 +52,9 @@ methods! {
     /// The Flat Policy baseline (attention over the demo, then an MLP).
     Flat => flat::Flat,
     /// Neural Task Programming (Xu et al. 2018), block stacking.
-    Ntp => ntp::Ntp,
+    Ntp => ntp::NtpMethod(ntp::NtpKind::Hierarchical),
     /// NTP trained on the lowest level only, block stacking.
-    NtpFlat => ntp::NtpFlat,
+    NtpFlat => ntp::NtpMethod(ntp::NtpKind::Flat),
     /// NTP on the states a frame detector estimates (video input), block
     /// stacking.
     NtpDetector => ntp_detector::NtpDetector,

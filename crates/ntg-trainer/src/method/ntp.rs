@@ -44,6 +44,7 @@ use serde::{Deserialize, Serialize};
 use crate::evaluate::in_parallel;
 use crate::fit::ValidationScore;
 use crate::fit::{StepContext, StepReport, TrainStep, TrainedModel};
+use crate::method::input::{EpochLog, Validation, fit_model};
 use crate::method::{Agent, EpochReport, Model, TrainInput, TrainedPolicy};
 use crate::run_dir::RunDir;
 use crate::spec::ObsKind;
@@ -484,6 +485,15 @@ pub struct NtpEpochMetrics {
     pub seconds: f32,
 }
 
+impl EpochLog for NtpEpochMetrics {
+    fn epoch(&self) -> usize {
+        self.epoch
+    }
+    fn log_line(&self) -> String {
+        NtpEpochMetrics::log_line(self)
+    }
+}
+
 impl NtpEpochMetrics {
     /// One human-readable log line.
     pub fn log_line(&self) -> String {
@@ -884,6 +894,18 @@ pub fn check_episodes(
     Ok(())
 }
 
+impl NtpKind {
+    /// The NTP that `method` trains: NTP Flat's lowest level only, or (NTP
+    /// and NTP (Detector)) the hierarchy.
+    pub fn of(method: &dyn crate::method::Method) -> Self {
+        if method.name() == crate::method::Method::name(&NtpMethod(NtpKind::Flat)) {
+            NtpKind::Flat
+        } else {
+            NtpKind::Hierarchical
+        }
+    }
+}
+
 /// What NTP and NTP Flat's frame encoder (stage A) is trained to tell
 /// apart, on a run from demo videos: NTG's flat actions on every frame of
 /// the demo videos (the encoder NTG's run of the same videos trains, so
@@ -1045,92 +1067,67 @@ pub fn train(
     options: &NtpOptions,
     on_epoch: &mut dyn FnMut(&EpochReport),
 ) -> anyhow::Result<Model> {
-    let method = match kind {
-        NtpKind::Hierarchical => "ntp",
-        NtpKind::Flat => "ntp-flat",
-    };
+    let method = crate::method::Method::name(&NtpMethod(kind));
     options.check(method)?;
     let level = primitive_level(&input, method)?;
-    let log = |m: &NtpEpochMetrics| {
-        on_epoch(&EpochReport {
-            epoch: m.epoch,
-            line: m.log_line(),
-        })
-    };
+    let score = |m: &dyn TrainedPolicy| level.score(m);
+    let validation = primitive_validation(&input, &score);
+    let seed = input.model_seed;
     match level.obs() {
         ObsKind::State => {
             if !options.encoder_labels().is_flat() {
                 anyhow::bail!("--encoder-labels sets the frame encoder: it needs --obs vid");
             }
             let dataset = level.state_episodes()?;
-            let net = NtpModel::init(
-                &ntp_config(level.encoder(false), true, input.model_seed),
-                input.device,
-            )?;
+            let net = NtpModel::init(&ntp_config(level.encoder(false), true, seed), input.device)?;
             let step = NtpStep::new(&dataset, kind, level.renaming(), input.device)?;
-            Ok(Box::new(fit_primitive(net, &step, &input, level, log)?))
+            fit_model(net, step, None, &input, validation, on_epoch)
         }
         ObsKind::Vid => {
             let frames = level.frame_encoder(options.encoder_labels(), input.run, input.device)?;
             let net = Module::valid(&frames);
             let encode = |rows: &[Vec<f32>]| crate::method::on_frames::encode_rows(&net, rows);
             let dataset = level.frame_episodes(input.run, &encode, "NTP frames")?;
-            let ntp = NtpModel::init(
-                &ntp_config(level.encoder(true), false, input.model_seed),
-                input.device,
-            )?;
+            let ntp = NtpModel::init(&ntp_config(level.encoder(true), false, seed), input.device)?;
             let step = NtpStep::new(&dataset, kind, None, input.device)?;
-            let model = crate::method::on_frames::OnFrames::new(frames, ntp)?;
-            let step = crate::method::on_frames::OnFramesStep(step);
-            Ok(Box::new(fit_primitive(model, &step, &input, level, log)?))
+            fit_model(ntp, step, Some(frames), &input, validation, on_epoch)
         }
     }
 }
 
-/// [`crate::fit::fit`] on `input`'s optimisation and run folder, the epoch
-/// selected on `level`'s primitive-level score when `input` validates.
-pub fn fit_primitive<M, S>(
-    model: M,
-    step: &S,
+/// `input`'s validation (if it validates) with the primitive level's
+/// score in place of the domain's, which acts at the level of its demos.
+pub fn primitive_validation<'a>(
     input: &TrainInput<'_>,
-    level: &dyn PrimitiveLevel,
-    on_epoch: impl FnMut(&S::Metrics),
-) -> anyhow::Result<M>
-where
-    M: TrainedModel + TrainedPolicy + Send,
-    S: TrainStep<M> + Sync,
-{
-    let mut validator = |m: &M| level.score(m);
-    let selection = input.validation.map(|v| crate::fit::Selection {
-        validator: &mut validator as &mut dyn crate::fit::Validator<M>,
+    score: &'a crate::method::input::ScoreFn<'a>,
+) -> Option<Validation<'a>> {
+    input.validation.map(|v| Validation {
+        score,
         every: v.every,
-    });
-    crate::fit::fit(
-        model,
-        step,
-        input.optim,
-        input.run,
-        input.device,
-        selection,
-        on_epoch,
-    )
+    })
 }
 
-/// NTP in the method registry.
-pub struct Ntp;
+/// NTP or NTP Flat in the method registry.
+pub struct NtpMethod(pub NtpKind);
 
-/// NTP Flat in the method registry.
-pub struct NtpFlat;
-
-impl crate::method::Method for Ntp {
+impl crate::method::Method for NtpMethod {
     fn name(&self) -> &'static str {
-        "ntp"
+        match self.0 {
+            NtpKind::Hierarchical => "ntp",
+            NtpKind::Flat => "ntp-flat",
+        }
     }
     fn legend(&self) -> &'static str {
-        "NTP"
+        match self.0 {
+            NtpKind::Hierarchical => "NTP",
+            NtpKind::Flat => "NTP Flat",
+        }
     }
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
         crate::method::on_frames::load_either::<NtpModel>(dir, device)
+    }
+    fn options(&self) -> &'static [&'static str] {
+        &["video.encoder_labels"]
     }
     fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
         crate::method::input::options_of::<NtpOptions>(self.legend(), config)?.check(self.name())
@@ -1142,31 +1139,7 @@ impl crate::method::Method for Ntp {
         on_epoch: &mut dyn FnMut(&EpochReport),
     ) -> anyhow::Result<Model> {
         let options = crate::method::input::options_of(self.legend(), config)?;
-        train(NtpKind::Hierarchical, input, &options, on_epoch)
-    }
-}
-
-impl crate::method::Method for NtpFlat {
-    fn name(&self) -> &'static str {
-        "ntp-flat"
-    }
-    fn legend(&self) -> &'static str {
-        "NTP Flat"
-    }
-    fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
-        crate::method::on_frames::load_either::<NtpModel>(dir, device)
-    }
-    fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
-        crate::method::input::options_of::<NtpOptions>(self.legend(), config)?.check(self.name())
-    }
-    fn train(
-        &self,
-        input: TrainInput<'_>,
-        config: &serde_json::Value,
-        on_epoch: &mut dyn FnMut(&EpochReport),
-    ) -> anyhow::Result<Model> {
-        let options = crate::method::input::options_of(self.legend(), config)?;
-        train(NtpKind::Flat, input, &options, on_epoch)
+        train(self.0, input, &options, on_epoch)
     }
 }
 

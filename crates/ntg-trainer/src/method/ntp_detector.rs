@@ -23,9 +23,10 @@ use ctg_graph::{ActionId, Vocabulary};
 use ntg_model::Detector;
 
 use crate::fit::TrainedModel;
+use crate::method::input::fit_on;
 use crate::method::ntp::NtpModel;
 use crate::method::ntp::{
-    NtpEpochMetrics, NtpKind, NtpOptions, NtpStep, fit_primitive, ntp_config, primitive_level,
+    NtpKind, NtpOptions, NtpStep, ntp_config, primitive_level, primitive_validation,
 };
 use crate::method::on_frames::FrozenFront;
 use crate::method::{Agent, EpochReport, Model, TrainInput, TrainedPolicy};
@@ -91,12 +92,22 @@ impl crate::method::Method for NtpDetector {
     fn load(&self, dir: &Path, device: &Device) -> anyhow::Result<Model> {
         Ok(Box::new(NtpOnDetector::load_from(dir, device)?))
     }
+    /// Its detector stage, and cube renaming of the state rows its NTP
+    /// reads, which the detector estimates from frames.
+    fn options(&self) -> &'static [&'static str] {
+        &["detector", "permute_objects"]
+    }
     fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
         let options: NtpOptions = crate::method::input::options_of(self.legend(), config)?;
         options.check_whole(self.name())?;
         if config.get("obs").and_then(serde_json::Value::as_str) != Some(ObsKind::Vid.name()) {
             anyhow::bail!(
                 "--method ntp-detector is the video baseline: it needs --obs vid (NTP on true states is --method ntp)"
+            );
+        }
+        if !options.encoder_labels().is_flat() {
+            anyhow::bail!(
+                "--encoder-labels primitive trains the frame encoder of NTP and NTP Flat; NTP (Detector) reads frames through its detector"
             );
         }
         Ok(())
@@ -107,6 +118,7 @@ impl crate::method::Method for NtpDetector {
         config: &serde_json::Value,
         on_epoch: &mut dyn FnMut(&EpochReport),
     ) -> anyhow::Result<Model> {
+        self.check(config)?;
         let options = crate::method::input::options_of(self.legend(), config)?;
         train(input, &options, on_epoch)
     }
@@ -116,24 +128,14 @@ impl crate::method::Method for NtpDetector {
 /// (so a bad setting fails before NTP's episodes are recorded), then NTP
 /// on the detector's estimates of its episodes' frames, the rows it will
 /// be fed (or, with `ntp_on_estimates` off, on the true states), validated
-/// through the detector on frames.
+/// through the detector on frames. The options are checked
+/// ([`crate::method::Method::check`]).
 pub fn train(
     input: TrainInput<'_>,
     options: &NtpOptions,
     on_epoch: &mut dyn FnMut(&EpochReport),
 ) -> anyhow::Result<Model> {
-    options.check_whole("ntp-detector")?;
     let level = primitive_level(&input, "ntp-detector")?;
-    if level.obs() != ObsKind::Vid {
-        anyhow::bail!(
-            "--method ntp-detector is the video baseline: it needs --obs vid (NTP on true states is --method ntp)"
-        );
-    }
-    if !options.encoder_labels().is_flat() {
-        anyhow::bail!(
-            "--encoder-labels primitive trains the frame encoder of NTP and NTP Flat; NTP (Detector) reads frames through its detector"
-        );
-    }
     let settings = options
         .detector
         .clone()
@@ -156,15 +158,13 @@ pub fn train(
         level.renaming(),
         input.device,
     )?;
-    let log = |m: &NtpEpochMetrics| {
-        on_epoch(&EpochReport {
-            epoch: m.epoch,
-            line: m.log_line(),
-        })
-    };
     let model = NtpOnDetector::new(detector, net)?;
     let step = crate::method::on_frames::OnFramesStep(step);
-    Ok(Box::new(fit_primitive(model, &step, &input, level, log)?))
+    let score = |m: &dyn TrainedPolicy| level.score(m);
+    let validation = primitive_validation(&input, &score);
+    Ok(Box::new(fit_on(
+        model, &step, &input, validation, on_epoch,
+    )?))
 }
 
 impl TrainedPolicy for NtpOnDetector {

@@ -303,6 +303,48 @@ fn no_domain_file_of_ntg_trainer_imports_another() {
     assert_eq!(domain_imports(&edges), Vec::<(String, String)>::new());
 }
 
+/// The lines of `code` that branch on a method: a `match` or `matches!`
+/// over an expression that names one (`config.method`, `flags.method`, a
+/// `method` variable). Domains ask a method what it reads instead.
+fn method_matches(code: &str) -> Vec<String> {
+    code.lines()
+        .filter(|line| {
+            let line = line.trim();
+            let scrutinee = line
+                .split_once("match ")
+                .or_else(|| line.split_once("matches!("))
+                .map(|(_, rest)| rest.split(['{', ',']).next().unwrap_or_default());
+            scrutinee.is_some_and(|s| s.contains("method"))
+        })
+        .map(str::to_owned)
+        .collect()
+}
+
+#[test]
+fn no_domain_file_of_ntg_trainer_matches_on_a_method() {
+    let modules = modules(&crate_src("ntg-trainer"));
+    let mut found = Vec::new();
+    for (name, text) in &modules {
+        if name.starts_with("domain::") {
+            found.extend(
+                method_matches(&code_of(text))
+                    .into_iter()
+                    .map(|l| format!("{name}: {l}")),
+            );
+        }
+    }
+    assert_eq!(found, Vec::<String>::new());
+    // Planted, it is seen.
+    let planted =
+        "fn f() {\n    let kind = match config.method {\n        MethodId::Ntg => 1,\n    };\n}";
+    assert_eq!(method_matches(planted).len(), 1);
+    assert_eq!(
+        method_matches("if matches!(flags.method, MethodId::Ntg | MethodId::Flat) {}").len(),
+        1
+    );
+    assert!(method_matches("match config.obs {").is_empty());
+}
+
 #[test]
 fn a_planted_import_through_a_re_export_is_seen() {
     let modules: BTreeMap<String, String> = [
