@@ -10,11 +10,10 @@
 
 use std::any::Any;
 
+use burn::module::ModuleDisplay;
 use burn::tensor::Device;
 use ctg_graph::Vocabulary;
 use ntg_model::{EncoderConfig, FrameStageNet};
-
-use burn::module::ModuleDisplay;
 
 use crate::dataset::DemoDataset;
 use crate::fit::{OptimConfig, Selection, TrainStep, TrainedModel, ValidationScore, Validator};
@@ -238,7 +237,7 @@ where
 pub fn fit_model<M, S>(
     model: M,
     step: S,
-    frames: Option<ntg_model::FrameStageNet>,
+    frames: Option<FrameStageNet>,
     input: &TrainInput<'_>,
     validation: Option<Validation<'_>>,
     on_epoch: &mut dyn FnMut(&EpochReport),

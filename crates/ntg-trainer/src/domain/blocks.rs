@@ -9,6 +9,7 @@
 //! and `VALIDATION_ROLLOUT_SEED_BASE + i` in the same way.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use burn::tensor::Device;
@@ -151,11 +152,9 @@ pub struct BlocksRunConfig {
 /// tasks split by the same rule: its first [`env_blocks::TRAIN_POOL`] tasks
 /// are the training pool (`n` training tasks are its first `n`), the rest
 /// the test tasks. Read once per process.
-pub fn task_split(
-    file: Option<&Path>,
-) -> anyhow::Result<std::sync::Arc<env_blocks::StandardSplit>> {
+pub fn task_split(file: Option<&Path>) -> anyhow::Result<Arc<env_blocks::StandardSplit>> {
     use std::collections::BTreeMap;
-    use std::sync::{Arc, Mutex};
+    use std::sync::Mutex;
     static SPLITS: Mutex<BTreeMap<Option<PathBuf>, Arc<env_blocks::StandardSplit>>> =
         Mutex::new(BTreeMap::new());
     let key = file.map(Path::to_path_buf);
@@ -573,25 +572,24 @@ pub fn train_model(
             }),
         }
     };
+    // The primitive level holds what NTG's training shares with NTP's: the
+    // validation tasks and the filter of held-out renamings.
+    let level = BlocksPrimitive::new(config)?;
+    let (validation, accept) = (level.validation.clone(), level.accept.clone());
+    let primitive = PrimitiveInput(Box::new(level));
     let symmetry = object_symmetry();
-    let held_out = HeldOutConfigurations::for_run(config)?;
-    let accept = held_out
-        .as_ref()
-        .map(|h| move |task: usize, perm: &[usize]| !h.contains_renamed(&tasks[task], perm));
     // Cube renaming is for state rows; a video run renames cubes in its
     // demo videos instead (`BlocksVideo::demos_per_renaming`).
     let renaming = (config.permute_objects && config.obs == ObsKind::State).then(|| Renaming {
         symmetry: &symmetry,
-        accept: accept.as_ref().map(|f| f as RenamingFilter<'_>),
+        accept: accept.as_deref().map(|f| f as RenamingFilter<'_>),
     });
-    let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
     let domain = BlocksDomain::new(config.obs, config.failures);
     let score = |model: &dyn crate::method::TrainedPolicy| {
         let result = evaluate_on(&domain, model, "full", &validation, Seeds::VALIDATION)?;
         Ok(validation_result(&result))
     };
     let vocabulary = flat_vocabulary();
-    let primitive = PrimitiveInput(Box::new(BlocksPrimitive::new(config)?));
     let input = TrainInput {
         vocabulary: &vocabulary,
         demos: &demos,
@@ -815,27 +813,28 @@ fn obs_dim_frames() -> usize {
 /// and detector stages, and validation acting at the primitive level.
 pub struct BlocksPrimitive {
     config: BlocksRunConfig,
-    tasks: std::sync::Arc<Vec<StackTask>>,
-    validation: Vec<StackTask>,
+    tasks: Arc<Vec<StackTask>>,
+    validation: Arc<Vec<StackTask>>,
     accept: Option<OwnedFilter>,
 }
 
 /// A renaming filter that owns what it reads (see [`RenamingFilter`]).
-type OwnedFilter = Box<dyn Fn(usize, &[usize]) -> bool + Send + Sync>;
+type OwnedFilter = Arc<dyn Fn(usize, &[usize]) -> bool + Send + Sync>;
 
 impl BlocksPrimitive {
     /// The primitive level of the run `config`.
     pub fn new(config: &BlocksRunConfig) -> anyhow::Result<Self> {
         let split = task_split(config.tasks.as_deref())?;
-        let tasks = std::sync::Arc::new(split.train(config.train_tasks)?.to_vec());
+        let tasks = Arc::new(split.train(config.train_tasks)?.to_vec());
         let accept = HeldOutConfigurations::for_run(config)?.map(|held_out| {
             let tasks = tasks.clone();
-            Box::new(move |task: usize, perm: &[usize]| {
+            Arc::new(move |task: usize, perm: &[usize]| {
                 !held_out.contains_renamed(&tasks[task], perm)
-            }) as Box<dyn Fn(usize, &[usize]) -> bool + Send + Sync>
+            }) as OwnedFilter
         });
+        let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
         Ok(BlocksPrimitive {
-            validation: validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?,
+            validation: Arc::new(validation),
             config: config.clone(),
             tasks,
             accept,
