@@ -418,6 +418,105 @@ impl Recipe {
     }
 }
 
+/// What the run `config` adds to the paper's recipe, each as a figure row
+/// names it: every setting in which `config` differs from the paper
+/// recipe's configuration of the same method, input, tasks, demos, epochs
+/// and seed, read from the whole configuration (a setting without a name
+/// here is named `key = value`, so none goes unnamed). The ablation and
+/// the method are named by the row itself; the thread layout (`shards`)
+/// does not change what is trained, and `exclude_held_out_renamings` only
+/// filters cube renaming, which is named.
+pub fn additions(config: &BlocksRunConfig) -> Vec<String> {
+    let recipe = Recipe::Paper;
+    let paper = recipe.for_method(
+        recipe.config(
+            config.obs,
+            config.train_tasks,
+            config.demos_per_task,
+            config.optim.epochs,
+            config.model_seed,
+        ),
+        config.method,
+    );
+    let (mut ours, mut theirs) = (Vec::new(), Vec::new());
+    let value = |c: &BlocksRunConfig| serde_json::to_value(c).unwrap_or_default();
+    flatten_json("", &value(config), &mut ours);
+    flatten_json("", &value(&paper), &mut theirs);
+    let skipped = [
+        "ablation",
+        "method",
+        "optim.shards",
+        "video.encoder.shards",
+        "exclude_held_out_renamings",
+    ];
+    ours.into_iter()
+        .filter(|(key, v)| {
+            !skipped.contains(&key.as_str())
+                && theirs.iter().find(|(k, _)| k == key).map(|(_, w)| w) != Some(v)
+        })
+        .map(|(key, v)| addition_name(&key, &v))
+        .collect()
+}
+
+/// The leaves of `value` as `(dotted.key, value)`, in key order.
+fn flatten_json(
+    prefix: &str,
+    value: &serde_json::Value,
+    out: &mut Vec<(String, serde_json::Value)>,
+) {
+    match value {
+        serde_json::Value::Object(map) => {
+            for (k, v) in map {
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                flatten_json(&key, v, out);
+            }
+        }
+        leaf => out.push((prefix.to_owned(), leaf.clone())),
+    }
+}
+
+/// How a figure row names the setting `key` at `value` (see [`additions`]).
+fn addition_name(key: &str, value: &serde_json::Value) -> String {
+    // Numbers to six decimals: an `f32` setting reads as it was written.
+    let v = match value {
+        serde_json::Value::String(s) => s.clone(),
+        serde_json::Value::Number(n) if !n.is_i64() && !n.is_u64() => {
+            let x = n.as_f64().unwrap_or(f64::NAN);
+            format!("{:?}", (x * 1e6).round() / 1e6)
+        }
+        other => other.to_string(),
+    };
+    match key {
+        "permute_objects" => "cube renaming".into(),
+        "state_hidden_layers" => format!("{v}-layer state encoders"),
+        "pairwise" => "pairwise cube offsets".into(),
+        "edge_fusion_hidden" => format!("edge fusion layer ({v})"),
+        "retry_weight" => format!("retry weight {v}"),
+        "detach_gcn_from_edges" => "GCN detached from the edge loss".into(),
+        "soft_edges" => "soft edges".into(),
+        "validate_every" => format!("validated every {v} epochs"),
+        "tasks" => format!("task set {v}"),
+        "optim.learning_rate" => format!("learning rate {v}"),
+        "optim.cosine_decay" => "cosine learning-rate decay".into(),
+        "optim.gcn_from_other_demo" => "GCN reads another demo".into(),
+        "optim.token_dropout" => format!("token dropout {v}"),
+        "video.demos_per_renaming" => format!("video cube renaming in groups of {v}"),
+        "video.executed_node" => "executed node (not the localizer)".into(),
+        "video.interpreter_frame_pool" => format!("interpreter frame pooling {v}"),
+        "video.encoder_labels" => format!("stage A labels {v}"),
+        "video.encoder.retry_repeats" => format!("retry frames x{v} in stage A"),
+        "video.encoder.progress" => format!("progress head {v}"),
+        _ => match key.strip_prefix("video.encoder.") {
+            Some(k) => format!("stage A {k} = {v}"),
+            None => format!("{key} = {v}"),
+        },
+    }
+}
+
 /// Records the training demonstrations of a run, in parallel.
 pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::Result<DemoDataset> {
     let domain = BlocksDomain::new(config.obs, config.failures);

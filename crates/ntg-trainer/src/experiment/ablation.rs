@@ -662,6 +662,7 @@ mod tests {
             epochs: 30,
             selected_epoch: None,
             permute_objects: false,
+            additions: Vec::new(),
             success: crate::stats::SuccessRate::from_outcomes((0..1000).map(|i| i < successes)),
             goal_fraction: 0.5,
             train_seconds: 1.0,

@@ -359,6 +359,11 @@ pub struct NtpExpPoint {
     /// Whether training renamed cubes at random (not in the paper).
     #[serde(default)]
     pub permute_objects: bool,
+    /// What the run adds to the paper's recipe, as its row names it, read
+    /// from its whole configuration ([`blocks::additions`]); empty for a
+    /// run of the paper's recipe.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub additions: Vec<String>,
     /// Success on unseen tasks.
     pub success: SuccessRate,
     /// Mean fraction of each unseen task's goal constraints met at the end.
@@ -721,6 +726,7 @@ fn run_point(
         epochs,
         selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
         permute_objects: config.permute_objects,
+        additions: blocks::additions(&config),
         success: result.success,
         goal_fraction: result.mean_goal_fraction,
         train_seconds,
@@ -1213,6 +1219,14 @@ pub fn curve_name(method: MethodId, recipe: Recipe, ablation: Variant) -> String
     }
 }
 
+/// A point's report cell naming what its run adds to the paper's recipe.
+pub(crate) fn additions_cell(p: &NtpExpPoint) -> String {
+    match p.additions.is_empty() {
+        true => "none".into(),
+        false => p.additions.join("; "),
+    }
+}
+
 /// A point's report cells `input | training tasks | demos/task | epochs
 /// (selected)`; a run that stopped early at a perfect validation score
 /// shows the epochs it trained of its planned ones.
@@ -1270,7 +1284,7 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
             "| {} | {} | {} | {} | {paper} |",
             row_name(p),
             scale_cells(p),
-            if p.permute_objects { "yes" } else { "no" },
+            additions_cell(p),
             outcome_cells(p)
         );
     }
@@ -1700,6 +1714,89 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
 mod tests {
     use super::*;
 
+    /// Every row of the committed report's fig. "ntp_exp" table names every
+    /// addition to the paper's recipe that its run's configuration (in its
+    /// committed record) holds: the executed node, cube renaming and its
+    /// groups, retry repeats, the progress head, frame pooling, ...
+    #[test]
+    fn every_committed_row_names_every_addition_its_run_configuration_holds() {
+        let figures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures");
+        if !figures.join("records").is_dir() {
+            eprintln!(
+                "skipped: no {} (not a checkout of the repository)",
+                figures.display()
+            );
+            return;
+        }
+        let results: serde_json::Value = RunDir::read_json(&figures.join("results.json")).unwrap();
+        let points: Vec<NtpExpPoint> = serde_json::from_value(results["ntp_exp"].clone()).unwrap();
+        let report = std::fs::read_to_string(figures.join("REPORT.md")).unwrap();
+        let start = report
+            .find("| method | input | training tasks |")
+            .expect("the ntp_exp table");
+        let rows: Vec<&str> = report[start..]
+            .lines()
+            .skip(2)
+            .take_while(|l| l.starts_with('|'))
+            .collect();
+        assert_eq!(rows.len(), points.len(), "one row per point");
+        let mut named = 0;
+        for (row, point) in rows.iter().zip(&points) {
+            let run = point
+                .run
+                .file_name()
+                .unwrap()
+                .to_string_lossy()
+                .into_owned();
+            let record: serde_json::Value =
+                RunDir::read_json(&figures.join("records").join(format!("{run}.json"))).unwrap();
+            let config: BlocksRunConfig =
+                serde_json::from_value(record["files"]["config.json"].clone()).unwrap();
+            for addition in blocks::additions(&config) {
+                assert!(
+                    row.contains(&addition),
+                    "{run}: its row does not name {addition:?}: {row}"
+                );
+                named += 1;
+            }
+        }
+        assert!(
+            named > 0,
+            "the recommended recipe's rows name their additions"
+        );
+    }
+
+    #[test]
+    fn additions_name_what_a_configuration_adds_to_the_paper_recipe() {
+        let paper = Recipe::Paper.config(ObsKind::Vid, 50, 4, 2, 0);
+        assert_eq!(blocks::additions(&paper), Vec::<String>::new());
+        let mut ours = Recipe::Recommended.config(ObsKind::Vid, 50, 4, 2, 0);
+        let additions = blocks::additions(&ours);
+        for named in [
+            "executed node (not the localizer)",
+            "video cube renaming in groups of 4",
+            "interpreter frame pooling 4",
+        ] {
+            assert!(
+                additions.iter().any(|a| a == named),
+                "{named}: {additions:?}"
+            );
+        }
+        // A setting without a name of its own is named by its key.
+        ours.video.as_mut().unwrap().encoder.kernel = 5;
+        assert!(
+            blocks::additions(&ours)
+                .iter()
+                .any(|a| a == "stage A kernel = 5")
+        );
+        ours.retry_weight = 2.0;
+        assert!(
+            blocks::additions(&ours)
+                .iter()
+                .any(|a| a == "retry weight 2.0")
+        );
+    }
+
     #[test]
     fn small_training_sets_get_epochs_up_to_the_minimum_steps() {
         let scale = PanelScale {
@@ -1901,6 +1998,7 @@ mod tests {
             epochs: 6,
             selected_epoch: None,
             permute_objects: false,
+            additions: Vec::new(),
             success: SuccessRate::new(1, 10),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -1939,6 +2037,7 @@ mod tests {
             epochs: 30,
             selected_epoch: None,
             permute_objects: false,
+            additions: Vec::new(),
             success: rate(6, 10),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -1983,6 +2082,7 @@ mod tests {
             epochs: 30,
             selected_epoch: None,
             permute_objects: false,
+            additions: Vec::new(),
             success: SuccessRate::from_outcomes((0..200).map(|i| i < successes)),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -2046,6 +2146,7 @@ mod tests {
         let recommended = |method, successes| NtpExpPoint {
             recipe: Recipe::Recommended,
             permute_objects: true,
+            additions: Vec::new(),
             ..point(method, state, 1000, 0, successes)
         };
         let mut both = points.clone();
@@ -2078,6 +2179,7 @@ mod tests {
             epochs: 6,
             selected_epoch: None,
             permute_objects: false,
+            additions: Vec::new(),
             success: SuccessRate::from_outcomes((0..100).map(|i| i < successes)),
             goal_fraction: 0.5,
             train_seconds: 1.0,
