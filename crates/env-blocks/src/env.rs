@@ -7,7 +7,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::STATE_DIM;
-use crate::render::{CATEGORY_COLOURS, CUBE_COLOURS, Renderer};
+use crate::render::{CATEGORY_COLOURS, CUBE_COLOURS, Camera, Renderer};
 use crate::sorting::{NUM_BINS, SORTING_GRID_YS, SortTask, category_of, standard_bins};
 use crate::task::{StackTask, cube_letter};
 use crate::world::{
@@ -60,10 +60,15 @@ pub struct EnvConfig {
     pub max_steps: Option<usize>,
     /// The action level.
     pub level: ActionLevel,
+    /// The camera frames are rendered with (its side in pixels; missing
+    /// in JSON: the standard 64×64).
+    #[serde(default)]
+    pub camera: Camera,
 }
 
 impl Default for EnvConfig {
-    /// Failures on, rendering on, flat actions, default step limit.
+    /// Failures on, rendering on, flat actions, default step limit, the
+    /// standard camera.
     fn default() -> Self {
         EnvConfig {
             failures: FailureConfig::default(),
@@ -71,6 +76,7 @@ impl Default for EnvConfig {
             primitive_frames: false,
             max_steps: None,
             level: ActionLevel::Flat,
+            camera: Camera::default(),
         }
     }
 }
@@ -82,6 +88,11 @@ impl EnvConfig {
             render: false,
             ..Self::default()
         }
+    }
+
+    /// The same configuration with frames from `camera`.
+    pub fn with_camera(self, camera: Camera) -> Self {
+        EnvConfig { camera, ..self }
     }
 
     /// The same configuration without stochastic failures.
@@ -248,6 +259,7 @@ impl BlocksEnv {
     /// configuration.
     pub fn new(task: BlocksTask, config: EnvConfig) -> Result<Self> {
         config.failures.validate().map_err(CtgError::Environment)?;
+        config.camera.validate().map_err(CtgError::Environment)?;
         let sorting = matches!(task, BlocksTask::Sort(_));
         let actions = action_table(sorting, config.level);
         let vocab = vocabulary(sorting, config.level);
@@ -328,7 +340,7 @@ impl BlocksEnv {
 
     /// Renders the current world.
     pub fn render(&self) -> RgbImage {
-        Renderer::standard().render_world(&self.world, &self.colours())
+        Renderer::of(self.config.camera).render_world(&self.world, &self.colours())
     }
 
     fn observe(&self) -> BlocksObservation {

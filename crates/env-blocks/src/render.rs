@@ -1,4 +1,5 @@
-//! A deterministic ray-casting renderer for 64×64 RGB frames.
+//! A deterministic ray-casting renderer for square RGB frames (64×64 by
+//! default; [`Camera`] sets the side).
 //!
 //! The camera is fixed: it looks down at the table at 45° from
 //! [`CAMERA_EYE`] with a narrow field of view (21.5°) and up vector
@@ -26,8 +27,56 @@ use parry3d::shape::Cuboid;
 
 use crate::world::{BIN_HALF, BIN_THICKNESS, Bin, CUBE_HALF, WORKSPACE_HALF, World};
 
-/// Frame width and height in pixels.
+/// Frame width and height in pixels of the standard camera.
 pub const FRAME_SIZE: u32 = 64;
+
+/// The camera's image: its side in pixels. The framing (eye, target and
+/// field of view) is fixed and already holds the workspace edge to edge,
+/// so a larger side shows the same scene with more pixels per cube: a
+/// 5 cm cube spans about `size / 13` pixels (5 at 64, 7.5 at 96, 10 at
+/// 128).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Camera {
+    /// Frame width and height in pixels: a multiple of 8 from 8 to
+    /// [`Camera::MAX_SIZE`].
+    pub size: u32,
+}
+
+impl Default for Camera {
+    /// The standard 64×64 camera.
+    fn default() -> Self {
+        Camera { size: FRAME_SIZE }
+    }
+}
+
+impl Camera {
+    /// The largest side accepted.
+    pub const MAX_SIZE: u32 = 512;
+
+    /// A camera of `size`×`size` pixels.
+    pub const fn of_size(size: u32) -> Self {
+        Camera { size }
+    }
+
+    /// Values per frame row (RGB, CHW): `3·size²`.
+    pub const fn frame_dim(&self) -> usize {
+        3 * (self.size as usize) * (self.size as usize)
+    }
+
+    /// Checks the side: a multiple of 8 (the frame encoders halve it three
+    /// times) from 8 to [`Camera::MAX_SIZE`].
+    pub fn validate(&self) -> Result<(), String> {
+        if self.size < 8 || self.size > Self::MAX_SIZE || !self.size.is_multiple_of(8) {
+            return Err(format!(
+                "camera size must be a multiple of 8 from 8 to {}, got {}",
+                Self::MAX_SIZE,
+                self.size
+            ));
+        }
+        Ok(())
+    }
+}
 /// Vertical (and horizontal) field of view in degrees.
 pub const FIELD_OF_VIEW_DEG: f32 = 21.5;
 /// The camera position: 1.5 m from the scene, looking down at 45°, so that
@@ -119,6 +168,7 @@ pub struct Renderer {
     up: Vec3,
     forward: Vec3,
     tan_half: f32,
+    size: usize,
     dirs: Vec<Vec3>,
     background: Vec<u8>,
     table_depth: Vec<f32>,
@@ -138,14 +188,48 @@ impl Renderer {
         RENDERER.get_or_init(|| Renderer::new(CAMERA_EYE, CAMERA_TARGET, CAMERA_UP))
     }
 
-    /// A camera at `eye` looking at `target` with the given up vector, 60°
-    /// field of view, 64×64 pixels.
+    /// The renderer of `camera`: the standard framing at its side (shared,
+    /// each side built once per process). An invalid camera (see
+    /// [`Camera::validate`]) gets the standard renderer; environments and
+    /// videos validate their camera before rendering.
+    pub fn of(camera: Camera) -> &'static Renderer {
+        if camera == Camera::default() || camera.validate().is_err() {
+            return Self::standard();
+        }
+        static RENDERERS: OnceLock<std::sync::Mutex<Vec<(u32, &'static Renderer)>>> =
+            OnceLock::new();
+        let mut built = RENDERERS
+            .get_or_init(Default::default)
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((_, r)) = built.iter().find(|(s, _)| *s == camera.size) {
+            return r;
+        }
+        // A few sides per process at most: leaking each one keeps the
+        // shared reference as cheap as the standard camera's.
+        let r: &'static Renderer = Box::leak(Box::new(Renderer::with_size(
+            CAMERA_EYE,
+            CAMERA_TARGET,
+            CAMERA_UP,
+            camera.size as usize,
+        )));
+        built.push((camera.size, r));
+        r
+    }
+
+    /// A camera at `eye` looking at `target` with the given up vector, the
+    /// standard field of view ([`FIELD_OF_VIEW_DEG`]), 64×64 pixels.
     pub fn new(eye: Vec3, target: Vec3, up_hint: Vec3) -> Renderer {
+        Self::with_size(eye, target, up_hint, FRAME_SIZE as usize)
+    }
+
+    /// [`Renderer::new`] with frames of `size`×`size` pixels.
+    pub fn with_size(eye: Vec3, target: Vec3, up_hint: Vec3, size: usize) -> Renderer {
         let forward = (target - eye).normalize();
         let right = forward.cross(up_hint).normalize();
         let up = right.cross(forward);
         let tan_half = (FIELD_OF_VIEW_DEG.to_radians() / 2.0).tan();
-        let n = FRAME_SIZE as usize;
+        let n = size.max(1);
         let light = Vec3::new(0.4, -0.6, 1.0).normalize();
         let mut dirs = Vec::with_capacity(n * n);
         let mut background = Vec::with_capacity(n * n * 3);
@@ -177,11 +261,17 @@ impl Renderer {
             up,
             forward,
             tan_half,
+            size: n,
             dirs,
             background,
             table_depth,
             light,
         }
+    }
+
+    /// Frame width and height in pixels.
+    pub fn size(&self) -> u32 {
+        self.size as u32
     }
 
     /// Where a world point lands in the frame, in pixel coordinates (x to
@@ -192,7 +282,7 @@ impl Renderer {
         if z <= 1e-4 {
             return None;
         }
-        let n = FRAME_SIZE as f32;
+        let n = self.size as f32;
         let sx = d.dot(self.right) / (z * self.tan_half);
         let sy = d.dot(self.up) / (z * self.tan_half);
         Some(((sx + 1.0) * n / 2.0, (1.0 - sy) * n / 2.0))
@@ -267,7 +357,7 @@ impl Renderer {
 
     /// Renders boxes on the table.
     pub fn render_boxes(&self, boxes: &[DrawBox]) -> RgbImage {
-        let n = FRAME_SIZE as usize;
+        let n = self.size;
         let mut pixels = self.background.clone();
         let mut depth = self.table_depth.clone();
         for b in boxes {
@@ -291,14 +381,14 @@ impl Renderer {
                 }
             }
         }
-        RgbImage::from_raw(FRAME_SIZE, FRAME_SIZE, pixels)
-            .unwrap_or_else(|| RgbImage::new(FRAME_SIZE, FRAME_SIZE))
+        let side = self.size();
+        RgbImage::from_raw(side, side, pixels).unwrap_or_else(|| RgbImage::new(side, side))
     }
 
     /// Inclusive pixel bounds `(x0, x1, y0, y1)` covering the box's
     /// projection (the whole frame if a corner is behind the camera).
     fn screen_bounds(&self, b: &DrawBox) -> (usize, usize, usize, usize) {
-        let last = FRAME_SIZE as usize - 1;
+        let last = self.size - 1;
         let mut lo = (f32::INFINITY, f32::INFINITY);
         let mut hi = (f32::NEG_INFINITY, f32::NEG_INFINITY);
         for corner in 0..8 {
@@ -313,7 +403,7 @@ impl Renderer {
             lo = (lo.0.min(x), lo.1.min(y));
             hi = (hi.0.max(x), hi.1.max(y));
         }
-        let n = FRAME_SIZE as f32;
+        let n = self.size as f32;
         if hi.0 < 0.0 || hi.1 < 0.0 || lo.0 > n || lo.1 > n {
             return (1, 0, 1, 0); // empty
         }

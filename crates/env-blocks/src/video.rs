@@ -434,8 +434,9 @@ pub fn record_video_demo(
     } = record_poses(task, config, seed, video)?;
     let colours = env.colours();
     let bins = env.world().bins();
+    let renderer = Renderer::of(config.camera);
     let render = |pose: &Pose| {
-        Renderer::standard().render_boxes(&Renderer::pose_boxes(
+        renderer.render_boxes(&Renderer::pose_boxes(
             &pose.objects,
             bins,
             pose.gripper,

@@ -95,9 +95,31 @@ pub struct FrameEncoderConfig {
     /// coordinates instead of the flattened map. Made for reading
     /// positions off a frame (NTP (Detector)'s detector). `None`: off.
     pub spatial_softmax: Option<bool>,
+    /// A stem: one more `k×k` convolution of stride 2 with this many output
+    /// channels before the three (`S → S/2`, so the three see an `S/2`
+    /// frame: `S` a multiple of 16). For larger frames (128×128) at about
+    /// the cost of the three on a frame of half the side. `None` or 0:
+    /// none (checkpoints saved before it load).
+    pub stem: Option<usize>,
     /// Embedding size `H`.
     #[config(default = 128)]
     pub out_dim: usize,
+}
+
+impl FrameEncoderConfig {
+    /// Output channels of the stem convolution, if there is one.
+    pub fn stem_channels(&self) -> Option<usize> {
+        self.stem.filter(|&c| c > 0)
+    }
+
+    /// Side of the frame the three main convolutions read: `S`, or `S/2`
+    /// after a stem.
+    pub fn trunk_input_side(&self) -> usize {
+        match self.stem_channels() {
+            Some(_) => self.image_size / 2,
+            None => self.image_size,
+        }
+    }
 }
 
 /// An encoder for kinematics windows of `window` rows by `columns` columns:
@@ -210,6 +232,12 @@ impl EncoderConfig {
                         c.image_size
                     )));
                 }
+                if c.stem_channels().is_some() && !c.image_size.is_multiple_of(16) {
+                    return Err(ModelError::Config(format!(
+                        "encoder: a stem needs image_size a multiple of 16, got {}",
+                        c.image_size
+                    )));
+                }
                 Ok(())
             }
             EncoderConfig::Kinematics(c) => {
@@ -243,7 +271,7 @@ impl EncoderConfig {
             EncoderConfig::Frame(c) => {
                 let [c1, c2, c3] = c.conv_channels;
                 let keypoints = c.spatial_softmax == Some(true);
-                let side = c.image_size / 8;
+                let side = c.trunk_input_side() / 8;
                 let flat = if keypoints { 2 * c3 } else { c3 * side * side };
                 let he = c.he_init == Some(true);
                 let mut conv = |c_in: usize, c_out: usize, stride: usize| {
@@ -252,7 +280,9 @@ impl EncoderConfig {
                     init.conv2d(c_in, c_out, kernel, stride, 1, he)
                 };
                 let coords = c.coord_channels == Some(true);
-                let c0 = c.channels + if coords { 2 } else { 0 };
+                let c_in = c.channels + if coords { 2 } else { 0 };
+                let stem = c.stem_channels().map(|s| conv(c_in, s, 2));
+                let c0 = c.stem_channels().unwrap_or(c_in);
                 let (conv1, conv2) = (conv(c0, c1, 2), conv(c1, c2, 2));
                 let conv3 = conv(c2, c3, if keypoints { 1 } else { 2 });
                 let (fc, head) = if let Some(hidden) = c.hidden.filter(|&h| h > 0) {
@@ -262,6 +292,7 @@ impl EncoderConfig {
                     (init.linear(flat, c.out_dim, true), None)
                 };
                 Encoder::Frame(FrameEncoder {
+                    stem,
                     conv1,
                     conv2,
                     conv3,
@@ -307,7 +338,9 @@ pub struct StateEncoder {
 /// The frame CNN (see [`FrameEncoderConfig`]).
 #[derive(Module, Debug)]
 pub struct FrameEncoder {
-    /// `S → S/2`.
+    /// `S → S/2` before the three (with [`FrameEncoderConfig::stem`]).
+    pub stem: Option<Conv2d>,
+    /// `S → S/2` (after a stem: `S/2 → S/4`, and so on below).
     pub conv1: Conv2d,
     /// `S/2 → S/4`.
     pub conv2: Conv2d,
@@ -419,6 +452,10 @@ impl Encoder {
                 if e.coords {
                     x = Tensor::cat(vec![x, coordinate_channels(batch, s, &obs_device)], 1);
                 }
+                let x = match &e.stem {
+                    Some(stem) => relu(crate::conv::conv2d(stem, x)),
+                    None => x,
+                };
                 let x = relu(crate::conv::conv2d(&e.conv1, x));
                 let x = relu(crate::conv::conv2d(&e.conv2, x));
                 let x = relu(crate::conv::conv2d(&e.conv3, x));

@@ -83,6 +83,13 @@ impl FrameStageConfig {
                 "frame stage: reconstruction needs a frame encoder".into(),
             ));
         }
+        if self.reconstruction.is_some_and(|w| w > 0.0)
+            && matches!(&self.encoder, EncoderConfig::Frame(f) if f.stem_channels().is_some())
+        {
+            return Err(ModelError::Config(
+                "frame stage: reconstruction is not built for an encoder with a stem".into(),
+            ));
+        }
         if let Some(w) = self.progress
             && !(w.is_finite() && w >= 0.0)
         {

@@ -93,6 +93,27 @@ fn encoders_map_rows_to_embeddings() {
             3 * 16 * 16,
             32,
         ),
+        (
+            EncoderConfig::Frame(
+                FrameEncoderConfig::new()
+                    .with_image_size(32)
+                    .with_stem(Some(8))
+                    .with_spatial_softmax(Some(true))
+                    .with_out_dim(32),
+            ),
+            3 * 32 * 32,
+            32,
+        ),
+        (
+            EncoderConfig::Frame(
+                FrameEncoderConfig::new()
+                    .with_image_size(32)
+                    .with_stem(Some(8))
+                    .with_out_dim(32),
+            ),
+            3 * 32 * 32,
+            32,
+        ),
         (EncoderConfig::kinematics(3), 3 * 76, 128),
     ];
     for (cfg, d, h) in cases {
@@ -108,6 +129,16 @@ fn encoders_map_rows_to_embeddings() {
     }
     assert!(matches!(
         EncoderConfig::Frame(FrameEncoderConfig::new().with_image_size(20)).init(0, &dev),
+        Err(ModelError::Config(_))
+    ));
+    // A stem halves the side once more: 24 is a multiple of 8, not of 16.
+    assert!(matches!(
+        EncoderConfig::Frame(
+            FrameEncoderConfig::new()
+                .with_image_size(24)
+                .with_stem(Some(8))
+        )
+        .init(0, &dev),
         Err(ModelError::Config(_))
     ));
 }

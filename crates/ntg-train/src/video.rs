@@ -119,6 +119,26 @@ pub struct EncoderStage {
     /// saved before it: 0).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub progress: f32,
+    /// Output channels of a stem convolution before the encoder's three
+    /// (see `ntg_model::FrameEncoderConfig::stem`): for frames larger than
+    /// 64×64. 0: none (absent in runs saved before it: 0).
+    #[serde(default, skip_serializing_if = "is_zero_usize")]
+    pub stem: usize,
+}
+
+fn is_zero_usize(n: &usize) -> bool {
+    *n == 0
+}
+
+/// The side `S` of square RGB frames whose rows hold `frame_dim = 3·S²`
+/// values, or an error naming the row length.
+pub fn frame_side(frame_dim: usize) -> anyhow::Result<usize> {
+    let side = ((frame_dim / 3) as f64).sqrt().round() as usize;
+    anyhow::ensure!(
+        side > 0 && 3 * side * side == frame_dim,
+        "a frame row of {frame_dim} values is not a square RGB frame (3·S² values)"
+    );
+    Ok(side)
 }
 
 fn is_zero(w: &f32) -> bool {
@@ -155,17 +175,21 @@ impl Default for EncoderStage {
             shards: 0,
             retry_repeats: 1,
             progress: 0.0,
+            stem: 0,
         }
     }
 }
 
 impl EncoderStage {
-    /// The stage's network configuration for `num_nodes` CTG nodes.
-    pub fn net_config(&self, num_nodes: usize, seed: u64) -> FrameStageConfig {
+    /// The stage's network configuration for `num_nodes` CTG nodes and
+    /// frames of `image_size`×`image_size` pixels.
+    pub fn net_config(&self, num_nodes: usize, image_size: usize, seed: u64) -> FrameStageConfig {
         FrameStageConfig::new(
             num_nodes,
             ntg_model::EncoderConfig::Frame(
                 ntg_model::FrameEncoderConfig::new()
+                    .with_image_size(image_size)
+                    .with_stem((self.stem > 0).then_some(self.stem))
                     .with_kernel(self.kernel)
                     .with_hidden((self.hidden > 0).then_some(self.hidden))
                     .with_he_init(self.he_init.then_some(true))
@@ -690,7 +714,11 @@ pub fn train_encoder(
         )
     })?;
     let net = stage
-        .net_config(video.vocabulary.len(), video.seed)
+        .net_config(
+            video.vocabulary.len(),
+            frame_side(video.frame_dim)?,
+            video.seed,
+        )
         .init(device)?;
     let step = FrameStageStep::new(&frames, device)?.with_retry_repeats(stage.retry_repeats);
     eprintln!(
@@ -865,7 +893,7 @@ mod tests {
         let device = ntg_model::cpu_device();
         let step = FrameStageStep::new(&dataset, &device).unwrap();
         let stage = EncoderStage::default();
-        let mut config = stage.net_config(dataset.vocabulary().len(), 0);
+        let mut config = stage.net_config(dataset.vocabulary().len(), 64, 0);
         config.encoder = ntg_model::EncoderConfig::Frame(
             ntg_model::FrameEncoderConfig::new().with_image_size(8),
         );

@@ -14,6 +14,11 @@
 //!   bench on the same quiet machine.
 //! - `stage_a/encode`: the frozen encoder over 256 frames (stage B's cache
 //!   and every policy step), throughput in frames.
+//! - `stage_a_keypoints_64/…` and `stage_a_keypoints_128_stem16/…`: the
+//!   same two with block stacking's encoder (He initialisation, centred
+//!   frames, spatial-softmax keypoints) on the standard 64×64 camera and
+//!   on 128×128 frames through a 16-channel stem; `stage_a.py
+//!   --keypoints [--image-size 128 --stem 16]` is its PyTorch twin.
 //!
 //! `cargo bench -p ntg-trainer --bench stages`
 
@@ -46,14 +51,53 @@ fn pairs() -> Vec<(usize, u64)> {
 }
 
 fn record_video(t: usize, seed: u64) -> anyhow::Result<ctg_graph::VideoDemonstration<Vec<f32>>> {
+    record_video_with(env_blocks::Camera::default(), t, seed)
+}
+
+fn record_video_with(
+    camera: env_blocks::Camera,
+    t: usize,
+    seed: u64,
+) -> anyhow::Result<ctg_graph::VideoDemonstration<Vec<f32>>> {
     let task = env_blocks::standard_tasks()?.swap_remove(t);
     let v = env_blocks::record_video_demo(
         env_blocks::BlocksTask::Stack(task),
-        blocks::env_config(ObsKind::Vid, true),
+        blocks::env_config(ObsKind::Vid, true).with_camera(camera),
         seed,
         &env_blocks::VideoConfig::default(),
     )?;
     Ok(v.map_frames(|f| env_collect::frame_to_chw(&f)))
+}
+
+/// Stage A's training step on 64 frames and its encoder over 256 frames,
+/// with `stage`'s network on frames of `camera`, as the group `name`.
+fn stage_a_bench(c: &mut Criterion, name: &str, stage: &EncoderStage, camera: env_blocks::Camera) {
+    let vocab: Vocabulary = blocks::flat_vocabulary();
+    let device = ntg_model::cpu_device().autodiff();
+    let net: FrameStageNet = stage
+        .net_config(vocab.len(), camera.size as usize, 0)
+        .init(&device)
+        .expect("stage A net");
+    let record = |t: usize, seed: u64| record_video_with(camera, t, seed);
+    let frames =
+        frame_dataset(&vocab, &pairs()[..8], &record, camera.frame_dim(), 1.0).expect("frames");
+    let step = FrameStageStep::new(&frames, &device).expect("stage A step");
+    let mut group = c.benchmark_group(name);
+    group
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(2))
+        .measurement_time(Duration::from_secs(10));
+    group.throughput(Throughput::Elements(stage.batch_size as u64));
+    bench_train_step(&mut group, "train", net.clone(), &step, stage.batch_size);
+    let rows: Vec<Vec<f32>> = (0..256)
+        .map(|i| frames.row(i % frames.num_rows()))
+        .collect();
+    let frozen = net.valid();
+    group.throughput(Throughput::Elements(rows.len() as u64));
+    group.bench_function("encode", |b| {
+        b.iter(|| black_box(ntg_trainer::video::encode_rows(&frozen, &rows).expect("encode")))
+    });
+    group.finish();
 }
 
 fn ntg_step_bench(
@@ -120,7 +164,7 @@ fn stages(c: &mut Criterion) {
     let device = ntg_model::cpu_device().autodiff();
     let stage = EncoderStage::default();
     let net: FrameStageNet = stage
-        .net_config(vocab.len(), 0)
+        .net_config(vocab.len(), env_blocks::FRAME_SIZE as usize, 0)
         .init(&device)
         .expect("stage A net");
     let embeddings =
@@ -146,25 +190,29 @@ fn stages(c: &mut Criterion) {
     }
     group.finish();
 
-    let frames =
-        frame_dataset(&vocab, &pairs()[..8], &record_video, 3 * 64 * 64, 1.0).expect("frames");
-    let step = FrameStageStep::new(&frames, &device).expect("stage A step");
-    let mut group = c.benchmark_group("stage_a");
-    group
-        .sample_size(10)
-        .warm_up_time(Duration::from_secs(2))
-        .measurement_time(Duration::from_secs(10));
-    group.throughput(Throughput::Elements(stage.batch_size as u64));
-    bench_train_step(&mut group, "train", net.clone(), &step, stage.batch_size);
-    let rows: Vec<Vec<f32>> = (0..256)
-        .map(|i| frames.row(i % frames.num_rows()))
-        .collect();
-    let frozen = net.valid();
-    group.throughput(Throughput::Elements(rows.len() as u64));
-    group.bench_function("encode", |b| {
-        b.iter(|| black_box(ntg_trainer::video::encode_rows(&frozen, &rows).expect("encode")))
-    });
-    group.finish();
+    stage_a_bench(c, "stage_a", &stage, env_blocks::Camera::default());
+    let keypoints = EncoderStage {
+        he_init: true,
+        centre_input: true,
+        spatial_softmax: true,
+        ..EncoderStage::default()
+    };
+    stage_a_bench(
+        c,
+        "stage_a_keypoints_64",
+        &keypoints,
+        env_blocks::Camera::default(),
+    );
+    let stem = EncoderStage {
+        stem: 16,
+        ..keypoints
+    };
+    stage_a_bench(
+        c,
+        "stage_a_keypoints_128_stem16",
+        &stem,
+        env_blocks::Camera::of_size(128),
+    );
 }
 
 criterion_group!(benches, stages);

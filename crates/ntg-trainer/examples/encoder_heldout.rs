@@ -65,16 +65,18 @@ fn count(args: &[String], i: usize, name: &str, default: Option<usize>) -> anyho
 fn validation_frames(
     tasks: usize,
     failures: bool,
+    camera: env_blocks::Camera,
     video: &env_blocks::VideoConfig,
 ) -> anyhow::Result<DemoDataset> {
     let validation = env_blocks::validation_tasks(tasks)?;
-    let record =
-        |i: usize, seed: u64| blocks::record_video(validation[i].clone(), failures, video, seed);
+    let record = |i: usize, seed: u64| {
+        blocks::record_video(validation[i].clone(), failures, camera, video, seed)
+    };
     frame_dataset(
         &blocks::flat_vocabulary(),
         &blocks::validation_video_pairs(tasks),
         &record,
-        3 * 64 * 64,
+        camera.frame_dim(),
         1.0,
     )
 }
@@ -245,11 +247,18 @@ fn decisions(run: &str, tasks: usize) -> anyhow::Result<()> {
         let mut wrong_as: BTreeMap<(&str, String), usize> = BTreeMap::new();
         for (i, task) in validation.iter().enumerate() {
             let seed = VALIDATION_DEMO_SEED_BASE + i as u64;
-            let demo = blocks::record_video(task.clone(), config.failures, &video.frames, seed)?;
+            let demo = blocks::record_video(
+                task.clone(),
+                config.failures,
+                video.camera,
+                &video.frames,
+                seed,
+            )?;
             let agent = model.condition(demo.frames(), &vocab)?;
             let episode = blocks::record_video(
                 task.clone(),
                 config.failures,
+                video.camera,
                 &video.frames,
                 seed + EPISODE_SEED_OFFSET,
             )?;
@@ -329,7 +338,7 @@ fn main() -> anyhow::Result<()> {
             let video = config
                 .video
                 .context("not a video run (no `video` settings)")?;
-            let frames = validation_frames(tasks, config.failures, &video.frames)?;
+            let frames = validation_frames(tasks, config.failures, video.camera, &video.frames)?;
             if command == "errors" {
                 keyframe_errors(&net, &frames)?;
             } else {
@@ -375,10 +384,13 @@ fn main() -> anyhow::Result<()> {
                 }
             }
             let frames = DemoDataset::load(std::path::Path::new(frames_dir))?;
+            let side = ntg_trainer::video::frame_side(frames.obs_dim())?;
             let demos = demos.min(frames.demos().len());
             let step = FrameStageStep::new(&frames, &device)?.first_demos(demos);
             let run = RunDir::open_or_create(std::path::Path::new(out), &stage)?;
-            let held_out = validation_frames(tasks, true, &env_blocks::VideoConfig::default())?;
+            let camera = env_blocks::Camera::of_size(side as u32);
+            let held_out =
+                validation_frames(tasks, true, camera, &env_blocks::VideoConfig::default())?;
             let held_out = FrameStageStep::new(&held_out, &device)?;
             let mut validator = |net: &FrameStageNet| -> anyhow::Result<ValidationScore> {
                 let acc = held_out.accuracy(net)?;
@@ -396,7 +408,7 @@ fn main() -> anyhow::Result<()> {
                 step.num_examples()
             );
             let net = stage
-                .net_config(frames.vocabulary().len(), 0)
+                .net_config(frames.vocabulary().len(), side, 0)
                 .init(&device)?;
             fit(
                 net,

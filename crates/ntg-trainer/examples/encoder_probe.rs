@@ -48,13 +48,14 @@ fn main() -> anyhow::Result<()> {
     ensure!(!out.exists(), "{} exists; choose a new OUT", out.display());
     // A video run, or a stage A folder of `encoder_heldout train` (videos
     // recorded as that example records its validation videos).
-    let (failures, frames, stage_a) = if run.root().join(STAGE_A_DIR).is_dir() {
+    let (failures, camera, frames, stage_a) = if run.root().join(STAGE_A_DIR).is_dir() {
         let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
         let video = config.video.context("not a video run")?;
         let stage_a = RunDir::open(&run.root().join(STAGE_A_DIR))?;
-        (config.failures, video.frames, stage_a)
+        (config.failures, video.camera, video.frames, stage_a)
     } else {
-        (true, env_blocks::VideoConfig::default(), run)
+        let camera = env_blocks::Camera::default();
+        (true, camera, env_blocks::VideoConfig::default(), run)
     };
     let dir = match ntg_trainer::fit::selected_epoch(&stage_a)? {
         Some(_) => stage_a.best_dir(),
@@ -69,7 +70,7 @@ fn main() -> anyhow::Result<()> {
     let (mut states, mut pixels, mut task_of) = (Vec::new(), Vec::new(), Vec::new());
     for (i, seed) in blocks::validation_video_pairs(tasks) {
         let task = &validation[i];
-        let video = blocks::record_video(task.clone(), failures, &frames, seed)?;
+        let video = blocks::record_video(task.clone(), failures, camera, &frames, seed)?;
         let mut env = state_domain.env(task)?;
         let (rows, actions) = state_domain.record_demo(&mut env, task, seed)?;
         let keyframes = video.keyframes();

@@ -40,8 +40,13 @@ fn main() -> anyhow::Result<()> {
     let (mut equal, mut total, mut exact) = (0usize, 0usize, 0usize);
     let mut frames_per_video = Vec::with_capacity(tasks);
     for (i, seed) in blocks::validation_video_pairs(tasks) {
-        let demo =
-            blocks::record_video(validation[i].clone(), config.failures, &video.frames, seed)?;
+        let demo = blocks::record_video(
+            validation[i].clone(),
+            config.failures,
+            video.camera,
+            &video.frames,
+            seed,
+        )?;
         let embedded = model.encode_rows(demo.frames())?;
         let decoded: Vec<ActionId> = model.policy.interpreter.decode(&embedded)?;
         let truth = demo.actions();

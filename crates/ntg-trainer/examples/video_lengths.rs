@@ -92,7 +92,14 @@ fn main() -> anyhow::Result<()> {
             (0..demos)
                 .map(|j| {
                     let seed = blocks::TRAIN_SEED_BASE + 1000 * t as u64 + j as u64;
-                    Ok(blocks::record_video(task.clone(), true, &frames, seed)?.map_frames(|_| ()))
+                    Ok(blocks::record_video(
+                        task.clone(),
+                        true,
+                        env_blocks::Camera::default(),
+                        &frames,
+                        seed,
+                    )?
+                    .map_frames(|_| ()))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()
         })

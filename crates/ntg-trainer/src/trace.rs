@@ -274,25 +274,25 @@ pub struct BaselineTrace {
     pub truncated: bool,
 }
 
-/// Runs test task `index` with an NTP baseline `model` of `method` (state
-/// or frames as `obs` says) exactly as `ntg eval` does, and writes its
-/// trace into `out` (created; it must not exist or be empty).
+/// Runs test task `index` with an NTP baseline `model` trained as
+/// `config` says (its method, task set, input, camera and failure model)
+/// exactly as `ntg eval` does, and writes its trace into `out` (created;
+/// it must not exist or be empty).
 pub fn trace_baseline(
     model: &dyn crate::method::TrainedPolicy,
-    method: crate::method::MethodId,
-    tasks: Option<&Path>,
-    obs: ObsKind,
-    failures: bool,
+    config: &crate::blocks::BlocksRunConfig,
     index: usize,
     out: &Path,
 ) -> anyhow::Result<BaselineTrace> {
+    let (method, obs, failures) = (config.method, config.obs, config.failures);
     prepare_out(out)?;
-    let split = crate::blocks::task_split(tasks)?;
+    let split = crate::blocks::task_split(config.tasks.as_deref())?;
     let task = split
         .test
         .get(index)
         .with_context(|| format!("test task index {index} is out of range"))?;
     let domain = crate::blocks::BlocksDomain::new(obs, failures)
+        .with_camera(config.camera())
         .at_primitive_level()
         .rendering();
     let seeds = crate::blocks::Seeds::TEST;

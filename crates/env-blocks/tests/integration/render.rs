@@ -132,3 +132,55 @@ fn shading_distinguishes_faces() {
         "top and side faces should differ in brightness: {reds:?}"
     );
 }
+
+#[test]
+fn a_larger_camera_shows_the_same_framing_with_more_pixels_per_cube() {
+    use env_blocks::Camera;
+    let standard = Renderer::standard();
+    let big = Renderer::of(Camera::of_size(128));
+    assert_eq!(big.size(), 128);
+    // The same point lands at twice the pixel coordinates.
+    for p in [
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(0.2, -0.2, 0.1),
+        Vec3::new(-0.23, 0.23, 0.25),
+    ] {
+        let (x, y) = standard.project(p).unwrap();
+        let (bx, by) = big.project(p).unwrap();
+        assert!((bx - 2.0 * x).abs() < 1e-3 && (by - 2.0 * y).abs() < 1e-3);
+    }
+    // A cube spans about 10 pixels across at 128 (4 to 6 at 64).
+    let at = |x: f32| big.project(Vec3::new(x, 0.0, 0.05)).unwrap();
+    let across = (at(CUBE_HALF).0 - at(-CUBE_HALF).0).hypot(at(CUBE_HALF).1 - at(-CUBE_HALF).1);
+    assert!((8.0..=12.0).contains(&across), "{across}");
+    // Renderers are shared per side, and the standard camera is the default.
+    assert!(std::ptr::eq(big, Renderer::of(Camera::of_size(128))));
+    assert!(std::ptr::eq(standard, Renderer::of(Camera::default())));
+    assert_eq!(Camera::of_size(96).frame_dim(), 3 * 96 * 96);
+
+    // The environment renders with its configuration's camera.
+    let task = standard_tasks().unwrap().remove(0);
+    let config = EnvConfig::default().with_camera(Camera::of_size(96));
+    let mut env = BlocksEnv::stacking(task.clone(), config).unwrap();
+    let (obs, _) = env.reset(3).unwrap();
+    let frame = obs.frame().unwrap();
+    assert_eq!(frame.dimensions(), (96, 96));
+    // A side that the encoders cannot halve three times is refused.
+    for bad in [0, 60, 1024] {
+        let config = EnvConfig::default().with_camera(Camera::of_size(bad));
+        let err = BlocksEnv::stacking(task.clone(), config).err().unwrap();
+        assert!(err.to_string().contains("camera size"), "{err}");
+    }
+}
+
+#[test]
+fn a_camera_missing_from_an_old_configuration_reads_as_the_standard_one() {
+    let mut json = serde_json::to_value(EnvConfig::default()).unwrap();
+    json.as_object_mut().unwrap().remove("camera");
+    let config: EnvConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(config.camera, env_blocks::Camera::default());
+    assert!(
+        serde_json::from_str::<env_blocks::Camera>(r#"{"size": 64, "zoom": 2}"#).is_err(),
+        "unknown camera fields are refused"
+    );
+}

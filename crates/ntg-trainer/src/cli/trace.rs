@@ -42,15 +42,7 @@ pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
         }
         let model = crate::blocks::load_baseline(&run, &config, &device)?;
         let index = crate::trace::resolve_test_task(config.tasks.as_deref(), &args.task)?;
-        let trace = crate::trace::trace_baseline(
-            model.as_ref(),
-            config.method,
-            config.tasks.as_deref(),
-            config.obs,
-            config.failures,
-            index,
-            &args.out,
-        )?;
+        let trace = crate::trace::trace_baseline(model.as_ref(), &config, index, &args.out)?;
         print!("{}", crate::trace::baseline_table(&trace));
         println!("trace written to {}", args.out.display());
         return Ok(());

@@ -147,6 +147,16 @@ pub struct BlocksRunConfig {
     pub optim: OptimConfig,
 }
 
+impl BlocksRunConfig {
+    /// The camera the run's frames are rendered with: its video settings'
+    /// (the standard 64×64 camera on state runs, which render none).
+    pub fn camera(&self) -> env_blocks::Camera {
+        self.video
+            .as_ref()
+            .map_or_else(Default::default, |v| v.camera)
+    }
+}
+
 /// The task split of a run whose task set is `file` (see
 /// [`BlocksRunConfig::tasks`]): the standard stand-in split, or the file's
 /// tasks split by the same rule: its first [`env_blocks::TRAIN_POOL`] tasks
@@ -212,6 +222,11 @@ pub fn validation_tasks_of(file: Option<&Path>, count: usize) -> anyhow::Result<
 pub struct BlocksVideo {
     /// Frames per phase of each primitive's motion.
     pub frames: env_blocks::VideoConfig,
+    /// The camera every frame of the run is rendered with: demo videos,
+    /// stage A's frames, validation and test rollouts (absent in runs
+    /// saved before it: the standard 64×64).
+    #[serde(default, skip_serializing_if = "is_standard_camera")]
+    pub camera: env_blocks::Camera,
     /// Stage A: the shared frame encoder.
     pub encoder: EncoderStage,
     /// Cube renaming for frames (not in the paper): a task's demos are
@@ -259,6 +274,10 @@ fn is_one(n: &usize) -> bool {
     *n == 1
 }
 
+fn is_standard_camera(c: &env_blocks::Camera) -> bool {
+    *c == env_blocks::Camera::default()
+}
+
 impl BlocksVideo {
     /// The recommended settings (renaming in groups of 4 demos) or the
     /// paper's (no renaming). Either way stage A's encoder starts from He
@@ -292,6 +311,7 @@ impl BlocksVideo {
     pub fn new(recommended: bool) -> Self {
         BlocksVideo {
             frames: env_blocks::VideoConfig::default(),
+            camera: env_blocks::Camera::default(),
             encoder: EncoderStage {
                 demos: 20_000,
                 epochs: 3,
@@ -510,6 +530,8 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "video.encoder_labels" => format!("stage A labels {v}"),
         "video.encoder.retry_repeats" => format!("retry frames x{v} in stage A"),
         "video.encoder.progress" => format!("progress head {v}"),
+        "video.camera.size" => format!("camera {v}x{v} px"),
+        "video.encoder.stem" => format!("encoder stem of {v} channels"),
         _ => match key.strip_prefix("video.encoder.") {
             Some(k) => format!("stage A {k} = {v}"),
             None => format!("{key} = {v}"),
@@ -519,7 +541,7 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
 
 /// Records the training demonstrations of a run, in parallel.
 pub fn build_dataset(config: &BlocksRunConfig, tasks: &[StackTask]) -> anyhow::Result<DemoDataset> {
-    let domain = BlocksDomain::new(config.obs, config.failures);
+    let domain = BlocksDomain::new(config.obs, config.failures).with_camera(config.camera());
     let tasks = tasks.get(..config.train_tasks).with_context(|| {
         format!(
             "{} training tasks asked for, {} given",
@@ -581,16 +603,17 @@ impl TrainedBlocks {
     pub fn evaluate_tasks(
         &self,
         failures: bool,
+        camera: env_blocks::Camera,
         tasks: &[StackTask],
         seeds: Seeds,
         variant: Variant,
     ) -> anyhow::Result<EvalResult> {
         match self {
             TrainedBlocks::State(m) => {
-                evaluate_tasks(m, ObsKind::State, failures, tasks, seeds, variant)
+                evaluate_tasks(m, ObsKind::State, failures, camera, tasks, seeds, variant)
             }
             TrainedBlocks::Video(m) => {
-                evaluate_tasks(m, ObsKind::Vid, failures, tasks, seeds, variant)
+                evaluate_tasks(m, ObsKind::Vid, failures, camera, tasks, seeds, variant)
             }
         }
     }
@@ -601,12 +624,14 @@ impl TrainedBlocks {
         &self,
         tasks: Option<&Path>,
         failures: bool,
+        camera: env_blocks::Camera,
         test_tasks: usize,
         variant: Variant,
     ) -> anyhow::Result<EvalResult> {
         let split = task_split(tasks)?;
         self.evaluate_tasks(
             failures,
+            camera,
             test_tasks_of(&split, test_tasks)?,
             Seeds::TEST,
             variant,
@@ -683,7 +708,7 @@ pub fn train_model(
         symmetry: &symmetry,
         accept: accept.as_deref().map(|f| f as RenamingFilter<'_>),
     });
-    let domain = BlocksDomain::new(config.obs, config.failures);
+    let domain = BlocksDomain::new(config.obs, config.failures).with_camera(config.camera());
     let score = |model: &dyn crate::method::TrainedPolicy| {
         let result = evaluate_on(&domain, model, "full", &validation, Seeds::VALIDATION)?;
         Ok(validation_result(&result))
@@ -779,12 +804,13 @@ fn group_renaming(
 pub fn record_video(
     task: StackTask,
     failures: bool,
+    camera: env_blocks::Camera,
     frames: &env_blocks::VideoConfig,
     seed: u64,
 ) -> anyhow::Result<ctg_graph::VideoDemonstration<Vec<f32>>> {
     let v = env_blocks::record_video_demo(
         env_blocks::BlocksTask::Stack(task),
-        env_config(ObsKind::Vid, failures),
+        env_config(ObsKind::Vid, failures).with_camera(camera),
         seed,
         frames,
     )?;
@@ -869,20 +895,27 @@ fn with_video_run<R>(
         record_video(
             plan.task(virtual_task),
             config.failures,
+            video.camera,
             &video.frames,
             seed,
         )
     };
     let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
     let record_validation = |i: usize, seed: u64| {
-        record_video(validation[i].clone(), config.failures, &video.frames, seed)
+        record_video(
+            validation[i].clone(),
+            config.failures,
+            video.camera,
+            &video.frames,
+            seed,
+        )
     };
     let vocab = flat_vocabulary();
     let video_run = VideoRun {
         vocabulary: &vocab,
         pairs: plan.pairs(config.demos_per_task),
         record: &record,
-        frame_dim: obs_dim_frames(),
+        frame_dim: video.camera.frame_dim(),
         encoder: &video.encoder,
         seed: config.model_seed,
         validation: Some(crate::video::ValidationVideos {
@@ -899,11 +932,6 @@ fn validation_result(result: &EvalResult) -> ValidationScore {
         success: result.success.rate,
         goal_fraction: result.mean_goal_fraction,
     }
-}
-
-/// Values per frame row (64×64 RGB, CHW).
-fn obs_dim_frames() -> usize {
-    3 * 64 * 64
 }
 
 /// Block stacking's primitive level, as the NTP family trains on it
@@ -986,11 +1014,12 @@ impl PrimitiveLevel for BlocksPrimitive {
             FrameLabels::Flat => crate::video::train_encoder(run, video_run, device),
             FrameLabels::Primitive => {
                 let vocab = primitive_vocabulary();
+                let camera = config.camera();
                 let record = |virtual_task: usize, seed: u64| {
-                    record_primitive_video(plan.task(virtual_task), config.failures, seed)
+                    record_primitive_video(plan.task(virtual_task), config.failures, camera, seed)
                 };
                 let record_validation = |i: usize, seed: u64| {
-                    record_primitive_video(validation[i].clone(), config.failures, seed)
+                    record_primitive_video(validation[i].clone(), config.failures, camera, seed)
                 };
                 let primitive_run = VideoRun {
                     vocabulary: &vocab,
@@ -1032,7 +1061,7 @@ impl PrimitiveLevel for BlocksPrimitive {
         };
         // Cached with what `encode` makes of a fixed frame, so another
         // encoder's rows are never read.
-        let probe = encode(&[vec![0.5; obs_dim_frames()]])?.concat();
+        let probe = encode(&[vec![0.5; config.camera().frame_dim()]])?.concat();
         NtpDataset::load_or_build_in_parts(
             &run.root().join(crate::method::ntp::NTP_FRAMES_DIR),
             &probe,
@@ -1042,7 +1071,7 @@ impl PrimitiveLevel for BlocksPrimitive {
                 record_ntp_frames(
                     pairs,
                     task,
-                    config.failures,
+                    env_config(ObsKind::Vid, config.failures).with_camera(config.camera()),
                     &format!("{what}{part}"),
                     encode,
                 )
@@ -1065,6 +1094,7 @@ impl PrimitiveLevel for BlocksPrimitive {
             model,
             c.obs,
             c.failures,
+            c.camera(),
             &self.validation,
             Seeds::VALIDATION,
         )?;
@@ -1104,10 +1134,12 @@ pub fn primitive_vocabulary() -> ctg_graph::Vocabulary {
 pub fn record_primitive_video(
     task: StackTask,
     failures: bool,
+    camera: env_blocks::Camera,
     seed: u64,
 ) -> anyhow::Result<ctg_graph::VideoDemonstration<Vec<f32>>> {
     let task = env_blocks::BlocksTask::Stack(task);
-    let demo = env_blocks::record_ntp_demo(&task, env_config(ObsKind::Vid, failures), seed)
+    let env = env_config(ObsKind::Vid, failures).with_camera(camera);
+    let demo = env_blocks::record_ntp_demo(&task, env, seed)
         .with_context(|| format!("NTP demo of task {} (seed {seed})", task.id()))?;
     let segments = demo
         .observations
@@ -1130,6 +1162,7 @@ pub fn ntp_video_dataset(
     plan: &VideoPlan,
     pairs: &[(usize, u64)],
     failures: bool,
+    camera: env_blocks::Camera,
     frames: &ntg_model::FrameStageNet,
     what: &str,
 ) -> anyhow::Result<NtpDataset> {
@@ -1137,7 +1170,7 @@ pub fn ntp_video_dataset(
     record_ntp_frames(
         pairs,
         |t| plan.task(t),
-        failures,
+        env_config(ObsKind::Vid, failures).with_camera(camera),
         what,
         |rows| crate::method::on_frames::encode_rows(&net, rows),
     )
@@ -1151,12 +1184,11 @@ pub fn ntp_video_dataset(
 fn record_ntp_frames(
     pairs: &[(usize, u64)],
     task: impl Fn(usize) -> StackTask + Sync,
-    failures: bool,
+    env: EnvConfig,
     what: &str,
     encode: impl Fn(&[Vec<f32>]) -> anyhow::Result<Vec<Vec<f32>>>,
 ) -> anyhow::Result<NtpDataset> {
     use rayon::prelude::*;
-    let env = env_config(ObsKind::Vid, failures);
     let bar = crate::dataset::progress_bar(pairs.len() as u64, what);
     let mut episodes = Vec::with_capacity(pairs.len());
     for chunk in pairs.chunks(256) {
@@ -1198,7 +1230,7 @@ pub fn train_ntp_detector(
 ) -> anyhow::Result<ntg_model::Detector> {
     use crate::method::detector::{DetectorDataset, DetectorFrames, train_detector};
     settings.validate()?;
-    let env = env_config(ObsKind::Vid, config.failures);
+    let env = env_config(ObsKind::Vid, config.failures).with_camera(config.camera());
     let validation = validation_tasks_of(config.tasks.as_deref(), 2 * settings.validation_tasks)?;
     let (select, report) = validation.split_at(settings.validation_tasks);
     let frames = || {
@@ -1406,6 +1438,13 @@ impl BlocksDomain {
             video: env_blocks::VideoConfig::default(),
         }
     }
+
+    /// The same domain with frames (observations and demo videos)
+    /// rendered by `camera`.
+    pub fn with_camera(mut self, camera: env_blocks::Camera) -> Self {
+        self.env_config.camera = camera;
+        self
+    }
 }
 
 /// Step limit of NTP's primitive-level episodes: NTG's 40 flat actions,
@@ -1450,7 +1489,10 @@ impl Domain for BlocksDomain {
         self.obs
     }
     fn obs_dim(&self) -> usize {
-        obs_dim(self.obs)
+        match self.obs {
+            ObsKind::State => obs_dim(ObsKind::State),
+            ObsKind::Vid => self.env_config.camera.frame_dim(),
+        }
     }
     fn featurize(&self, observation: &BlocksObservation) -> Vec<f32> {
         featurize(observation, self.obs)
@@ -1513,6 +1555,7 @@ pub fn evaluate(
         model,
         obs,
         failures,
+        env_blocks::Camera::default(),
         test_tasks_of(&split, test_tasks)?,
         Seeds::TEST,
         variant,
@@ -1539,6 +1582,7 @@ pub fn evaluate_tasks<M: NtgBased>(
     model: &M,
     obs: ObsKind,
     failures: bool,
+    camera: env_blocks::Camera,
     tasks: &[StackTask],
     seeds: Seeds,
     variant: Variant,
@@ -1547,7 +1591,7 @@ pub fn evaluate_tasks<M: NtgBased>(
     let ablation = variant.ablation_of(&model.ntg().config.ablation);
     model.ntg_mut().config.ablation = ablation;
     evaluate_on(
-        &BlocksDomain::new(obs, failures),
+        &BlocksDomain::new(obs, failures).with_camera(camera),
         &model,
         variant.name(),
         tasks,
@@ -1561,10 +1605,13 @@ pub fn evaluate_ntp_tasks(
     model: &dyn crate::method::TrainedPolicy,
     obs: ObsKind,
     failures: bool,
+    camera: env_blocks::Camera,
     tasks: &[StackTask],
     seeds: Seeds,
 ) -> anyhow::Result<EvalResult> {
-    let domain = BlocksDomain::new(obs, failures).at_primitive_level();
+    let domain = BlocksDomain::new(obs, failures)
+        .with_camera(camera)
+        .at_primitive_level();
     evaluate_on(&domain, model, "full", tasks, seeds)
 }
 
@@ -1575,6 +1622,7 @@ pub fn evaluate_ntp(
     tasks: Option<&Path>,
     obs: ObsKind,
     failures: bool,
+    camera: env_blocks::Camera,
     test_tasks: usize,
 ) -> anyhow::Result<EvalResult> {
     let split = task_split(tasks)?;
@@ -1582,6 +1630,7 @@ pub fn evaluate_ntp(
         model,
         obs,
         failures,
+        camera,
         test_tasks_of(&split, test_tasks)?,
         Seeds::TEST,
     )
@@ -1683,6 +1732,11 @@ pub struct BlocksFlags {
     /// the recommended recipe, 1 in the paper's].
     #[arg(long, value_name = "K", value_parser = crate::spec::parse::positive)]
     pub interpreter_frame_pool: Option<usize>,
+    /// --obs vid: side in pixels of the camera's square frames, a multiple
+    /// of 8 from 8 to 512 (the same framing: a cube spans about side/13
+    /// pixels) [default: 64].
+    #[arg(long, value_name = "PIXELS", value_parser = crate::spec::parse::positive)]
+    pub camera_size: Option<usize>,
     /// --obs vid: cube renaming for frames (not in the paper): each task's
     /// demos are recorded in groups of this many, the first group on the
     /// task itself, every other group on the task with its cubes renamed
@@ -1732,6 +1786,9 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
             .unwrap_or(v.interpreter_frame_pool);
         v.demos_per_renaming = own.video_renaming_group.unwrap_or(v.demos_per_renaming);
         v.encoder_labels = own.encoder_labels.unwrap_or(v.encoder_labels);
+        if let Some(size) = own.camera_size {
+            v.camera = env_blocks::Camera::of_size(u32::try_from(size).unwrap_or(u32::MAX));
+        }
         v
     });
     BlocksRunConfig {
@@ -1821,6 +1878,22 @@ impl DomainRuns for Blocks {
         }
         if own.video_renaming_group.is_some() && config.video.is_none() {
             bail!("--video-renaming-group renames cubes in demo videos: it needs --obs vid");
+        }
+        if own.camera_size.is_some() {
+            if !vid {
+                bail!("--camera-size sets the frames of a run on video: it needs --obs vid");
+            }
+            config
+                .camera()
+                .validate()
+                .map_err(|e| anyhow::anyhow!("--camera-size: {e}"))?;
+        }
+        if let Some(video) = &config.video {
+            video
+                .encoder
+                .net_config(flat_vocabulary().len(), video.camera.size as usize, 0)
+                .validate()
+                .map_err(|e| anyhow::anyhow!("--camera-size and --encoder-*: {e}"))?;
         }
         if own.interpreter_frame_pool.is_some()
             && !(vid && method.reads("video.interpreter_frame_pool"))
@@ -1954,7 +2027,7 @@ pub fn ntp_decisions(
         } else {
             bail!("{} is not an NTP network", config.method.legend());
         };
-    let env = env_config(config.obs, config.failures);
+    let env = env_config(config.obs, config.failures).with_camera(config.camera());
     let mut report = DecisionReport::new();
     let bar = crate::dataset::progress_bar(tasks.len() as u64, "checking decisions");
     let indices: Vec<usize> = (0..tasks.len()).collect();
@@ -2013,8 +2086,14 @@ pub fn evaluate_run(run: &RunDir, flags: &EvalFlags) -> anyhow::Result<(String, 
         }
         let model = load_baseline(run, &config, &device)?;
         let name = format!("{prefix}{}-{}", config.method.name(), flags.test_tasks);
-        let result =
-            evaluate_ntp_tasks(model.as_ref(), config.obs, config.failures, &tasks, seeds)?;
+        let result = evaluate_ntp_tasks(
+            model.as_ref(),
+            config.obs,
+            config.failures,
+            config.camera(),
+            &tasks,
+            seeds,
+        )?;
         return Ok((name, result));
     }
     let model = load_trained(run, flags.edge_threshold, &device)?;
@@ -2022,7 +2101,13 @@ pub fn evaluate_run(run: &RunDir, flags: &EvalFlags) -> anyhow::Result<(String, 
     if let Some(t) = flags.edge_threshold {
         name.push_str(&format!("-threshold{t}"));
     }
-    let result = model.evaluate_tasks(config.failures, &tasks, seeds, flags.variant)?;
+    let result = model.evaluate_tasks(
+        config.failures,
+        config.camera(),
+        &tasks,
+        seeds,
+        flags.variant,
+    )?;
     Ok((name, result))
 }
 
@@ -2256,7 +2341,8 @@ mod tests {
     #[test]
     fn a_primitive_video_is_the_frames_ntp_acts_on_labelled_with_its_primitives() {
         let task = env_blocks::standard_split().unwrap().train_pool[3].clone();
-        let video = record_primitive_video(task.clone(), true, 11).unwrap();
+        let video =
+            record_primitive_video(task.clone(), true, env_blocks::Camera::default(), 11).unwrap();
         let demo = env_blocks::record_ntp_demo(
             &env_blocks::BlocksTask::Stack(task),
             env_config(ObsKind::Vid, true),

@@ -211,6 +211,11 @@ pub struct TrainFlags {
     /// stacking's recommended recipe, else 0].
     #[arg(long, value_name = "W", value_parser = crate::spec::parse::non_negative)]
     pub encoder_progress: Option<f32>,
+    /// --obs vid: output channels of a stem convolution (stride 2) before
+    /// the frame encoder's three, for frames larger than 64×64 (their
+    /// side a multiple of 16), 0 for none [default: 0].
+    #[arg(long, value_name = "CHANNELS")]
+    pub encoder_stem: Option<usize>,
 }
 
 impl TrainFlags {
@@ -225,6 +230,7 @@ impl TrainFlags {
             || self.encoder_keypoints.is_some()
             || self.encoder_retry_repeats.is_some()
             || self.encoder_progress.is_some()
+            || self.encoder_stem.is_some()
     }
 
     /// Refuses the frame-encoder flags on a run that has no frames.
@@ -232,8 +238,8 @@ impl TrainFlags {
         if self.obs == ObsKind::State && self.sets_the_frame_encoder() {
             anyhow::bail!(
                 "--encoder-demos, --encoder-epochs, --encoder-frame-fraction, --encoder-hidden, --encoder-lr, \
-                 --encoder-reconstruction, --encoder-keypoints, --encoder-retry-repeats and --encoder-progress \
-                 set the frame encoder of --obs vid runs"
+                 --encoder-reconstruction, --encoder-keypoints, --encoder-retry-repeats, --encoder-progress \
+                 and --encoder-stem set the frame encoder of --obs vid runs"
             );
         }
         Ok(())
@@ -250,6 +256,7 @@ impl TrainFlags {
         stage.spatial_softmax = self.encoder_keypoints.unwrap_or(stage.spatial_softmax);
         stage.retry_repeats = self.encoder_retry_repeats.unwrap_or(stage.retry_repeats);
         stage.progress = self.encoder_progress.unwrap_or(stage.progress);
+        stage.stem = self.encoder_stem.unwrap_or(stage.stem);
         stage.shards = self.shards;
     }
 }

@@ -239,9 +239,10 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
     for p in points {
         let _ = writeln!(
             s,
-            "| {} | {} | {} |",
+            "| {} | {} | {} | {} |",
             ntp_exp::row_name(p),
             ntp_exp::scale_cells(p),
+            ntp_exp::additions_cell(p),
             ntp_exp::outcome_cells(p)
         );
     }
@@ -663,6 +664,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            camera: None,
             success: crate::stats::SuccessRate::from_outcomes((0..1000).map(|i| i < successes)),
             goal_fraction: 0.5,
             train_seconds: 1.0,

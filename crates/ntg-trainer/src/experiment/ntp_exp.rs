@@ -109,6 +109,12 @@ pub struct PanelScale {
     /// and report combine.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
+    /// A word added to the run folders' names after the input
+    /// (`ntp_exp-vid-TAG-...`), so that a panel of another protocol (its
+    /// overrides: another perception, say) keeps its runs and records
+    /// apart from the earlier protocol's. Lowercase letters and digits.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tag: Option<String>,
 }
 
 impl PanelScale {
@@ -197,6 +203,9 @@ impl NtpExpExperiment {
         train_tasks: usize,
     ) -> String {
         let mut name = format!("{}-{}", self.name, panel.obs.name());
+        if let Some(tag) = &panel.tag {
+            name = format!("{name}-{tag}");
+        }
         if !method.is_ntg() {
             name = format!("{name}-{}", method.name());
         }
@@ -280,6 +289,16 @@ impl NtpExpExperiment {
             ablation.name(),
             method.name()
         );
+        if let Some(tag) = &panel.tag {
+            anyhow::ensure!(
+                !tag.is_empty()
+                    && tag
+                        .chars()
+                        .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit()),
+                "{}: a panel's tag names its run folders: lowercase letters and digits, not {tag:?}",
+                self.origin
+            );
+        }
         let reads = |obs: ObsKind| panel.obs == obs;
         anyhow::ensure!(
             match method {
@@ -364,6 +383,10 @@ pub struct NtpExpPoint {
     /// run of the paper's recipe.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub additions: Vec<String>,
+    /// Video runs: the side in pixels of the camera's frames (the run's
+    /// `video.camera`), shown in the row's input cell; `None` on state.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<u32>,
     /// Success on unseen tasks.
     pub success: SuccessRate,
     /// Mean fraction of each unseen task's goal constraints met at the end.
@@ -689,6 +712,7 @@ fn run_point(
             model.evaluate(
                 config.tasks.as_deref(),
                 config.failures,
+                config.camera(),
                 scale.test_tasks,
                 Variant::Full,
             )
@@ -700,6 +724,7 @@ fn run_point(
                 config.tasks.as_deref(),
                 obs,
                 config.failures,
+                config.camera(),
                 scale.test_tasks,
             )
         }
@@ -727,6 +752,7 @@ fn run_point(
         selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
         permute_objects: config.permute_objects,
         additions: blocks::additions(&config),
+        camera: (obs == ObsKind::Vid).then(|| config.camera().size),
         success: result.success,
         goal_fraction: result.mean_goal_fraction,
         train_seconds,
@@ -749,7 +775,7 @@ pub(crate) fn largest_of_each_curve(points: &[NtpExpPoint]) -> Vec<usize> {
         .enumerate()
         .filter(|(_, p)| p.ablation.is_full())
     {
-        let curve = |q: &NtpExpPoint| (q.method, q.recipe, q.obs, q.seed);
+        let curve = |q: &NtpExpPoint| (q.method, q.recipe, q.obs, q.other_camera(), q.seed);
         match largest.iter().position(|&j| curve(&points[j]) == curve(p)) {
             Some(k) if points[largest[k]].train_tasks < p.train_tasks => largest[k] = i,
             Some(_) => {}
@@ -1057,10 +1083,11 @@ pub fn ablation_part(ablation: Variant) -> &'static str {
 /// Writes the figure (two panels: success and goals met against training
 /// tasks) as `stem.svg` and `stem.png`.
 pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
-    let mut curves: Vec<(MethodId, Recipe, Variant)> = Vec::new();
+    let mut curves: Vec<(MethodId, Recipe, Variant, Option<u32>)> = Vec::new();
     for p in points {
-        if !curves.contains(&(p.method, p.recipe, p.ablation)) {
-            curves.push((p.method, p.recipe, p.ablation));
+        let curve = (p.method, p.recipe, p.ablation, p.other_camera());
+        if !curves.contains(&curve) {
+            curves.push(curve);
         }
     }
     let panel = |obs: ObsKind, title: &str| Panel {
@@ -1072,11 +1099,16 @@ pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
         y_range: (0.0, 1.0),
         series: curves
             .iter()
-            .flat_map(|&(method, recipe, ablation)| {
+            .flat_map(|&(method, recipe, ablation, camera)| {
                 let of = |p: &&NtpExpPoint| {
-                    p.obs == obs && (p.method, p.recipe, p.ablation) == (method, recipe, ablation)
+                    p.obs == obs
+                        && (p.method, p.recipe, p.ablation, p.other_camera())
+                            == (method, recipe, ablation, camera)
                 };
-                let name = curve_name(method, recipe, ablation);
+                let mut name = curve_name(method, recipe, ablation);
+                if let Some(side) = camera {
+                    name = format!("{name}, {side}×{side} frames");
+                }
                 let groups = by_point(points.iter().filter(of));
                 [
                     Series {
@@ -1227,6 +1259,22 @@ pub(crate) fn additions_cell(p: &NtpExpPoint) -> String {
     }
 }
 
+impl NtpExpPoint {
+    /// The side of the point's frames where it is not the standard
+    /// camera's (64): a curve of its own beside the standard frames'.
+    pub fn other_camera(&self) -> Option<u32> {
+        self.camera.filter(|&side| side != env_blocks::FRAME_SIZE)
+    }
+}
+
+/// A row's input cell: `State`, or `Vid` with its frames' side.
+pub(crate) fn input_cell(obs: ObsKind, camera: Option<u32>) -> String {
+    match camera {
+        Some(side) if obs == ObsKind::Vid => format!("Vid ({side}×{side})"),
+        _ => format!("{obs:?}"),
+    }
+}
+
 /// A point's report cells `input | training tasks | demos/task | epochs
 /// (selected)`; a run that stopped early at a perfect validation score
 /// shows the epochs it trained of its planned ones.
@@ -1238,8 +1286,8 @@ pub(crate) fn scale_cells(p: &NtpExpPoint) -> String {
         _ => p.epochs.to_string(),
     };
     format!(
-        "{:?} | {} | {} | {} ({})",
-        p.obs,
+        "{} | {} | {} | {} ({})",
+        input_cell(p.obs, p.camera),
         p.train_tasks,
         p.demos_per_task,
         epochs,
@@ -1714,7 +1762,8 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
 mod tests {
     use super::*;
 
-    /// Every row of the committed report's fig. "ntp_exp" table names every
+    /// Every row of the committed report's block-stacking tables (fig.
+    /// "ntp_exp", fig. "ablation" (a), the structure split) names every
     /// addition to the paper's recipe that its run's configuration (in its
     /// committed record) holds: the executed node, cube renaming and its
     /// groups, retry repeats, the progress head, frame pooling, ...
@@ -1729,35 +1778,60 @@ mod tests {
             return;
         }
         let results: serde_json::Value = RunDir::read_json(&figures.join("results.json")).unwrap();
-        let points: Vec<NtpExpPoint> = serde_json::from_value(results["ntp_exp"].clone()).unwrap();
         let report = std::fs::read_to_string(figures.join("REPORT.md")).unwrap();
-        let start = report
-            .find("| method | input | training tasks |")
-            .expect("the ntp_exp table");
-        let rows: Vec<&str> = report[start..]
-            .lines()
-            .skip(2)
-            .take_while(|l| l.starts_with('|'))
-            .collect();
-        assert_eq!(rows.len(), points.len(), "one row per point");
+        let runs_of = |key: &str| -> Vec<String> {
+            results[key]
+                .as_array()
+                .unwrap_or_else(|| panic!("results.json: no {key}"))
+                .iter()
+                .map(|p| {
+                    std::path::Path::new(p["run"].as_str().unwrap())
+                        .file_name()
+                        .unwrap()
+                        .to_string_lossy()
+                        .into_owned()
+                })
+                .collect()
+        };
         let mut named = 0;
-        for (row, point) in rows.iter().zip(&points) {
-            let run = point
-                .run
-                .file_name()
-                .unwrap()
-                .to_string_lossy()
-                .into_owned();
-            let record: serde_json::Value =
-                RunDir::read_json(&figures.join("records").join(format!("{run}.json"))).unwrap();
-            let config: BlocksRunConfig =
-                serde_json::from_value(record["files"]["config.json"].clone()).unwrap();
-            for addition in blocks::additions(&config) {
-                assert!(
-                    row.contains(&addition),
-                    "{run}: its row does not name {addition:?}: {row}"
-                );
-                named += 1;
+        for (key, header) in [
+            (
+                "ntp_exp",
+                "| method | input | training tasks | demos/task |",
+            ),
+            ("ablation", "| variant | input | training tasks |"),
+            ("structure", "| method | input | training tasks | seed |"),
+        ] {
+            let start = report
+                .find(header)
+                .unwrap_or_else(|| panic!("the {key} table"));
+            let rows: Vec<&str> = report[start..]
+                .lines()
+                .skip(2)
+                .take_while(|l| l.starts_with('|'))
+                .collect();
+            let runs = runs_of(key);
+            assert_eq!(rows.len(), runs.len(), "{key}: one row per point");
+            for (row, run) in rows.iter().zip(&runs) {
+                let record: serde_json::Value =
+                    RunDir::read_json(&figures.join("records").join(format!("{run}.json")))
+                        .unwrap();
+                let config: BlocksRunConfig =
+                    serde_json::from_value(record["files"]["config.json"].clone()).unwrap();
+                let additions = blocks::additions(&config);
+                if additions.is_empty() {
+                    assert!(
+                        row.contains("| none |"),
+                        "{key}: {run} adds nothing, its row says otherwise: {row}"
+                    );
+                }
+                for addition in additions {
+                    assert!(
+                        row.contains(&addition),
+                        "{key}: {run}: its row does not name {addition:?}: {row}"
+                    );
+                    named += 1;
+                }
             }
         }
         assert!(
@@ -1795,6 +1869,35 @@ mod tests {
                 .iter()
                 .any(|a| a == "retry weight 2.0")
         );
+        // Perception: the camera and the encoder's stem.
+        let video = ours.video.as_mut().unwrap();
+        video.camera = env_blocks::Camera::of_size(128);
+        video.encoder.stem = 16;
+        let additions = blocks::additions(&ours);
+        for named in ["camera 128x128 px", "encoder stem of 16 channels"] {
+            assert!(
+                additions.iter().any(|a| a == named),
+                "{named}: {additions:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_panel_tag_keeps_its_runs_apart_and_must_be_a_plain_word() {
+        let mut experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let mut panel = experiment.profiles.smoke.panels[1].clone();
+        let untagged = experiment.run_name(&panel, (MethodId::Ntp, Variant::Full), 5);
+        assert_eq!(untagged, "ntp_exp-vid-ntp-5");
+        panel.tag = Some("cam128".into());
+        let tagged = experiment.run_name(&panel, (MethodId::Ntp, Variant::Full), 5);
+        assert_eq!(tagged, "ntp_exp-vid-cam128-ntp-5");
+        panel.tag = Some("Cam 128".into());
+        experiment.profiles.smoke.panels[1] = panel;
+        let err = experiment.run_configs(Profile::Smoke).unwrap_err();
+        assert!(
+            err.to_string().contains("lowercase letters and digits"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -1812,6 +1915,7 @@ mod tests {
             detector: toml::Table::new(),
             ablations: None,
             seed: None,
+            tag: None,
         };
         // 500 demos = 16 steps per epoch -> 63 epochs to reach 1000 steps.
         assert_eq!(scale.epochs_for(50, 32), 63);
@@ -1999,6 +2103,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            camera: None,
             success: SuccessRate::new(1, 10),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -2038,6 +2143,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            camera: None,
             success: rate(6, 10),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -2083,6 +2189,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            camera: None,
             success: SuccessRate::from_outcomes((0..200).map(|i| i < successes)),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -2147,6 +2254,7 @@ mod tests {
             recipe: Recipe::Recommended,
             permute_objects: true,
             additions: Vec::new(),
+            camera: None,
             ..point(method, state, 1000, 0, successes)
         };
         let mut both = points.clone();
@@ -2180,6 +2288,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            camera: None,
             success: SuccessRate::from_outcomes((0..100).map(|i| i < successes)),
             goal_fraction: 0.5,
             train_seconds: 1.0,

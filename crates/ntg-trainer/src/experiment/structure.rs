@@ -36,6 +36,14 @@ pub struct StructurePoint {
     pub standard: SuccessRate,
     /// Success on as many tasks of the structure split.
     pub success: SuccessRate,
+    /// What the run adds to the paper's recipe, named from its whole
+    /// configuration (the fig. ntp_exp point's `additions`; results written
+    /// before it: empty).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub additions: Vec<String>,
+    /// Video runs: the side of the camera's frames (the point's `camera`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<u32>,
     /// Mean fraction of goals met there.
     pub goal_fraction: f64,
     /// Run folder.
@@ -79,6 +87,8 @@ pub fn run(points: &[NtpExpPoint], plan: &Plan<'_>) -> anyhow::Result<Vec<Struct
             seed: p.seed,
             train_tasks: p.train_tasks,
             standard: p.success,
+            additions: p.additions.clone(),
+            camera: p.camera,
             success: result.success,
             goal_fraction: result.mean_goal_fraction,
             run: p.run.clone(),
@@ -97,11 +107,15 @@ pub fn report_section(points: &[StructurePoint]) -> String {
     for p in points {
         let _ = writeln!(
             s,
-            "| {} | {:?} | {} | {} | {:.3} | {:.3} ({:.3}–{:.3}) | {:.3} |",
+            "| {} | {} | {} | {} | {} | {:.3} | {:.3} ({:.3}–{:.3}) | {:.3} |",
             curve_name(p.method, p.recipe, crate::method::ntg::Variant::Full),
-            p.obs,
+            crate::experiment::ntp_exp::input_cell(p.obs, p.camera),
             p.train_tasks,
             p.seed,
+            match p.additions.is_empty() {
+                true => "none".to_owned(),
+                false => p.additions.join("; "),
+            },
             p.standard.rate,
             p.success.rate,
             p.success.ci_low,

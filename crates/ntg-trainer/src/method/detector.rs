@@ -100,13 +100,15 @@ impl DetectorSettings {
         Ok(())
     }
 
-    /// The detector these settings train, its positions scaled by `scale`
+    /// The detector these settings train on frames of
+    /// `image_size`×`image_size` pixels, its positions scaled by `scale`
     /// (the training positions' spread), weights from `seed`.
-    pub fn net_config(&self, scale: f32, seed: u64) -> DetectorConfig {
+    pub fn net_config(&self, scale: f32, image_size: usize, seed: u64) -> DetectorConfig {
         DetectorConfig::new(
             env_blocks::world::NUM_OBJECTS,
             EncoderConfig::Frame(
                 FrameEncoderConfig::new()
+                    .with_image_size(image_size)
                     .with_he_init(Some(true))
                     .with_centre_input(Some(true))
                     .with_spatial_softmax(self.keypoints.then_some(true)),
@@ -203,8 +205,9 @@ pub fn train_detector(
     }
     let frames = frames()?;
     let plain = device.clone().inner();
+    let side = crate::video::frame_side(frames.train.frame_dim())?;
     let net = settings
-        .net_config(frames.train.position_std(), seed)
+        .net_config(frames.train.position_std(), side, seed)
         .init(device)?;
     let step = DetectorStep {
         dataset: &frames.train,
@@ -331,6 +334,11 @@ impl DetectorDataset {
         })?;
         let (frames, rows) = episodes.into_iter().flatten().unzip();
         Ok(DetectorDataset { frames, rows })
+    }
+
+    /// Values per frame row (0 when there are no frames).
+    pub fn frame_dim(&self) -> usize {
+        self.frames.first().map_or(0, Vec::len)
     }
 
     /// Number of frames.
