@@ -89,9 +89,9 @@ pub use model::{
     WEIGHTS_FILE, load_optimizer, save_optimizer,
 };
 pub use ntp::{
-    ConditionedNtp, EncodedSpec, NtpBatch, NtpConfig, NtpCore, NtpDecision, NtpDecisionCheck,
-    NtpExample, NtpLoss, NtpNet, NtpOutput, ProgramCall, ProgramStack, StackFrame, StackStep,
-    scope_from_logits,
+    CallSteps, ConditionedNtp, CoreState, EncodedSpec, NtpBatch, NtpConfig, NtpCore, NtpDecision,
+    NtpDecisionCheck, NtpExample, NtpLoss, NtpNet, NtpOutput, ProgramCall, ProgramStack,
+    StackFrame, StackStep, scope_from_logits,
 };
 pub use optimizer::ParallelOptimizer;
 pub use parallel::{

@@ -21,6 +21,14 @@
 //! segment of the demo comes next is the one whose rows look like the
 //! present, and a sum alone cannot compare a row with the present.
 //!
+//! With [`NtpConfig::recurrent_core`] (the GRU variant of the original
+//! NTP) the heads read a GRU state instead of `h`: each program call
+//! carries its own state through its decisions, `g_k = GRU(g_{k−1}, h_k)`
+//! from `g_{−1} = 0`, so a program tells its decisions apart by what it
+//! has done in this call (after `move`: `drop`; after `drop`: return)
+//! even where two observations look alike. A callee starts from zeros;
+//! its caller's state waits on the stack.
+//!
 //! The scope head is a temporal convolution of kernel 3 over the demo's
 //! encoded rows, conditioned on the core state; a callee attends only to
 //! its scope of the demo. Programs, arguments and the demo are plain
@@ -44,7 +52,7 @@ use burn::tensor::{Device, Int, Tensor, TensorData};
 use crate::batch::rows_tensor;
 use crate::encoder::{Encoder, EncoderConfig};
 use crate::nn::{
-    Init, MASKED_LOGIT, masked_accuracy, masked_cross_entropy, scalar, to_vec, to_vec_int,
+    GruCell, Init, MASKED_LOGIT, masked_accuracy, masked_cross_entropy, scalar, to_vec, to_vec_int,
 };
 use crate::{ModelError, Result};
 
@@ -99,6 +107,10 @@ pub struct NtpConfig {
     /// (see the module docs); `None` or `false`: the kernel-3 convolution
     /// plus the core's term only.
     pub scope_match: Option<bool>,
+    /// A recurrent (GRU) core: the heads read a GRU state carried through
+    /// each program call's decisions (see the module docs); `None` or
+    /// `false`: the reactive feed-forward core.
+    pub recurrent_core: Option<bool>,
     /// Seed of the initial weights.
     #[config(default = 0)]
     pub seed: u64,
@@ -155,6 +167,12 @@ impl NtpConfig {
                 .scope_match
                 .unwrap_or(false)
                 .then(|| (init.linear(e, h, false), init.linear(h, h, false))),
+            // Drawn last, so the reactive core's weights are the same with
+            // and without it.
+            core_gru: self
+                .recurrent_core
+                .unwrap_or(false)
+                .then(|| GruCell::init(&mut init, h, h)),
             encoder,
             config: self.clone(),
         })
@@ -193,6 +211,9 @@ pub struct NtpNet {
     /// With [`NtpConfig::scope_match`]: `G` (demo row) and `M` (core state)
     /// of the scope head's comparison term.
     pub scope_match: Option<(Linear, Linear)>,
+    /// With [`NtpConfig::recurrent_core`]: the GRU cell over each call's
+    /// decisions, reading the feed-forward core `h`.
+    pub core_gru: Option<GruCell>,
     /// The configuration the network was built from.
     #[module(skip)]
     pub config: NtpConfig,
@@ -312,8 +333,77 @@ pub struct NtpBatch {
     pub scope_labels: Tensor<2, Int>,
     /// 1 on the rows of the caller's scope `[K, R]`.
     pub scope_weight: Tensor<2>,
+    /// The decisions grouped by the program call that makes them (what a
+    /// recurrent core carries its state along).
+    pub calls: CallSteps,
     /// Number of decisions `S`.
     pub decisions: usize,
+}
+
+/// A batch's decisions grouped by the program call that makes them, in
+/// step-major order: first every call's first decision, then every
+/// second decision of the calls that make one, and so on. A recurrent
+/// core runs one GRU step per group ([`NtpNet::decide`] with
+/// [`CoreState::Calls`]).
+#[derive(Debug, Clone)]
+pub struct CallSteps {
+    /// Per step `j`: the decisions that are step `j` of their call.
+    steps: Vec<Tensor<1, Int>>,
+    /// Per step `j ≥ 1`: for each decision of `steps[j]`, the position of
+    /// its call's step `j − 1` in the step-major order (`previous[0]` is
+    /// empty and unused).
+    previous: Vec<Tensor<1, Int>>,
+    /// Per decision `[S]`: its position in the step-major order.
+    position: Tensor<1, Int>,
+}
+
+impl CallSteps {
+    /// The grouping of decisions whose calls are `call` (per decision, in
+    /// order within each call).
+    fn new(call: &[usize], device: &Device) -> Self {
+        let calls = call.iter().map(|&c| c + 1).max().unwrap_or(0);
+        let mut of_call: Vec<Vec<usize>> = vec![Vec::new(); calls];
+        for (k, &c) in call.iter().enumerate() {
+            of_call[c].push(k);
+        }
+        let longest = of_call.iter().map(Vec::len).max().unwrap_or(0);
+        let mut position = vec![0i64; call.len()];
+        let mut next = 0i64;
+        let ints = |v: Vec<i64>| {
+            Tensor::<1, Int>::from_data(TensorData::new(v.clone(), [v.len()]), device)
+        };
+        let (mut steps, mut previous) = (Vec::new(), Vec::new());
+        for j in 0..longest {
+            let (mut here, mut before) = (Vec::new(), Vec::new());
+            for decisions in of_call.iter().filter(|d| d.len() > j) {
+                here.push(decisions[j] as i64);
+                if j > 0 {
+                    before.push(position[decisions[j - 1]]);
+                }
+                position[decisions[j]] = next;
+                next += 1;
+            }
+            steps.push(ints(here));
+            previous.push(ints(before));
+        }
+        CallSteps {
+            steps,
+            previous,
+            position: ints(position),
+        }
+    }
+}
+
+/// Where a recurrent core's state comes from for the decisions given to
+/// [`NtpNet::decide`] (a reactive core ignores it).
+#[derive(Debug, Clone)]
+pub enum CoreState<'a> {
+    /// Every decision is the first of its call (state zeros).
+    First,
+    /// A batch's decisions, in the calls that make them (teacher forcing).
+    Calls(&'a CallSteps),
+    /// Each decision continues its call from this state `[S, H]`.
+    Previous(&'a Tensor<2>),
 }
 
 /// One training example: the specification demo's rows, the executed
@@ -323,6 +413,8 @@ pub type NtpExample<'a, R> = (&'a [R], &'a [R], &'a ProgramCall);
 
 struct Decision {
     demo: usize,
+    /// Which call makes it (numbered over the batch).
+    call: usize,
     observation: usize,
     program: usize,
     scope: (usize, usize),
@@ -336,15 +428,19 @@ fn decisions_of(
     call: &ProgramCall,
     demo: usize,
     inherited: (usize, usize),
+    calls: &mut usize,
     out: &mut Vec<Decision>,
 ) {
     if call.children.is_empty() {
         return;
     }
     let scope = call.scope.unwrap_or(inherited);
+    let id = *calls;
+    *calls += 1;
     for child in &call.children {
         out.push(Decision {
             demo,
+            call: id,
             observation: child.start,
             program: call.program,
             scope,
@@ -357,10 +453,11 @@ fn decisions_of(
                 child.scope
             },
         });
-        decisions_of(child, demo, scope, out);
+        decisions_of(child, demo, scope, calls, out);
     }
     out.push(Decision {
         demo,
+        call: id,
         observation: call.end,
         program: call.program,
         scope,
@@ -396,6 +493,7 @@ impl NtpBatch {
         let mut spec = vec![0.0f32; b * r * obs_dim];
         let mut spec_mask = vec![0.0f32; b * r];
         let mut decisions = Vec::new();
+        let mut calls = 0;
         for (i, (rows, episode, trace)) in examples.iter().enumerate() {
             if rows.is_empty() {
                 return Err(ModelError::Input(format!(
@@ -415,7 +513,7 @@ impl NtpBatch {
                 spec_mask[i * r + t] = 1.0;
             }
             let first = decisions.len();
-            decisions_of(trace, i, (0, rows.len() - 1), &mut decisions);
+            decisions_of(trace, i, (0, rows.len() - 1), &mut calls, &mut decisions);
             for d in &decisions[first..] {
                 let bad_scope = |(s, e): (usize, usize)| s > e || e >= rows.len();
                 if d.observation >= episode.len()
@@ -509,6 +607,10 @@ impl NtpBatch {
             scope_steps: ints(scope_steps),
             scope_labels: Tensor::from_data(TensorData::new(scope_labels, [k, r]), device),
             scope_weight: Tensor::from_data(TensorData::new(scope_weight, [k, r]), device),
+            calls: CallSteps::new(
+                &decisions.iter().map(|d| d.call).collect::<Vec<_>>(),
+                device,
+            ),
             decisions: s,
         })
     }
@@ -517,7 +619,9 @@ impl NtpBatch {
 /// The heads' outputs for a set of decisions.
 #[derive(Debug, Clone)]
 pub struct NtpOutput {
-    /// Core states `[S, H]`.
+    /// Core states `[S, H]`: the feed-forward core's, or a recurrent
+    /// core's GRU state after the decision (what the heads read, and what
+    /// its call's next decision continues from).
     pub core: Tensor<2>,
     /// Next sub-program logits `[S, P]`.
     pub program_logits: Tensor<2>,
@@ -623,7 +727,8 @@ impl NtpNet {
 
     /// The heads for decisions `demo_index` `[S]` (which encoded demo each
     /// reads), on `observations` `[S, D]`, in `programs` `[S]`, attending to
-    /// `scope_mask` `[S, R]`.
+    /// `scope_mask` `[S, R]`; a recurrent core continues each decision's
+    /// call from `state`.
     pub fn decide(
         &self,
         spec: &EncodedSpec,
@@ -631,6 +736,7 @@ impl NtpNet {
         observations: Tensor<2>,
         programs: Tensor<1, Int>,
         scope_mask: Tensor<2>,
+        state: CoreState<'_>,
     ) -> Result<NtpOutput> {
         let [s] = demo_index.dims();
         let [_, r, _] = spec.rows.dims();
@@ -671,6 +777,10 @@ impl NtpNet {
             self.core_hidden
                 .forward(relu(self.core_in.forward(Tensor::cat(core_input, 1)))),
         );
+        let core = match &self.core_gru {
+            Some(gru) => recur(gru, core, state)?,
+            None => core,
+        };
         Ok(NtpOutput {
             program_logits: self.program_out.forward(core.clone()),
             eop_logits: self.eop_out.forward(core.clone()).reshape([s]),
@@ -739,6 +849,7 @@ impl NtpNet {
             batch.observations.clone(),
             batch.programs.clone(),
             batch.scope_mask.clone(),
+            CoreState::Calls(&batch.calls),
         )?;
         Ok((spec, out))
     }
@@ -897,6 +1008,51 @@ impl NtpNet {
     }
 }
 
+/// A recurrent core's GRU states `[S, H]` for the feed-forward core's
+/// states `core` `[S, H]`, each decision continuing its call from `state`.
+fn recur(gru: &GruCell, core: Tensor<2>, state: CoreState<'_>) -> Result<Tensor<2>> {
+    let [s, h] = core.dims();
+    let x = gru.project_input(core);
+    let device = x.device();
+    match state {
+        CoreState::First => Ok(gru.step_projected(x, Tensor::zeros([s, h], &device))),
+        CoreState::Previous(previous) => {
+            if previous.dims() != [s, h] {
+                return Err(ModelError::shape(
+                    "recurrent core state",
+                    format!("[{s}, {h}]"),
+                    previous.dims(),
+                ));
+            }
+            Ok(gru.step_projected(x, previous.clone()))
+        }
+        CoreState::Calls(calls) => {
+            let mut done: Option<Tensor<2>> = None;
+            for (here, before) in calls.steps.iter().zip(&calls.previous) {
+                let [n] = here.dims();
+                let previous = match &done {
+                    Some(d) => d.clone().select(0, before.clone()),
+                    None => Tensor::zeros([n, h], &device),
+                };
+                let next = gru.step_projected(x.clone().select(0, here.clone()), previous);
+                done = Some(match done {
+                    Some(d) => Tensor::cat(vec![d, next], 0),
+                    None => next,
+                });
+            }
+            let done = done.ok_or_else(|| ModelError::Input("no decisions".into()))?;
+            if done.dims()[0] != s {
+                return Err(ModelError::shape(
+                    "decisions of the calls",
+                    format!("{s}"),
+                    done.dims()[0],
+                ));
+            }
+            Ok(done.select(0, calls.position.clone()))
+        }
+    }
+}
+
 /// One frame of the program stack: a running program and its scope of the
 /// specification demo (rows, inclusive).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -960,6 +1116,19 @@ impl NtpDecisionCheck {
 pub trait NtpCore {
     /// The decision of `frame`'s program on `observation`.
     fn decide(&self, observation: &[f32], frame: &StackFrame) -> Result<NtpDecision>;
+
+    /// The decision of `frame`'s program on `observation`, continuing the
+    /// call from `state` (`None`: its first decision) and leaving the state
+    /// after it there. A core without state (the default) decides alone.
+    fn decide_in_call(
+        &self,
+        observation: &[f32],
+        frame: &StackFrame,
+        state: &mut Option<Vec<f32>>,
+    ) -> Result<NtpDecision> {
+        let _ = state;
+        self.decide(observation, frame)
+    }
 }
 
 /// What the program stack does next.
@@ -987,6 +1156,9 @@ pub enum StackStep {
 #[derive(Debug, Clone)]
 pub struct ProgramStack {
     frames: Vec<StackFrame>,
+    /// Per frame: its call's recurrent core state (`None` before its first
+    /// decision, and for a core without state).
+    states: Vec<Option<Vec<f32>>>,
     primitives: Vec<bool>,
     max_depth: usize,
 }
@@ -1001,6 +1173,7 @@ impl ProgramStack {
                 program: root,
                 scope: (0, demo_rows.saturating_sub(1)),
             }],
+            states: vec![None],
             primitives,
             max_depth: max_depth.max(1),
         }
@@ -1018,9 +1191,11 @@ impl ProgramStack {
             let Some(top) = self.frames.last().copied() else {
                 return Ok(StackStep::Done);
             };
-            let d = core.decide(observation, &top)?;
+            let state = self.states.last_mut().expect("a state per frame");
+            let d = core.decide_in_call(observation, &top, state)?;
             if d.end_of_program {
                 self.frames.pop();
+                self.states.pop();
                 if self.frames.is_empty() {
                     return Ok(StackStep::Done);
                 }
@@ -1039,6 +1214,7 @@ impl ProgramStack {
                 program: d.program,
                 scope: d.scope,
             });
+            self.states.push(None);
         }
         Ok(StackStep::Stalled)
     }
@@ -1100,6 +1276,15 @@ pub fn scope_from_logits(logits: &[f32], caller: (usize, usize)) -> (usize, usiz
 
 impl NtpCore for ConditionedNtp {
     fn decide(&self, observation: &[f32], frame: &StackFrame) -> Result<NtpDecision> {
+        self.decide_in_call(observation, frame, &mut None)
+    }
+
+    fn decide_in_call(
+        &self,
+        observation: &[f32],
+        frame: &StackFrame,
+        state: &mut Option<Vec<f32>>,
+    ) -> Result<NtpDecision> {
         let device = self.model.device();
         let (lo, hi) = frame.scope;
         if lo > hi || hi >= self.rows {
@@ -1112,13 +1297,23 @@ impl NtpCore for ConditionedNtp {
             .map(|r| f32::from(u8::from((lo..=hi).contains(&r))))
             .collect();
         let index = Tensor::<1, Int>::from_data(TensorData::new(vec![0i64], [1]), &device);
+        let previous = state.take().map(|previous| {
+            let h = previous.len();
+            Tensor::<2>::from_data(TensorData::new(previous, [1, h]), &device)
+        });
         let out = self.model.decide(
             &self.encoded,
             index.clone(),
             rows_tensor(&[observation], self.model.obs_dim(), &device)?,
             Tensor::from_data(TensorData::new(vec![frame.program as i64], [1]), &device),
             Tensor::from_data(TensorData::new(mask, [1, self.rows]), &device),
+            previous
+                .as_ref()
+                .map_or(CoreState::First, CoreState::Previous),
         )?;
+        if self.model.core_gru.is_some() {
+            *state = Some(to_vec(out.core.clone())?);
+        }
         let eop = to_vec(out.eop_logits)?[0] > 0.0;
         let program = first_argmax(&to_vec(out.program_logits)?);
         let argument = first_argmax(&to_vec(out.argument_logits)?);
@@ -1434,24 +1629,100 @@ mod tests {
 
     #[test]
     fn the_network_learns_a_trace_and_replays_it_through_the_stack() {
-        for scope_match in [false, true] {
-            learn_a_trace_and_replay_it(scope_match);
+        let episode: Vec<Vec<f32>> = (0..5).map(|i| vec![i as f32 / 4.0, 1.0]).collect();
+        for (scope_match, recurrent) in [(false, false), (true, false), (false, true)] {
+            learn_a_trace_and_replay_it(scope_match, recurrent, &episode);
         }
     }
 
-    fn learn_a_trace_and_replay_it(scope_match: bool) {
+    #[test]
+    fn only_a_recurrent_core_tells_apart_decisions_on_the_same_observation() {
+        // Every observation alike: within a call, only what the call has
+        // done so far says what comes next.
+        let episode = vec![vec![0.5, 1.0]; 5];
+        learn_a_trace_and_replay_it(false, true, &episode);
+        let (_, _, reactive) = train_on_trace(false, false, &episode);
+        assert!(
+            reactive.program_accuracy < 1.0 && reactive.eop_accuracy < 1.0,
+            "a reactive core sees the same input at sub's `a`, `b` and return: {reactive:?}"
+        );
+    }
+
+    #[test]
+    fn the_recurrent_core_of_a_batch_is_the_one_the_stack_runs() {
+        // Teacher-forced states of a batch (`CoreState::Calls`) are the
+        // states of each call's decisions taken one at a time.
+        let device = cpu_device();
+        let net = NtpConfig::new(4, 2, EncoderConfig::state(2))
+            .with_hidden(16)
+            .with_recurrent_core(Some(true))
+            .with_seed(5)
+            .init(&device)
+            .unwrap();
+        let spec: Vec<Vec<f32>> = (0..5).map(|i| vec![i as f32 / 4.0, 0.0]).collect();
+        let episode: Vec<Vec<f32>> = (0..5).map(|i| vec![0.3, i as f32 / 5.0]).collect();
+        let t = trace();
+        let batch = NtpBatch::new(&[(&spec[..], &episode[..], &t)], 2, 4, 2, &device).unwrap();
+        let (_, out) = net.heads(&batch).unwrap();
+        let batch_core = to_vec(out.core).unwrap();
+        // Decision order (see `decisions_of`): root→sub, sub→a, sub→b,
+        // sub returns, root→sub, sub→a, sub→b, sub returns, root returns;
+        // the calls: root (0, 4, 8), first sub (1, 2, 3), second (5, 6, 7).
+        let calls: [&[usize]; 3] = [&[0, 4, 8], &[1, 2, 3], &[5, 6, 7]];
+        let observations = to_vec(batch.observations.clone()).unwrap();
+        let programs = to_vec_int(batch.programs.clone()).unwrap();
+        let masks = to_vec(batch.scope_mask.clone()).unwrap();
+        let spec_encoded = net
+            .encode_spec(batch.spec.clone(), batch.spec_mask.clone())
+            .unwrap();
+        for call in calls {
+            let mut state: Option<Tensor<2>> = None;
+            for &k in call {
+                let one = |v: &[f32], w: usize| {
+                    Tensor::<2>::from_data(
+                        TensorData::new(v[k * w..(k + 1) * w].to_vec(), [1, w]),
+                        &device,
+                    )
+                };
+                let out = net
+                    .decide(
+                        &spec_encoded,
+                        Tensor::from_data(TensorData::new(vec![0i64], [1]), &device),
+                        one(&observations, 2),
+                        Tensor::from_data(TensorData::new(vec![programs[k]], [1]), &device),
+                        one(&masks, 5),
+                        state.as_ref().map_or(CoreState::First, CoreState::Previous),
+                    )
+                    .unwrap();
+                let alone = to_vec(out.core.clone()).unwrap();
+                for (a, b) in alone.iter().zip(&batch_core[k * 16..(k + 1) * 16]) {
+                    assert!((a - b).abs() < 1e-5, "decision {k}: {a} vs {b}");
+                }
+                state = Some(out.core);
+            }
+        }
+    }
+
+    /// A tiny network (`scope_match`, `recurrent` core) trained for 300
+    /// steps on [`trace`] with the episode's `episode` observations: the
+    /// network, its first loss and its loss after training.
+    fn train_on_trace(
+        scope_match: bool,
+        recurrent: bool,
+        episode: &[Vec<f32>],
+    ) -> (NtpNet, f32, NtpLoss) {
         use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
         let device = cpu_device().autodiff();
         let spec: Vec<Vec<f32>> = (0..5).map(|i| vec![i as f32 / 4.0, 0.0]).collect();
-        let episode: Vec<Vec<f32>> = (0..5).map(|i| vec![i as f32 / 4.0, 1.0]).collect();
         let t = trace();
         let mut net = NtpConfig::new(4, 2, EncoderConfig::state(2))
             .with_hidden(32)
             .with_scope_match(Some(scope_match))
+            .with_recurrent_core(Some(recurrent))
             .with_seed(3)
             .init(&device)
             .unwrap();
-        let batch = NtpBatch::new(&[(&spec[..], &episode[..], &t)], 2, 4, 2, &device).unwrap();
+        let batch = NtpBatch::new(&[(&spec[..], episode, &t)], 2, 4, 2, &device).unwrap();
         let mut optim: ModuleOptimizer = AdamConfig::new().init();
         let first = scalar(net.loss(&batch).unwrap().loss).unwrap();
         for _ in 0..300 {
@@ -1460,10 +1731,17 @@ mod tests {
             net = optim.step(3e-3, net, grads);
         }
         let out = net.loss(&batch).unwrap();
+        (net, first, out)
+    }
+
+    fn learn_a_trace_and_replay_it(scope_match: bool, recurrent: bool, episode: &[Vec<f32>]) {
+        let spec: Vec<Vec<f32>> = (0..5).map(|i| vec![i as f32 / 4.0, 0.0]).collect();
+        let t = trace();
+        let (net, first, out) = train_on_trace(scope_match, recurrent, episode);
         let last = scalar(out.loss.clone()).unwrap();
         assert!(
             last < 0.1 * first,
-            "scope_match {scope_match}: loss {first} → {last}"
+            "scope_match {scope_match}, recurrent {recurrent}: loss {first} → {last}"
         );
         assert_eq!(out.program_accuracy, 1.0);
         assert_eq!(out.eop_accuracy, 1.0);
@@ -1472,7 +1750,7 @@ mod tests {
         // Checked decision by decision, the trained network takes every
         // step of the trace as the stack would.
         let valid_batch =
-            NtpBatch::new(&[(&spec[..], &episode[..], &t)], 2, 4, 2, &cpu_device()).unwrap();
+            NtpBatch::new(&[(&spec[..], episode, &t)], 2, 4, 2, &cpu_device()).unwrap();
         let checks = net.valid().check_decisions(&valid_batch).unwrap();
         assert_eq!(
             checks.len(),
@@ -1485,7 +1763,7 @@ mod tests {
         let policy = net.valid().condition(&spec).unwrap();
         let mut stack = ProgramStack::new(ROOT, spec.len(), primitives(), 3);
         let mut acted = Vec::new();
-        for row in &episode {
+        for row in episode {
             match stack.step(&policy, row).unwrap() {
                 // Only program A takes an argument.
                 StackStep::Act { program, argument } => {
@@ -1598,7 +1876,14 @@ mod tests {
             );
             if grid {
                 let out = net
-                    .decide(&encoded, index.clone(), observations, programs, scope)
+                    .decide(
+                        &encoded,
+                        index.clone(),
+                        observations,
+                        programs,
+                        scope,
+                        CoreState::First,
+                    )
                     .unwrap();
                 let scopes = net.scope_logits(&encoded, index, out.core).unwrap();
                 (out.program_logits, out.argument_logits, scopes)
@@ -1678,25 +1963,38 @@ mod tests {
 
     #[test]
     fn a_saved_network_loads_with_the_same_outputs() {
-        let net = tiny_net(5);
-        let dir = tempfile::tempdir().unwrap();
-        net.save(dir.path()).unwrap();
-        let loaded = NtpNet::load(dir.path(), &cpu_device()).unwrap();
-        let spec: Vec<Vec<f32>> = (0..4).map(|i| vec![i as f32, 1.0]).collect();
-        let frame = StackFrame {
-            program: ROOT,
-            scope: (0, 3),
-        };
-        let a = net
-            .condition(&spec)
-            .unwrap()
-            .decide(&[0.5, 0.5], &frame)
-            .unwrap();
-        let b = loaded
-            .condition(&spec)
-            .unwrap()
-            .decide(&[0.5, 0.5], &frame)
-            .unwrap();
-        assert_eq!(a, b);
+        for recurrent in [false, true] {
+            let net = NtpConfig::new(4, 2, EncoderConfig::state(2))
+                .with_hidden(32)
+                .with_scope_match(Some(true))
+                .with_recurrent_core(Some(recurrent))
+                .with_seed(5)
+                .init(&cpu_device())
+                .unwrap();
+            let dir = tempfile::tempdir().unwrap();
+            net.save(dir.path()).unwrap();
+            let loaded = NtpNet::load(dir.path(), &cpu_device()).unwrap();
+            assert_eq!(loaded.core_gru.is_some(), recurrent);
+            let spec: Vec<Vec<f32>> = (0..4).map(|i| vec![i as f32, 1.0]).collect();
+            let frame = StackFrame {
+                program: ROOT,
+                scope: (0, 3),
+            };
+            // Two decisions of one call: the second continues the first's
+            // state in a recurrent core.
+            let decide_twice = |net: &NtpNet| {
+                let policy = net.condition(&spec).unwrap();
+                let mut state = None;
+                let first = policy
+                    .decide_in_call(&[0.5, 0.5], &frame, &mut state)
+                    .unwrap();
+                assert_eq!(state.is_some(), recurrent);
+                let second = policy
+                    .decide_in_call(&[0.2, 0.5], &frame, &mut state)
+                    .unwrap();
+                (first, second, state)
+            };
+            assert_eq!(decide_twice(&net), decide_twice(&loaded));
+        }
     }
 }

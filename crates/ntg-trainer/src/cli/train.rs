@@ -238,6 +238,26 @@ mod tests {
     }
 
     #[test]
+    fn unset_flags_write_the_recipe_s_values() {
+        // A CLI run of a recipe is the recipe's run: the same configuration.
+        for recipe in ["paper", "recommended"] {
+            let c = config_of(&["--recipe", recipe]);
+            assert_eq!(c.retry_weight, 0.0, "{recipe}");
+            assert!(c.ntp_core.is_reactive(), "{recipe}");
+        }
+        let c = config_of(&[
+            "--retry-weight",
+            "2",
+            "--method",
+            "ntp",
+            "--ntp-core",
+            "gru",
+        ]);
+        assert_eq!(c.retry_weight, 2.0);
+        assert_eq!(c.ntp_core, blocks::NtpCoreKind::Gru);
+    }
+
+    #[test]
     fn shards_default_to_two_and_reach_both_video_stages() {
         assert_eq!(config_of(&[]).optim.shards, 2);
         let c = config_of(&["--obs", "vid", "--shards", "3"]);

@@ -138,6 +138,11 @@ pub struct BlocksRunConfig {
     /// run's `detector_stage/` folder). `None` for every other method.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub detector: Option<DetectorSettings>,
+    /// The NTP family's core network (`--ntp-core`): reactive (the
+    /// design's default; every run saved before it) or the recurrent GRU
+    /// variant. Read by NTP, NTP Flat and NTP (Detector) only.
+    #[serde(default, skip_serializing_if = "NtpCoreKind::is_reactive")]
+    pub ntp_core: NtpCoreKind,
     /// The task set (`--tasks FILE`): an NTP task file, such as NTP's own
     /// `stack_2000.json`, split by the standard rule ([`task_split`]);
     /// `None`: the generated stand-in set (`datasets/blocks/stack_2000.json`).
@@ -269,6 +274,7 @@ pub struct BlocksVideo {
 /// each primitive and the last), labelled with NTP's own lowest-level
 /// supervision: the primitive just taken and the next.
 pub use crate::method::ntp::FrameLabels;
+pub use crate::method::ntp::NtpCoreKind;
 
 fn is_one(n: &usize) -> bool {
     *n == 1
@@ -398,6 +404,7 @@ impl Recipe {
             video: (obs == ObsKind::Vid).then(|| BlocksVideo::new(recommended)),
             method: MethodId::Ntg,
             detector: None,
+            ntp_core: NtpCoreKind::Reactive,
             tasks: None,
             optim: OptimConfig {
                 epochs,
@@ -528,6 +535,8 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "video.executed_node" => "executed node (not the localizer)".into(),
         "video.interpreter_frame_pool" => format!("interpreter frame pooling {v}"),
         "video.encoder_labels" => format!("stage A labels {v}"),
+        "ntp_core" if v == "gru" => "recurrent (GRU) core".into(),
+        "ntp_core" => format!("{v} core"),
         "video.encoder.retry_repeats" => format!("retry frames x{v} in stage A"),
         "video.encoder.progress" => format!("progress head {v}"),
         "video.camera.size" => format!("camera {v}x{v} px"),
@@ -673,6 +682,7 @@ pub fn train_model(
     let json = serde_json::to_value(config)?;
     config.method.method().check(&json)?;
     check_encoder_labels(config)?;
+    check_ntp_core(config)?;
     let split = task_split(config.tasks.as_deref())?;
     let tasks = split.train(config.train_tasks)?;
     let demos = || -> anyhow::Result<Demos> {
@@ -1113,6 +1123,18 @@ fn check_encoder_labels(config: &BlocksRunConfig) -> anyhow::Result<()> {
     if primitive && !config.method.method().reads("video.encoder_labels") {
         bail!(
             "video.encoder_labels = \"primitive\" (--encoder-labels) trains the frame encoder of NTP and NTP Flat on NTP's primitives; {} does not read it",
+            config.method.legend()
+        );
+    }
+    Ok(())
+}
+
+/// Refuses NTP's recurrent core ([`NtpCoreKind::Gru`]) for a method
+/// without NTP's core.
+fn check_ntp_core(config: &BlocksRunConfig) -> anyhow::Result<()> {
+    if !config.ntp_core.is_reactive() && !config.method.method().reads("ntp_core") {
+        bail!(
+            "ntp_core = \"gru\" (--ntp-core) sets NTP's core network; {} has none",
             config.method.legend()
         );
     }
@@ -1713,9 +1735,10 @@ pub struct BlocksFlags {
     #[arg(long)]
     pub edge_fusion_hidden: Option<usize>,
     /// Weight of recovery steps (the next action repeats one already taken)
-    /// in the edge classifier's loss (1 = unweighted; not in the paper).
-    #[arg(long, value_parser = crate::spec::parse::non_negative, default_value_t = 1.0)]
-    pub retry_weight: f32,
+    /// in the edge classifier's loss (0 or 1 = unweighted; not in the
+    /// paper) [default: the recipe's, unweighted].
+    #[arg(long, value_parser = crate::spec::parse::non_negative)]
+    pub retry_weight: Option<f32>,
     /// Keep the edge classifier's loss out of the GCN, which then learns
     /// only to complete task graphs (not in the paper).
     #[arg(long)]
@@ -1751,6 +1774,12 @@ pub struct BlocksFlags {
     /// the frames NTP acts on (`primitive`) [default: flat].
     #[arg(long, value_enum)]
     pub encoder_labels: Option<FrameLabels>,
+    /// --method ntp, ntp-flat or ntp-detector: NTP's core network: the
+    /// feed-forward core of the design's default (`reactive`), or a GRU
+    /// state carried through each program call's decisions (`gru`, the
+    /// original NTP's recurrent variant) [default: reactive].
+    #[arg(long, value_enum)]
+    pub ntp_core: Option<NtpCoreKind>,
     /// --method ntp-detector: primitive-level expert episodes of the
     /// training tasks whose rendered frames train the detector [default:
     /// 2000].
@@ -1808,10 +1837,11 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         // Renamed demos never show a held-out task (new runs always).
         exclude_held_out_renamings: base.permute_objects || own.permute_objects,
         edge_fusion_hidden: own.edge_fusion_hidden.unwrap_or(base.edge_fusion_hidden),
-        retry_weight: own.retry_weight,
+        retry_weight: own.retry_weight.unwrap_or(base.retry_weight),
         detach_gcn_from_edges: base.detach_gcn_from_edges || own.detach_gcn_from_edges,
         soft_edges: base.soft_edges || own.soft_edges,
         ablation: flags.ablation,
+        ntp_core: own.ntp_core.unwrap_or(base.ntp_core),
         tasks: own.tasks.clone(),
         optim: OptimConfig {
             batch_size: flags.batch_size,
@@ -1905,6 +1935,11 @@ impl DomainRuns for Blocks {
         if own.encoder_labels.is_some() && !(vid && method.reads("video.encoder_labels")) {
             bail!(
                 "--encoder-labels sets the frame encoder NTP and NTP Flat read videos through: it needs --obs vid and --method ntp or ntp-flat"
+            );
+        }
+        if own.ntp_core.is_some() && !method.reads("ntp_core") {
+            bail!(
+                "--ntp-core sets NTP's core network: it needs --method ntp, ntp-flat or ntp-detector"
             );
         }
         if !EVALUATED_METHODS.contains(&config.method) {
@@ -2393,5 +2428,30 @@ mod tests {
         config.video.as_mut().unwrap().encoder_labels = FrameLabels::Flat;
         let json = serde_json::to_string(&config).unwrap();
         assert!(!json.contains("encoder_labels"), "{json}");
+    }
+
+    #[test]
+    fn only_the_ntp_family_takes_a_recurrent_core_and_its_rows_name_it() {
+        let mut config = Recipe::Paper.config(ObsKind::State, 5, 2, 1, 0);
+        config.ntp_core = NtpCoreKind::Gru;
+        for (method, ok) in [
+            (MethodId::Ntg, false),
+            (MethodId::NtpDetector, true),
+            (MethodId::Ntp, true),
+            (MethodId::NtpFlat, true),
+        ] {
+            config.method = method;
+            assert_eq!(check_ntp_core(&config).is_ok(), ok, "{method:?}");
+        }
+        let json = serde_json::to_string(&config).unwrap();
+        assert!(json.contains(r#""ntp_core":"gru""#), "{json}");
+        assert_eq!(
+            addition_name("ntp_core", &"gru".into()),
+            "recurrent (GRU) core"
+        );
+        // Saved without the field when reactive: older run folders match.
+        config.ntp_core = NtpCoreKind::Reactive;
+        let json = serde_json::to_string(&config).unwrap();
+        assert!(!json.contains("ntp_core"), "{json}");
     }
 }

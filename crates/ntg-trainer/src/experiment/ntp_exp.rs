@@ -2525,6 +2525,7 @@ mod tests {
             video: None,
             method: crate::method::MethodId::Ntg,
             detector: None,
+            ntp_core: crate::blocks::NtpCoreKind::Reactive,
             tasks: None,
             optim: crate::fit::OptimConfig {
                 epochs,

@@ -85,10 +85,39 @@ pub fn argument_target(index: usize) -> Target {
 /// programs and a `move` argument per cube; on state rows (`objects`) the
 /// argument is also read off the demo's cube positions (see
 /// [`NtpConfig::object_arguments`]).
-pub fn ntp_config(encoder: ntg_model::EncoderConfig, objects: bool, seed: u64) -> NtpConfig {
+/// With `core` [`NtpCoreKind::Gru`], its core is the recurrent variant
+/// ([`NtpConfig::recurrent_core`]).
+pub fn ntp_config(
+    encoder: ntg_model::EncoderConfig,
+    objects: bool,
+    core: NtpCoreKind,
+    seed: u64,
+) -> NtpConfig {
     NtpConfig::new(NtpProgram::ALL.len(), NUM_OBJECTS, encoder)
         .with_object_arguments(objects.then_some(NUM_OBJECTS))
+        .with_recurrent_core((core == NtpCoreKind::Gru).then_some(true))
         .with_seed(seed)
+}
+
+/// The core network of NTP, NTP Flat and NTP (Detector) (`--ntp-core`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum NtpCoreKind {
+    /// Feed-forward: each decision reads the current observation, the
+    /// program and its scope of the demo only (the design's default).
+    #[default]
+    Reactive,
+    /// Recurrent: a GRU state carried through each program call's
+    /// decisions, so a program knows what it has done in this call (the
+    /// original NTP's variant, `docs/BASELINES.md`).
+    Gru,
+}
+
+impl NtpCoreKind {
+    /// Whether this is the reactive default.
+    pub fn is_reactive(&self) -> bool {
+        *self == NtpCoreKind::Reactive
+    }
 }
 
 /// One training episode: its task (index into the run's tasks), its
@@ -1013,6 +1042,9 @@ pub struct NtpOptions {
     /// NTG's ablations (refused here).
     #[serde(default)]
     pub ablation: crate::method::ntg::Variant,
+    /// The core network.
+    #[serde(default)]
+    pub ntp_core: NtpCoreKind,
 }
 
 /// NTP's options under a video run configuration's `video`.
@@ -1079,7 +1111,10 @@ pub fn train(
                 anyhow::bail!("--encoder-labels sets the frame encoder: it needs --obs vid");
             }
             let dataset = level.state_episodes()?;
-            let net = NtpModel::init(&ntp_config(level.encoder(false), true, seed), input.device)?;
+            let net = NtpModel::init(
+                &ntp_config(level.encoder(false), true, options.ntp_core, seed),
+                input.device,
+            )?;
             let step = NtpStep::new(&dataset, kind, level.renaming(), input.device)?;
             fit_model(net, step, None, &input, validation, on_epoch)
         }
@@ -1088,7 +1123,10 @@ pub fn train(
             let net = Module::valid(&frames);
             let encode = |rows: &[Vec<f32>]| crate::method::on_frames::encode_rows(&net, rows);
             let dataset = level.frame_episodes(input.run, &encode, "NTP frames")?;
-            let ntp = NtpModel::init(&ntp_config(level.encoder(true), false, seed), input.device)?;
+            let ntp = NtpModel::init(
+                &ntp_config(level.encoder(true), false, options.ntp_core, seed),
+                input.device,
+            )?;
             let step = NtpStep::new(&dataset, kind, None, input.device)?;
             fit_model(ntp, step, Some(frames), &input, validation, on_epoch)
         }
@@ -1127,7 +1165,7 @@ impl crate::method::Method for NtpMethod {
         crate::method::on_frames::load_either::<NtpModel>(dir, device)
     }
     fn options(&self) -> &'static [&'static str] {
-        &["video.encoder_labels"]
+        &["video.encoder_labels", "ntp_core"]
     }
     fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
         crate::method::input::options_of::<NtpOptions>(self.legend(), config)?.check(self.name())

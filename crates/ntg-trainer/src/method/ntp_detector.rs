@@ -95,7 +95,7 @@ impl crate::method::Method for NtpDetector {
     /// Its detector stage, and cube renaming of the state rows its NTP
     /// reads, which the detector estimates from frames.
     fn options(&self) -> &'static [&'static str] {
-        &["detector", "permute_objects"]
+        &["detector", "permute_objects", "ntp_core"]
     }
     fn check(&self, config: &serde_json::Value) -> anyhow::Result<()> {
         let options: NtpOptions = crate::method::input::options_of(self.legend(), config)?;
@@ -149,7 +149,12 @@ pub fn train(
         level.state_episodes()?
     };
     let net = NtpModel::init(
-        &ntp_config(level.encoder(false), true, input.model_seed),
+        &ntp_config(
+            level.encoder(false),
+            true,
+            options.ntp_core,
+            input.model_seed,
+        ),
         input.device,
     )?;
     let step = NtpStep::new(

@@ -227,6 +227,11 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--encoder-labels", "primitive"]),
             "--encoder-labels".into(),
         ),
+        (train(&["--ntp-core", "gru"]), "--ntp-core".into()),
+        (
+            train(&["--method", "ntp", "--ntp-core", "recurrent"]),
+            "--ntp-core".into(),
+        ),
         (
             train(&["--obs", "vid", "--encoder-labels", "primitive"]),
             "--encoder-labels".into(),

@@ -30,6 +30,7 @@ fn config() -> BlocksRunConfig {
         video: None,
         method: ntg_trainer::method::MethodId::Ntg,
         detector: None,
+        ntp_core: Default::default(),
         tasks: None,
         optim: OptimConfig {
             epochs: 3,

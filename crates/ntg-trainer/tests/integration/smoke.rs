@@ -41,6 +41,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         video: None,
         method: ntg_trainer::method::MethodId::Ntg,
         detector: None,
+        ntp_core: Default::default(),
         tasks: None,
         optim: OptimConfig {
             epochs: 25,
