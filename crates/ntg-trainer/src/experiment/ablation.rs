@@ -665,6 +665,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             camera: None,
+            ntp_core: crate::method::ntp::NtpCoreKind::Reactive,
+            executed_node: false,
             success: crate::stats::SuccessRate::from_outcomes((0..1000).map(|i| i < successes)),
             goal_fraction: 0.5,
             train_seconds: 1.0,

@@ -18,6 +18,7 @@ use crate::experiment::template::NTP_EXP;
 use crate::experiment::{Plan, share_part};
 use crate::figure::{Panel, Point, Series};
 use crate::method::MethodId;
+use crate::method::ntp::NtpCoreKind;
 use crate::run_dir::RunDir;
 use crate::spec::{ObsKind, Profile};
 use crate::stats::SuccessRate;
@@ -199,8 +200,38 @@ impl NtpExpExperiment {
     pub fn run_name(
         &self,
         panel: &PanelScale,
+        run: (MethodId, Variant),
+        train_tasks: usize,
+    ) -> String {
+        self.run_name_with_core(panel, run, train_tasks, panel_ntp_core(panel))
+    }
+
+    /// [`Self::run_name`] of NTG's run of the same point in a panel of the
+    /// other node source (the executed node or the localizer): the run
+    /// whose stage A it may link (the node source is read after it).
+    fn run_name_of_other_node_source(&self, panel: &PanelScale, train_tasks: usize) -> String {
+        let mut other = panel.clone();
+        let executed = panel_executed_node(panel)
+            .unwrap_or_else(|| recipe_executed_node(self.recipe_of(panel)));
+        let video = other
+            .overrides
+            .entry("video")
+            .or_insert_with(|| toml::Value::Table(Default::default()));
+        if let toml::Value::Table(video) = video {
+            video.insert("executed_node".into(), toml::Value::Boolean(!executed));
+        }
+        self.run_name(&other, (MethodId::Ntg, Variant::Full), train_tasks)
+    }
+
+    /// [`Self::run_name`] of a baseline run with NTP's core `core` (`None`:
+    /// reactive) in place of the panel's: the run of the same point in
+    /// another panel, whose shared stages a run may link.
+    fn run_name_with_core(
+        &self,
+        panel: &PanelScale,
         (method, ablation): (MethodId, Variant),
         train_tasks: usize,
+        core: Option<NtpCoreKind>,
     ) -> String {
         let mut name = format!("{}-{}", self.name, panel.obs.name());
         if let Some(tag) = &panel.tag {
@@ -208,6 +239,9 @@ impl NtpExpExperiment {
         }
         if !method.is_ntg() {
             name = format!("{name}-{}", method.name());
+            if let Some(core) = core {
+                name = format!("{name}-{}", core.name());
+            }
         }
         if !ablation.is_full() {
             name = format!("{name}-{}", ablation.name());
@@ -215,6 +249,13 @@ impl NtpExpExperiment {
         let recipe = self.recipe_of(panel);
         if recipe != self.recipe {
             name = format!("{name}-{}", recipe.name());
+        }
+        // NTG's node source where the panel sets another than its recipe's.
+        if method.is_ntg()
+            && let Some(executed) = panel_executed_node(panel)
+            && executed != recipe_executed_node(recipe)
+        {
+            name = format!("{name}-{}", if executed { "executed" } else { "localizer" });
         }
         crate::experiment::seeded_name(
             format!("{name}-{train_tasks}"),
@@ -330,6 +371,35 @@ impl NtpExpExperiment {
         let config = crate::experiment::with_overrides(&config, &panel.overrides, what)?;
         let mut config = recipe.for_method(config, method);
         config.ablation = ablation;
+        // NTP's core names the panel's baseline runs (`run_name`), so it is
+        // set where the name is read from: the panel's overrides.
+        let panel_core = panel_ntp_core(panel).unwrap_or_default();
+        anyhow::ensure!(
+            config.ntp_core == panel_core,
+            "{}: ntp_core = {:?} belongs in a panel's overrides, where it names the panel's baseline runs (`...-ntp-gru-N`), not in the file's or a profile's",
+            self.origin,
+            config.ntp_core.name()
+        );
+        // The node source names NTG's runs where a panel sets it.
+        for (table, whose) in [
+            (&self.overrides, "the file's"),
+            (&self.profiles.get(profile).overrides, "a profile's"),
+        ] {
+            anyhow::ensure!(
+                table
+                    .get("video")
+                    .and_then(|v| v.get("executed_node"))
+                    .is_none(),
+                "{}: video.executed_node belongs in a panel's overrides, where it names the panel's NTG runs (`...-localizer-N`), not in {whose}",
+                self.origin
+            );
+        }
+        anyhow::ensure!(
+            panel_core.is_reactive() || !method.is_ntg(),
+            "{}: a panel with ntp_core = {:?} sets NTP's core network, and NTG has none: list only the baselines in its `methods`",
+            self.origin,
+            panel_core.name()
+        );
         if let Some(detector) = config.detector.as_mut() {
             *detector = crate::experiment::with_overrides(
                 &*detector,
@@ -342,6 +412,33 @@ impl NtpExpExperiment {
         config.validate_every = epochs.div_ceil(self.validations_per_run.max(1));
         Ok(config)
     }
+}
+
+/// The core network a panel's overrides give its NTP runs, where not the
+/// reactive default (`ntp_core = "gru"`): their run folders add its name.
+fn panel_ntp_core(panel: &PanelScale) -> Option<NtpCoreKind> {
+    let core: NtpCoreKind = panel.overrides.get("ntp_core")?.clone().try_into().ok()?;
+    (!core.is_reactive()).then_some(core)
+}
+
+/// The node source a panel's overrides give its NTG runs
+/// (`video.executed_node`), where they set one.
+fn panel_executed_node(panel: &PanelScale) -> Option<bool> {
+    panel
+        .overrides
+        .get("video")?
+        .get("executed_node")?
+        .as_bool()
+}
+
+/// Whether `recipe`'s NTG on video takes its node from the executed
+/// actions (the recommended recipe) rather than the localizer (the
+/// paper's).
+fn recipe_executed_node(recipe: Recipe) -> bool {
+    recipe
+        .config(ObsKind::Vid, 1, 1, 1, 0)
+        .video
+        .is_some_and(|v| v.executed_node)
 }
 
 /// One measured point.
@@ -387,6 +484,15 @@ pub struct NtpExpPoint {
     /// `video.camera`), shown in the row's input cell; `None` on state.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<u32>,
+    /// NTP's core network (the run's `ntp_core`): a curve of its own
+    /// beside the reactive default's. Reactive for NTG.
+    #[serde(default, skip_serializing_if = "NtpCoreKind::is_reactive")]
+    pub ntp_core: NtpCoreKind,
+    /// NTG on video: whether its policy took the current node from the
+    /// actions it executed (`video.executed_node`) rather than from the
+    /// node localizer reading the frame: a curve of its own.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub executed_node: bool,
     /// Success on unseen tasks.
     pub success: SuccessRate,
     /// Mean fraction of each unseen task's goal constraints met at the end.
@@ -569,9 +675,11 @@ fn is_paper_recipe(recipe: &Recipe) -> bool {
 /// Trains (or reuses, or resumes) and evaluates every point of the figure
 /// at `profile` (or only the run folders named in `only`), with run folders
 /// under `runs`, `jobs` runs at a time, in the file's order (the results:
-/// state input first). The video baselines that reuse NTG's frame encoder
-/// (NTP and NTP Flat) start after every other run has finished, so that
-/// encoder is trained once.
+/// state input first). The video baselines that may reuse a frame encoder
+/// (NTP and NTP Flat: NTG's, or one of their own labels which they share)
+/// start after every other run has finished, and each point's first such
+/// baseline before the others of its point, so that each encoder and each
+/// point's encoded episodes are made once.
 pub fn run(
     experiment: &NtpExpExperiment,
     profile: Profile,
@@ -579,16 +687,25 @@ pub fn run(
 ) -> anyhow::Result<Vec<NtpExpPoint>> {
     // Each point with its place in the file's order: panel, method,
     // training tasks.
-    let (mut first, mut after) = (Vec::new(), Vec::new());
+    let (mut first, mut second, mut third) = (Vec::new(), Vec::new(), Vec::new());
+    // The points (by NTG's run name) whose first sharing baseline is in
+    // the second wave.
+    let mut shared_points: Vec<String> = Vec::new();
     for scale in &experiment.profiles.get(profile).panels {
         for method in experiment.runs_of(scale) {
             for &n in &scale.train_tasks {
                 if !plan.selected(&experiment.run_name(scale, method, n)) {
                     continue;
                 }
-                let order = first.len() + after.len();
+                let order = first.len() + second.len() + third.len();
                 let wave = if reuses_stage_a(scale.obs, method.0) {
-                    &mut after
+                    let point = experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n);
+                    if shared_points.contains(&point) {
+                        &mut third
+                    } else {
+                        shared_points.push(point);
+                        &mut second
+                    }
                 } else {
                     &mut first
                 };
@@ -597,7 +714,7 @@ pub fn run(
         }
     }
     let mut points = Vec::new();
-    for wave in [first, after] {
+    for wave in [first, second, third] {
         let wave: Vec<crate::experiment::Job<'_, Option<(usize, NtpExpPoint)>>> = wave
             .into_iter()
             .map(|(order, scale, method, n)| {
@@ -667,25 +784,39 @@ fn run_point(
             MethodId::Ntp => MethodId::NtpFlat,
             _ => MethodId::Ntp,
         };
-        let sibling_run = runs.join(experiment.run_name(scale, (sibling, Variant::Full), n));
-        // NTG's run first; its sibling's where NTG's holds no weights (a
+        // The baselines of the point whose stages this run may share: its
+        // sibling with the same core, then (a run of another core's panel)
+        // both with the reactive core.
+        let mut siblings = vec![experiment.run_name(scale, (sibling, Variant::Full), n)];
+        if panel_ntp_core(scale).is_some() {
+            for m in [method, sibling] {
+                siblings.push(experiment.run_name_with_core(scale, (m, Variant::Full), n, None));
+            }
+        }
+        // NTG's run first; a baseline's where NTG's holds no weights (a
         // folder restored from its record).
-        for source in [
-            runs.join(experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n)),
-            sibling_run.clone(),
-        ] {
-            if share_stage_a(&source, &run, &config)? {
+        let ntg_run = experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n);
+        for source in std::iter::once(&ntg_run).chain(&siblings) {
+            if share_stage_a(&runs.join(source), &run, &config)? {
                 break;
             }
         }
-        share_ntp_frames(&sibling_run, &run, &config)?;
+        for source in &siblings {
+            if share_ntp_frames(&runs.join(source), &run, &config)? {
+                break;
+            }
+        }
     } else if obs == ObsKind::Vid && method.is_ntg() && ablation.is_full() {
         // NTG trains the point's frame encoder first in a whole figure;
         // run on its own (`--only`) after a baseline of its point finished
         // the same stage A, it links that one instead of training it again.
-        for sibling in [MethodId::Ntp, MethodId::NtpFlat] {
-            let source = runs.join(experiment.run_name(scale, (sibling, Variant::Full), n));
-            if share_stage_a(&source, &run, &config)? {
+        // So does NTG's run of the other node source (which stage A does
+        // not read).
+        let sources = [MethodId::Ntp, MethodId::NtpFlat]
+            .map(|sibling| experiment.run_name(scale, (sibling, Variant::Full), n));
+        let other = experiment.run_name_of_other_node_source(scale, n);
+        for source in sources.iter().chain([&other]) {
+            if share_stage_a(&runs.join(source), &run, &config)? {
                 break;
             }
         }
@@ -753,6 +884,8 @@ fn run_point(
         permute_objects: config.permute_objects,
         additions: blocks::additions(&config),
         camera: (obs == ObsKind::Vid).then(|| config.camera().size),
+        ntp_core: config.ntp_core,
+        executed_node: method.is_ntg() && config.video.as_ref().is_some_and(|v| v.executed_node),
         success: result.success,
         goal_fraction: result.mean_goal_fraction,
         train_seconds,
@@ -775,7 +908,7 @@ pub(crate) fn largest_of_each_curve(points: &[NtpExpPoint]) -> Vec<usize> {
         .enumerate()
         .filter(|(_, p)| p.ablation.is_full())
     {
-        let curve = |q: &NtpExpPoint| (q.method, q.recipe, q.obs, q.other_camera(), q.seed);
+        let curve = |q: &NtpExpPoint| (q.curve_id(), q.seed);
         match largest.iter().position(|&j| curve(&points[j]) == curve(p)) {
             Some(k) if points[largest[k]].train_tasks < p.train_tasks => largest[k] = i,
             Some(_) => {}
@@ -1049,7 +1182,7 @@ fn share_ntp_frames(
     sibling_run: &Path,
     run: &RunDir,
     config: &BlocksRunConfig,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<bool> {
     share_part(
         (sibling_run, crate::method::ntp::NTP_FRAMES_DIR),
         run,
@@ -1057,14 +1190,19 @@ fn share_ntp_frames(
         same_but_method(config),
         "NTP's encoded training episodes",
     )
-    .map(drop)
 }
 
-/// Accepts a run configuration equal to `config` but for the method.
+/// Accepts a run configuration equal to `config` but for the method,
+/// NTP's core network and NTG's node source (which no shared stage reads:
+/// stage A trains the frame encoder, the encoded episodes are its output).
 fn same_but_method(config: &BlocksRunConfig) -> impl Fn(&BlocksRunConfig) -> bool + '_ {
     move |theirs| {
         let mut same = config.clone();
         same.method = theirs.method;
+        same.ntp_core = theirs.ntp_core;
+        if let (Some(mine), Some(theirs)) = (same.video.as_mut(), theirs.video.as_ref()) {
+            mine.executed_node = theirs.executed_node;
+        }
         *theirs == same
     }
 }
@@ -1083,11 +1221,10 @@ pub fn ablation_part(ablation: Variant) -> &'static str {
 /// Writes the figure (two panels: success and goals met against training
 /// tasks) as `stem.svg` and `stem.png`.
 pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
-    let mut curves: Vec<(MethodId, Recipe, Variant, Option<u32>)> = Vec::new();
+    let mut curves: Vec<CurveId> = Vec::new();
     for p in points {
-        let curve = (p.method, p.recipe, p.ablation, p.other_camera());
-        if !curves.contains(&curve) {
-            curves.push(curve);
+        if !curves.contains(&p.curve_id()) {
+            curves.push(p.curve_id());
         }
     }
     let panel = |obs: ObsKind, title: &str| Panel {
@@ -1099,16 +1236,10 @@ pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
         y_range: (0.0, 1.0),
         series: curves
             .iter()
-            .flat_map(|&(method, recipe, ablation, camera)| {
-                let of = |p: &&NtpExpPoint| {
-                    p.obs == obs
-                        && (p.method, p.recipe, p.ablation, p.other_camera())
-                            == (method, recipe, ablation, camera)
-                };
-                let mut name = curve_name(method, recipe, ablation);
-                if let Some(side) = camera {
-                    name = format!("{name}, {side}×{side} frames");
-                }
+            .filter(|curve| curve.obs == obs)
+            .flat_map(|&curve| {
+                let of = |p: &&NtpExpPoint| p.curve_id() == curve;
+                let name = curve.legend();
                 let groups = by_point(points.iter().filter(of));
                 [
                     Series {
@@ -1190,26 +1321,23 @@ pub(crate) fn by_point<'a>(points: impl Iterator<Item = &'a NtpExpPoint>) -> Vec
 /// range of success over the seeds (each seed's row, with its Wilson
 /// interval, is in the table).
 pub(crate) fn seed_spread(points: &[NtpExpPoint]) -> Vec<String> {
-    let mut curves: Vec<(MethodId, Recipe, Variant, ObsKind)> = Vec::new();
+    let mut curves: Vec<CurveId> = Vec::new();
     for p in points {
-        let c = (p.method, p.recipe, p.ablation, p.obs);
-        if !curves.contains(&c) {
-            curves.push(c);
+        if !curves.contains(&p.curve_id()) {
+            curves.push(p.curve_id());
         }
     }
     let mut lines = Vec::new();
-    for (method, recipe, ablation, obs) in curves {
-        let of = points
-            .iter()
-            .filter(|p| (p.method, p.recipe, p.ablation, p.obs) == (method, recipe, ablation, obs));
+    for curve in curves {
+        let of = points.iter().filter(|p| p.curve_id() == curve);
         for g in by_point(of).iter().filter(|g| g.seeds.len() > 1) {
             let rates: Vec<f64> = g.seeds.iter().map(|p| p.success.rate).collect();
             let seeds: Vec<String> = g.seeds.iter().map(|p| p.seed.to_string()).collect();
             lines.push(NTP_EXP.fill(
                 "seeds_line",
                 &[
-                    ("curve", &curve_name(method, recipe, ablation)),
-                    ("obs", &format!("{obs:?}")),
+                    ("curve", &curve.method_name()),
+                    ("obs", &curve.input()),
                     ("tasks", &g.train_tasks),
                     ("mean", &format!("{:.3}", g.mean(|p| p.success.rate))),
                     ("seeds", &seeds.join(", ")),
@@ -1230,7 +1358,7 @@ pub(crate) fn seed_spread(points: &[NtpExpPoint]) -> Vec<String> {
 
 /// A point's name in the report: its curve's, and its seed if not 0.
 pub(crate) fn row_name(p: &NtpExpPoint) -> String {
-    let name = curve_name(p.method, p.recipe, p.ablation);
+    let name = p.curve_id().method_name();
     match p.seed {
         0 => name,
         seed => format!("{name}, seed {seed}"),
@@ -1264,6 +1392,79 @@ impl NtpExpPoint {
     /// camera's (64): a curve of its own beside the standard frames'.
     pub fn other_camera(&self) -> Option<u32> {
         self.camera.filter(|&side| side != env_blocks::FRAME_SIZE)
+    }
+
+    /// The curve the point belongs to.
+    pub fn curve_id(&self) -> CurveId {
+        CurveId {
+            method: self.method,
+            recipe: self.recipe,
+            ablation: self.ablation,
+            obs: self.obs,
+            camera: self.other_camera(),
+            ntp_core: self.ntp_core,
+            executed_node: self.executed_node,
+        }
+    }
+}
+
+/// What a name adds for NTG's node taken from the executed actions.
+fn executed_node_suffix(executed_node: bool) -> &'static str {
+    if executed_node { ", executed node" } else { "" }
+}
+
+/// One curve of the figure: the points drawn, and reported, as one line.
+/// The seeds of a point are combined within a curve and never across
+/// curves (a run of another camera or core network is another protocol).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CurveId {
+    /// The method trained.
+    pub method: MethodId,
+    /// Its recipe.
+    pub recipe: Recipe,
+    /// The part NTG is trained without (`full`: none).
+    pub ablation: Variant,
+    /// The input.
+    pub obs: ObsKind,
+    /// The frame side where not the standard camera's.
+    pub camera: Option<u32>,
+    /// NTP's core network (reactive for NTG).
+    pub ntp_core: NtpCoreKind,
+    /// NTG on video: the node from the executed actions, not the localizer.
+    pub executed_node: bool,
+}
+
+impl CurveId {
+    /// The curve's name in the figure's legend: the method and recipe
+    /// ([`curve_name`]), its core network where not reactive and its frame
+    /// side where not the standard camera's.
+    pub fn legend(&self) -> String {
+        let mut name = self.method_name();
+        if let Some(side) = self.camera {
+            name = format!("{name}, {side}×{side} frames");
+        }
+        name
+    }
+
+    /// The method and what it was trained with, without the input: the
+    /// method and recipe ([`curve_name`]), its core network where not
+    /// reactive and NTG's node source where executed.
+    pub fn method_name(&self) -> String {
+        format!(
+            "{}{}{}",
+            curve_name(self.method, self.recipe, self.ablation),
+            self.ntp_core.legend_suffix(),
+            executed_node_suffix(self.executed_node)
+        )
+    }
+
+    /// The curve's input in words: `State`, `Vid`, or `Vid, 128×128` for
+    /// frames of another camera.
+    pub fn input(&self) -> String {
+        match self.camera {
+            Some(side) => format!("{:?}, {side}×{side}", self.obs),
+            None => format!("{:?}", self.obs),
+        }
     }
 }
 
@@ -1391,7 +1592,7 @@ fn seen_lines(points: &[NtpExpPoint]) -> Vec<String> {
                 "seen_line",
                 &[
                     ("run", &row_name(p)),
-                    ("obs", &format!("{:?}", p.obs)),
+                    ("obs", &p.curve_id().input()),
                     ("tasks", &p.train_tasks),
                     ("seen", &format!("{:.3}", seen.rate)),
                     ("successes", &seen.successes),
@@ -1414,7 +1615,7 @@ fn detector_lines(points: &[NtpExpPoint]) -> Vec<String> {
                 "detector_line",
                 &[
                     ("run", &row_name(p)),
-                    ("obs", &format!("{:?}", p.obs)),
+                    ("obs", &p.curve_id().input()),
                     ("tasks", &p.train_tasks),
                     ("error", &format!("{:.4}", d.detector.position_error)),
                     ("frames", &d.detector.frames),
@@ -1435,9 +1636,7 @@ pub(crate) fn baseline_curve_lines(points: &[NtpExpPoint]) -> Vec<String> {
     let largest = |p: &NtpExpPoint| {
         points
             .iter()
-            .filter(|q| {
-                (q.method, q.recipe, q.ablation, q.obs) == (p.method, p.recipe, p.ablation, p.obs)
-            })
+            .filter(|q| q.curve_id() == p.curve_id())
             .map(|q| q.train_tasks)
             .max()
     };
@@ -1447,9 +1646,9 @@ pub(crate) fn baseline_curve_lines(points: &[NtpExpPoint]) -> Vec<String> {
         .filter_map(|p| {
             let curve = p.curve.as_ref()?;
             Some(format!(
-                "{} ({:?}, {} tasks; test {:.3}): {}",
+                "{} ({}, {} tasks; test {:.3}): {}",
                 row_name(p),
-                p.obs,
+                p.curve_id().input(),
                 p.train_tasks,
                 p.success.rate,
                 curve.describe()
@@ -1507,7 +1706,7 @@ pub(crate) fn decision_lines(points: &[NtpExpPoint]) -> Vec<String> {
                 "decision_line",
                 &[
                     ("run", &row_name(p)),
-                    ("obs", &format!("{:?}", p.obs)),
+                    ("obs", &p.curve_id().input()),
                     ("tasks", &p.train_tasks),
                     ("test", &format!("{:.3}", p.success.rate)),
                     ("right", &format!("{:.3}", rate(r.right, r.decisions))),
@@ -1548,11 +1747,8 @@ pub(crate) fn bullet_list(s: &mut String, title: &str, lines: Vec<String>) {
 pub(crate) fn compute_lines(points: &[NtpExpPoint]) -> Vec<String> {
     let mut curves: Vec<(String, usize, f64)> = Vec::new();
     for p in points {
-        let name = format!(
-            "{} ({:?})",
-            curve_name(p.method, p.recipe, p.ablation),
-            p.obs
-        );
+        let curve = p.curve_id();
+        let name = format!("{} ({})", curve.method_name(), curve.input());
         match curves.iter_mut().find(|(n, _, _)| *n == name) {
             Some((_, runs, seconds)) => {
                 *runs += 1;
@@ -1594,7 +1790,7 @@ pub(crate) fn transcription_lines(points: &[NtpExpPoint]) -> Vec<String> {
                 "transcription_line",
                 &[
                     ("run", &row_name(p)),
-                    ("obs", &format!("{:?}", p.obs)),
+                    ("obs", &p.curve_id().input()),
                     ("tasks", &p.train_tasks),
                     ("exact", &rate(&t.exact)),
                     ("success_if_exact", &rate(&t.success_if_exact)),
@@ -1623,24 +1819,18 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
             .collect()
     };
     let (paper, recommended) = (of_recipe(Recipe::Paper), of_recipe(Recipe::Recommended));
-    // Every seed of a point, in seed order.
-    fn find<'a>(
-        set: &[&'a NtpExpPoint],
-        method: MethodId,
-        obs: ObsKind,
-        n: usize,
-    ) -> Option<Vec<&'a NtpExpPoint>> {
+    // Every seed of a point of one side, in seed order.
+    fn find<'a>(set: &[&'a NtpExpPoint], side: Side, n: usize) -> Option<Vec<&'a NtpExpPoint>> {
         let mut seeds: Vec<&NtpExpPoint> = set
             .iter()
-            .filter(|p| (p.method, p.obs, p.train_tasks) == (method, obs, n))
+            .filter(|p| Side::of(p) == side && p.train_tasks == n)
             .copied()
             .collect();
         seeds.sort_by_key(|p| p.seed);
         (!seeds.is_empty()).then_some(seeds)
     }
     let rate = |seeds: &[&NtpExpPoint]| {
-        let p = seeds[0];
-        let name = format!("{} ({:?})", p.method.legend(), p.obs);
+        let name = Side::of(seeds[0]).name();
         match seeds {
             [one] => format!("{name} {:.3}", one.success.rate),
             _ => format!("{name} {}", crate::stats::seeds_text(&seed_rates(seeds))),
@@ -1692,70 +1882,178 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
     }
     // Each number of training tasks from `from` on where `set` has both
     // sides.
-    fn pairs<'a>(
-        set: &[&'a NtpExpPoint],
-        a: (MethodId, ObsKind),
-        b: (MethodId, ObsKind),
-        from: usize,
-    ) -> Vec<Pair<'a>> {
+    fn pairs<'a>(set: &[&'a NtpExpPoint], a: Side, b: Side, from: usize) -> Vec<Pair<'a>> {
         let mut sizes: Vec<usize> = set.iter().map(|p| p.train_tasks).collect();
         sizes.sort_unstable();
         sizes.dedup();
         sizes
             .into_iter()
             .filter(|&n| n >= from)
-            .filter_map(|n| {
-                Some((
-                    format!("{n} tasks"),
-                    find(set, a.0, a.1, n)?,
-                    find(set, b.0, b.1, n)?,
-                ))
-            })
+            .filter_map(|n| Some((format!("{n} tasks"), find(set, a, n)?, find(set, b, n)?)))
             .collect()
     }
-    let (state, vid) = (ObsKind::State, ObsKind::Vid);
+    // The inputs: state, and video with each camera its points used (each
+    // a protocol of its own: the paper's relations are checked within
+    // one); and each baseline's core networks there.
+    let mut inputs: Vec<(ObsKind, Option<u32>)> = vec![(ObsKind::State, None)];
+    for p in points.iter().filter(|p| p.obs == ObsKind::Vid) {
+        if !inputs.contains(&(p.obs, p.other_camera())) {
+            inputs.push((p.obs, p.other_camera()));
+        }
+    }
+    inputs[1..].sort_by_key(|&(_, camera)| camera);
+    let cores_of = |method: MethodId, (obs, camera): (ObsKind, Option<u32>)| -> Vec<Side> {
+        [NtpCoreKind::Reactive, NtpCoreKind::Gru]
+            .into_iter()
+            .map(|core| Side {
+                method,
+                core,
+                executed_node: false,
+                obs,
+                camera,
+            })
+            .filter(|side| points.iter().any(|p| Side::of(p) == *side))
+            .collect()
+    };
+    let side = |method: MethodId, (obs, camera): (ObsKind, Option<u32>)| Side {
+        method,
+        core: NtpCoreKind::Reactive,
+        executed_node: false,
+        obs,
+        camera,
+    };
+    let state = (ObsKind::State, None);
     let baselines = [MethodId::Ntp, MethodId::NtpFlat, MethodId::NtpDetector];
     let mut lines = Vec::new();
-    lines.extend(judge(
-        "NTP (Vid) clearly below NTP (State)",
-        pairs(&paper, (MethodId::Ntp, state), (MethodId::Ntp, vid), 0),
-        &above,
-    ));
-    lines.extend(judge(
-        "NTG (Vid) on par with NTP (State) or above",
-        pairs(&paper, (MethodId::Ntg, vid), (MethodId::Ntp, state), 0),
-        &on_par_or_above,
-    ));
-    for obs in [state, vid] {
-        for baseline in baselines {
+    for &input in inputs.iter().filter(|(obs, _)| *obs == ObsKind::Vid) {
+        for ntp_vid in cores_of(MethodId::Ntp, input) {
+            let ntp_state = side(MethodId::Ntp, state);
             lines.extend(judge(
-                &format!(
-                    "NTG above {} from 100 tasks on ({obs:?} input)",
-                    baseline.legend()
-                ),
-                pairs(&paper, (MethodId::Ntg, obs), (baseline, obs), 100),
+                &format!("{} clearly below {}", ntp_vid.name(), ntp_state.name()),
+                pairs(&paper, ntp_state, ntp_vid, 0),
                 &above,
             ));
         }
+    }
+    for &input in inputs.iter().filter(|(obs, _)| *obs == ObsKind::Vid) {
+        let (ntg_vid, ntp_state) = (side(MethodId::Ntg, input), side(MethodId::Ntp, state));
         lines.extend(judge(
-            &format!("NTP Flat below NTP ({obs:?} input)"),
-            pairs(&paper, (MethodId::Ntp, obs), (MethodId::NtpFlat, obs), 0),
-            &above,
+            &format!(
+                "NTG ({}) on par with {} or above",
+                ntg_vid.input(),
+                ntp_state.name()
+            ),
+            pairs(&paper, ntg_vid, ntp_state, 0),
+            &on_par_or_above,
         ));
     }
-    for obs in [state, vid] {
-        for baseline in baselines {
+    for &input in &inputs {
+        let ntg = side(MethodId::Ntg, input);
+        for baseline in baselines.into_iter().flat_map(|m| cores_of(m, input)) {
             lines.extend(judge(
                 &format!(
-                    "Not in the paper: NTG above {} with the recommended recipe on both sides ({obs:?} input)",
-                    baseline.legend()
+                    "NTG above {} from 100 tasks on ({} input)",
+                    baseline.legend(),
+                    ntg.input()
                 ),
-                pairs(&recommended, (MethodId::Ntg, obs), (baseline, obs), 0),
+                pairs(&paper, ntg, baseline, 100),
                 &above,
             ));
+        }
+        for ntp in cores_of(MethodId::Ntp, input) {
+            let flat = Side {
+                method: MethodId::NtpFlat,
+                ..ntp
+            };
+            lines.extend(judge(
+                &format!(
+                    "{} below {} ({} input)",
+                    flat.legend(),
+                    ntp.legend(),
+                    ntp.input()
+                ),
+                pairs(&paper, ntp, flat, 0),
+                &above,
+            ));
+        }
+    }
+    for &input in &inputs {
+        // NTG of the recommended recipe with each node source it was run
+        // with on this input.
+        let ntgs = [true, false].map(|executed_node| Side {
+            executed_node,
+            ..side(MethodId::Ntg, input)
+        });
+        for ntg in ntgs
+            .into_iter()
+            .filter(|ntg| recommended.iter().any(|p| Side::of(p) == *ntg))
+        {
+            for baseline in baselines.into_iter().flat_map(|m| cores_of(m, input)) {
+                let ntg_name = match ntg.executed_node {
+                    true => "NTG with the executed node",
+                    false => "NTG",
+                };
+                lines.extend(judge(
+                    &format!(
+                        "Not in the paper: {ntg_name} above {} with the recommended recipe on both sides ({} input)",
+                        baseline.legend(),
+                        ntg.input()
+                    ),
+                    pairs(&recommended, ntg, baseline, 0),
+                    &above,
+                ));
+            }
         }
     }
     lines
+}
+
+/// One side of a relation [`trend_checks`] checks: a method (with NTP's
+/// core network) on one input (with its camera).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Side {
+    method: MethodId,
+    core: NtpCoreKind,
+    /// NTG on video: the node from the executed actions.
+    executed_node: bool,
+    obs: ObsKind,
+    /// The frame side where not the standard camera's.
+    camera: Option<u32>,
+}
+
+impl Side {
+    fn of(p: &NtpExpPoint) -> Side {
+        Side {
+            method: p.method,
+            core: p.ntp_core,
+            executed_node: p.executed_node,
+            obs: p.obs,
+            camera: p.other_camera(),
+        }
+    }
+
+    /// The method and its core or node source: `NTP, GRU core`.
+    fn legend(&self) -> String {
+        format!(
+            "{}{}{}",
+            self.method.legend(),
+            self.core.legend_suffix(),
+            executed_node_suffix(self.executed_node)
+        )
+    }
+
+    /// The input: `Vid` or `Vid, 128×128`.
+    fn input(&self) -> String {
+        match self.camera {
+            Some(side) => format!("{:?}, {side}×{side}", self.obs),
+            None => format!("{:?}", self.obs),
+        }
+    }
+
+    /// `NTP (Vid)`, `NTP, GRU core (Vid, 128×128)`.
+    fn name(&self) -> String {
+        format!("{} ({})", self.legend(), self.input())
+    }
 }
 
 #[cfg(test)]
@@ -1896,6 +2194,117 @@ mod tests {
         let err = experiment.run_configs(Profile::Smoke).unwrap_err();
         assert!(
             err.to_string().contains("lowercase letters and digits"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_panel_s_ntp_core_names_its_baseline_runs_and_belongs_to_the_panel() {
+        let mut experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let mut panel = experiment.profiles.smoke.panels[1].clone();
+        panel.tag = Some("cam128".into());
+        panel
+            .overrides
+            .insert("ntp_core".into(), toml::Value::String("gru".into()));
+        panel.methods = Some(vec![MethodId::Ntp, MethodId::NtpFlat]);
+        let name = |experiment: &NtpExpExperiment, panel: &PanelScale, method| {
+            experiment.run_name(panel, (method, Variant::Full), 5)
+        };
+        assert_eq!(
+            name(&experiment, &panel, MethodId::Ntp),
+            "ntp_exp-vid-cam128-ntp-gru-5"
+        );
+        assert_eq!(
+            name(&experiment, &panel, MethodId::NtpFlat),
+            "ntp_exp-vid-cam128-ntp-flat-gru-5"
+        );
+        // NTG of the same point, whose stage A the baselines link, keeps
+        // its name.
+        assert_eq!(
+            name(&experiment, &panel, MethodId::Ntg),
+            "ntp_exp-vid-cam128-5"
+        );
+        experiment.profiles.smoke.panels = vec![panel.clone()];
+        let configs = experiment.run_configs(Profile::Smoke).unwrap();
+        assert!(configs.iter().all(|c| c.ntp_core == NtpCoreKind::Gru));
+        // NTG has no core network: a panel that sets one cannot list it.
+        let mut with_ntg = panel.clone();
+        with_ntg.methods = Some(vec![MethodId::Ntg, MethodId::Ntp]);
+        experiment.profiles.smoke.panels = vec![with_ntg];
+        let err = experiment.run_configs(Profile::Smoke).unwrap_err();
+        assert!(err.to_string().contains("NTG has none"), "{err}");
+        // Set for the whole file, it would not name the runs: refused.
+        let mut reactive = panel.clone();
+        reactive.overrides.remove("ntp_core");
+        experiment.profiles.smoke.panels = vec![reactive];
+        experiment
+            .overrides
+            .insert("ntp_core".into(), toml::Value::String("gru".into()));
+        let err = experiment.run_configs(Profile::Smoke).unwrap_err();
+        assert!(
+            err.to_string().contains("belongs in a panel's overrides"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_panel_s_node_source_names_its_ntg_runs_where_it_is_not_the_recipe_s() {
+        let mut experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let mut panel = experiment.profiles.smoke.panels[1].clone();
+        panel.recipe = Some(Recipe::Recommended);
+        panel.methods = Some(vec![MethodId::Ntg, MethodId::Ntp]);
+        let set = |panel: &mut PanelScale, executed: bool| {
+            let video = panel
+                .overrides
+                .get_mut("video")
+                .unwrap()
+                .as_table_mut()
+                .unwrap();
+            video.insert("executed_node".into(), toml::Value::Boolean(executed));
+        };
+        let ntg = |experiment: &NtpExpExperiment, panel: &PanelScale| {
+            experiment.run_name(panel, (MethodId::Ntg, Variant::Full), 5)
+        };
+        assert_eq!(ntg(&experiment, &panel), "ntp_exp-vid-recommended-5");
+        assert_eq!(
+            experiment.run_name_of_other_node_source(&panel, 5),
+            "ntp_exp-vid-recommended-localizer-5"
+        );
+        // The recipe's own value names nothing.
+        set(&mut panel, true);
+        assert_eq!(ntg(&experiment, &panel), "ntp_exp-vid-recommended-5");
+        set(&mut panel, false);
+        assert_eq!(
+            ntg(&experiment, &panel),
+            "ntp_exp-vid-recommended-localizer-5"
+        );
+        assert_eq!(
+            experiment.run_name_of_other_node_source(&panel, 5),
+            "ntp_exp-vid-recommended-5"
+        );
+        // Baselines have no node source: their names are the panel's.
+        assert_eq!(
+            experiment.run_name(&panel, (MethodId::Ntp, Variant::Full), 5),
+            "ntp_exp-vid-ntp-recommended-5"
+        );
+        experiment.profiles.smoke.panels = vec![panel.clone()];
+        let configs = experiment.run_configs(Profile::Smoke).unwrap();
+        assert!(!configs[0].video.as_ref().unwrap().executed_node);
+        // Set for a whole profile it would not name the runs: refused.
+        let mut plain = panel.clone();
+        plain
+            .overrides
+            .get_mut("video")
+            .unwrap()
+            .as_table_mut()
+            .unwrap()
+            .remove("executed_node");
+        experiment.profiles.smoke.panels = vec![plain];
+        let table: toml::Table = toml::from_str("[video]\nexecuted_node = false").unwrap();
+        experiment.profiles.smoke.overrides.extend(table);
+        let err = experiment.run_configs(Profile::Smoke).unwrap_err();
+        assert!(
+            err.to_string().contains("belongs in a panel's overrides"),
             "{err}"
         );
     }
@@ -2104,6 +2513,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             camera: None,
+            ntp_core: NtpCoreKind::Reactive,
+            executed_node: false,
             success: SuccessRate::new(1, 10),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -2144,6 +2555,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             camera: None,
+            ntp_core: NtpCoreKind::Reactive,
+            executed_node: false,
             success: rate(6, 10),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -2190,6 +2603,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             camera: None,
+            ntp_core: NtpCoreKind::Reactive,
+            executed_node: false,
             success: SuccessRate::from_outcomes((0..200).map(|i| i < successes)),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -2272,6 +2687,60 @@ mod tests {
                 .iter()
                 .any(|l| l.contains("NTP Flat with the recommended"))
         );
+        // Another camera and another core network are protocols of their
+        // own: checked apart, never combined with the standard points as
+        // if they were more seeds.
+        let mut protocols = points.clone();
+        protocols.extend([
+            NtpExpPoint {
+                camera: Some(128),
+                ..point(MethodId::Ntp, vid, 100, 0, 60)
+            },
+            NtpExpPoint {
+                camera: Some(128),
+                ntp_core: NtpCoreKind::Gru,
+                ..point(MethodId::Ntp, vid, 100, 0, 190)
+            },
+            NtpExpPoint {
+                camera: Some(128),
+                ..point(MethodId::Ntg, vid, 100, 0, 150)
+            },
+        ]);
+        let lines = trend_checks(&protocols);
+        let has = |expected: &str| {
+            assert!(
+                lines.contains(&expected.to_owned()),
+                "{expected}\n{lines:#?}"
+            );
+        };
+        has(
+            "NTP (Vid) clearly below NTP (State): **holds**; holds at 100 tasks: NTP (State) 0.500 vs NTP (Vid) 0.100.",
+        );
+        has(
+            "NTP (Vid, 128×128) clearly below NTP (State): **holds**; holds at 100 tasks: NTP (State) 0.500 vs NTP (Vid, 128×128) 0.300.",
+        );
+        has(
+            "NTP, GRU core (Vid, 128×128) clearly below NTP (State): **does not hold**; does not hold at 100 tasks: NTP (State) 0.500 vs NTP, GRU core (Vid, 128×128) 0.950.",
+        );
+        has(
+            "NTG (Vid, 128×128) on par with NTP (State) or above: **holds**; holds at 100 tasks: NTG (ours) (Vid, 128×128) 0.750 vs NTP (State) 0.500.",
+        );
+        has(
+            "NTG above NTP from 100 tasks on (Vid, 128×128 input): **holds**; holds at 100 tasks: NTG (ours) (Vid, 128×128) 0.750 vs NTP (Vid, 128×128) 0.300.",
+        );
+        has(
+            "NTG above NTP, GRU core from 100 tasks on (Vid, 128×128 input): **does not hold**; does not hold at 100 tasks: NTG (ours) (Vid, 128×128) 0.750 vs NTP, GRU core (Vid, 128×128) 0.950.",
+        );
+        // The standard camera's video has no NTG: no such line for it.
+        assert!(
+            !lines.iter().any(|l| l.starts_with("NTG (Vid)")),
+            "{lines:#?}"
+        );
+        assert!(
+            !lines
+                .iter()
+                .any(|l| l.contains("(Vid input)") && l.contains("GRU"))
+        );
     }
 
     #[test]
@@ -2289,6 +2758,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             camera: None,
+            ntp_core: NtpCoreKind::Reactive,
+            executed_node: false,
             success: SuccessRate::from_outcomes((0..100).map(|i| i < successes)),
             goal_fraction: 0.5,
             train_seconds: 1.0,
@@ -2312,6 +2783,21 @@ mod tests {
         assert_eq!(
             spread,
             vec!["NTG (ours) (State, 1000 tasks): success 0.300 on average over seeds 0, 1, 2 (from 0.200 to 0.400)".to_owned()]
+        );
+        // A seed of another camera is a curve of its own, not a fourth seed.
+        let mut cameras = points.clone();
+        cameras.push(NtpExpPoint {
+            obs: ObsKind::Vid,
+            camera: Some(128),
+            ..point(1, 90)
+        });
+        cameras.iter_mut().for_each(|p| {
+            p.obs = ObsKind::Vid;
+            p.camera = p.camera.or(Some(64));
+        });
+        assert_eq!(
+            seed_spread(&cameras),
+            vec!["NTG (ours) (Vid, 1000 tasks): success 0.300 on average over seeds 0, 1, 2 (from 0.200 to 0.400)".to_owned()]
         );
         let report = report_section(&points, "");
         assert!(report.contains("| NTG (ours), seed 1 |"), "{report}");
@@ -2368,8 +2854,9 @@ mod tests {
         panel.train_tasks = vec![2];
         panel.test_tasks = 1;
         let runs = dir.path().join("runs");
-        // One job: NTP Flat starts after NTP has encoded its episodes.
-        let points = run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
+        // Two jobs: NTP Flat still starts after NTP has encoded its
+        // episodes (the point's first baseline is a wave of its own).
+        let points = run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 2)).unwrap();
         assert_eq!(points.len(), 3);
         // NTP Flat reads NTP's encoded episodes (linked), on the same
         // stage A.
@@ -2434,6 +2921,38 @@ mod tests {
             );
         }
         assert_eq!(again[0].success.trials, 1);
+        // A panel of the same point with the GRU core: its NTP run links
+        // the reactive runs' stage A and encoded episodes (the core is read
+        // by neither), and is a curve of its own.
+        let mut gru = experiment.clone();
+        let panel = &mut gru.profiles.smoke.panels[0];
+        panel.methods = Some(vec![MethodId::Ntp]);
+        panel
+            .overrides
+            .insert("ntp_core".into(), toml::Value::String("gru".into()));
+        let gru_points = run(&gru, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
+        assert_eq!(gru_points.len(), 1);
+        let gru_point = &gru_points[0];
+        assert!(gru_point.run.ends_with("ntp_exp-vid-ntp-gru-2"));
+        assert_eq!(gru_point.ntp_core, NtpCoreKind::Gru);
+        assert_ne!(gru_point.curve_id(), points[1].curve_id());
+        assert_eq!(weights(gru_point), weights(&points[1]));
+        assert_eq!(
+            metrics(gru_point),
+            metrics(&points[1]),
+            "stage A trained once"
+        );
+        assert_eq!(episodes(gru_point), episodes(&points[1]));
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let inode = |p: &NtpExpPoint| std::fs::metadata(cached(p, "rows.bin")).unwrap().ino();
+            assert_eq!(
+                inode(gru_point),
+                inode(&points[1]),
+                "linked, not encoded again"
+            );
+        }
     }
 
     /// NTP (Detector) trains its detector, then NTP on states, in one run

@@ -118,6 +118,24 @@ impl NtpCoreKind {
     pub fn is_reactive(&self) -> bool {
         *self == NtpCoreKind::Reactive
     }
+
+    /// The value's name in a run configuration (`ntp_core`) and on the
+    /// command line (`--ntp-core`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            NtpCoreKind::Reactive => "reactive",
+            NtpCoreKind::Gru => "gru",
+        }
+    }
+
+    /// What a figure's legend adds to the method's name: nothing for the
+    /// reactive default.
+    pub fn legend_suffix(&self) -> &'static str {
+        match self {
+            NtpCoreKind::Reactive => "",
+            NtpCoreKind::Gru => ", GRU core",
+        }
+    }
 }
 
 /// One training episode: its task (index into the run's tasks), its
