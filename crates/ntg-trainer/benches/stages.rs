@@ -13,7 +13,9 @@
 //!   same network, losses and batch in PyTorch: run it right after this
 //!   bench on the same quiet machine.
 //! - `stage_a/encode`: the frozen encoder over 256 frames (stage B's cache
-//!   and every policy step), throughput in frames.
+//!   and every policy step), throughput in frames; `stage_a/record`:
+//!   recording one demo video (the expert's poses rendered), throughput in
+//!   its frames. Stage B's cache costs both per frame.
 //! - `stage_a_keypoints_64/…` and `stage_a_keypoints_128_stem16/…`: the
 //!   same two with block stacking's encoder (He initialisation, centred
 //!   frames, spatial-softmax keypoints) on the standard 64×64 camera and
@@ -96,6 +98,13 @@ fn stage_a_bench(c: &mut Criterion, name: &str, stage: &EncoderStage, camera: en
     group.throughput(Throughput::Elements(rows.len() as u64));
     group.bench_function("encode", |b| {
         b.iter(|| black_box(ntg_trainer::video::encode_rows(&frozen, &rows).expect("encode")))
+    });
+    // Stage B's other cost per frame: recording a demo video (the expert's
+    // poses, rendered, as CHW rows), throughput in its frames.
+    let frames_per_video = record(0, 0).expect("video").num_frames();
+    group.throughput(Throughput::Elements(frames_per_video as u64));
+    group.bench_function("record", |b| {
+        b.iter(|| black_box(record(0, 0).expect("video")))
     });
     group.finish();
 }
