@@ -258,6 +258,26 @@ mod tests {
     }
 
     #[test]
+    fn ntp_detector_takes_the_camera_and_stem_flags() {
+        let c = config_of(&[
+            "--obs",
+            "vid",
+            "--method",
+            "ntp-detector",
+            "--camera-size",
+            "128",
+            "--encoder-stem",
+            "16",
+        ]);
+        assert!(c.video.is_none());
+        assert_eq!(c.camera().size, 128);
+        assert_eq!(c.detector.as_ref().unwrap().stem, Some(16));
+        let standard = config_of(&["--obs", "vid", "--method", "ntp-detector"]);
+        assert_eq!(standard.camera(), env_blocks::Camera::default());
+        assert_eq!(standard.detector.unwrap().stem, None);
+    }
+
+    #[test]
     fn shards_default_to_two_and_reach_both_video_stages() {
         assert_eq!(config_of(&[]).optim.shards, 2);
         let c = config_of(&["--obs", "vid", "--shards", "3"]);

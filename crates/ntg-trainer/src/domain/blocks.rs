@@ -156,9 +156,11 @@ impl BlocksRunConfig {
     /// The camera the run's frames are rendered with: its video settings'
     /// (the standard 64×64 camera on state runs, which render none).
     pub fn camera(&self) -> env_blocks::Camera {
-        self.video
-            .as_ref()
-            .map_or_else(Default::default, |v| v.camera)
+        match (&self.video, &self.detector) {
+            (Some(v), _) => v.camera,
+            (None, Some(d)) => d.camera,
+            (None, None) => Default::default(),
+        }
     }
 }
 
@@ -436,10 +438,19 @@ impl Recipe {
             let renames = self == Recipe::Recommended;
             config.permute_objects |= renames;
             config.exclude_held_out_renamings |= renames;
-            config.video = None;
-            config
+            // The detector renders its frames with the video settings'
+            // camera, and reads them through their stem; nothing else of
+            // them (stage A) is its.
+            let video = config.video.take();
+            let detector = config
                 .detector
                 .get_or_insert_with(DetectorSettings::default);
+            if let Some(video) = video {
+                detector.camera = video.camera;
+                detector.stem = detector
+                    .stem
+                    .or((video.encoder.stem > 0).then_some(video.encoder.stem));
+            }
         }
         config
     }
@@ -539,7 +550,8 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "ntp_core" => format!("{v} core"),
         "video.encoder.retry_repeats" => format!("retry frames x{v} in stage A"),
         "video.encoder.progress" => format!("progress head {v}"),
-        "video.camera.size" => format!("camera {v}x{v} px"),
+        "video.camera.size" | "detector.camera.size" => format!("camera {v}x{v} px"),
+        "detector.stem" => format!("detector stem of {v} channels"),
         "video.encoder.stem" => format!("encoder stem of {v} channels"),
         _ => match key.strip_prefix("video.encoder.") {
             Some(k) => format!("stage A {k} = {v}"),
@@ -1826,6 +1838,10 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
             episodes: own.detector_episodes.unwrap_or(d.episodes),
             epochs: own.detector_epochs.unwrap_or(d.epochs),
             ntp_on_estimates: d.ntp_on_estimates && !own.ntp_on_true_states,
+            camera: own.camera_size.map_or(d.camera, |size| {
+                env_blocks::Camera::of_size(u32::try_from(size).unwrap_or(u32::MAX))
+            }),
+            stem: flags.encoder_stem.filter(|&c| c > 0).or(d.stem),
             ..d
         }),
         failures: !own.no_failures,
@@ -1891,7 +1907,17 @@ impl DomainRuns for Blocks {
             );
         }
         flags.check_encoder_flags()?;
-        if config.video.is_none() && flags.sets_the_frame_encoder() {
+        // NTP (Detector) reads its frames through a detector, which takes
+        // --encoder-stem (and --camera-size) and no other encoder flag.
+        let encoder_flags_but_stem = match &config.detector {
+            Some(_) => TrainFlags {
+                encoder_stem: None,
+                ..flags.clone()
+            }
+            .sets_the_frame_encoder(),
+            None => flags.sets_the_frame_encoder(),
+        };
+        if config.video.is_none() && encoder_flags_but_stem {
             bail!(
                 "--encoder-* flags set the frame encoder of a run from demo videos; {} reads no demo video",
                 method.legend()

@@ -2310,6 +2310,33 @@ mod tests {
     }
 
     #[test]
+    fn ntp_detector_of_a_panel_with_another_camera_renders_its_frames_with_it() {
+        let experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let configs = experiment.named_run_configs(Profile::Paper).unwrap();
+        let config = |name: &str| {
+            configs
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, c)| c.clone())
+                .unwrap_or_else(|| panic!("{name}"))
+        };
+        let cam128 = config("ntp_exp-vid-cam128-ntp-detector-1000");
+        assert!(cam128.video.is_none());
+        assert_eq!(cam128.camera().size, 128);
+        assert_eq!(cam128.detector.as_ref().unwrap().stem, Some(16));
+        let additions = blocks::additions(&cam128);
+        for named in ["camera 128x128 px", "detector stem of 16 channels"] {
+            assert!(additions.iter().any(|a| a == named), "{additions:?}");
+        }
+        // The earlier protocol's detector keeps the standard camera, and
+        // its configuration (that of its committed records) is unchanged.
+        let standard = config("ntp_exp-vid-ntp-detector-1000");
+        assert_eq!(standard.camera(), env_blocks::Camera::default());
+        let json = serde_json::to_string(&standard.detector).unwrap();
+        assert!(!json.contains("camera") && !json.contains("stem"), "{json}");
+    }
+
+    #[test]
     fn small_training_sets_get_epochs_up_to_the_minimum_steps() {
         let scale = PanelScale {
             obs: ObsKind::State,

@@ -68,6 +68,22 @@ pub struct DetectorSettings {
     /// own stage. Default: on; absent in runs saved before it: false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub ntp_on_estimates: bool,
+    /// The camera the detector's frames (training and acting) are rendered
+    /// with; a run of NTP (Detector) keeps no video settings, so a video
+    /// panel's camera is carried here (`Recipe::for_method`). Absent: the
+    /// standard 64×64 camera.
+    #[serde(default, skip_serializing_if = "is_standard_camera")]
+    pub camera: env_blocks::Camera,
+    /// A stride-2 stem of this many channels in front of the detector's
+    /// frame encoder (`ntg_model::FrameEncoderConfig::stem`), carried
+    /// with the camera from a video panel's `video.encoder.stem`. Absent:
+    /// none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stem: Option<usize>,
+}
+
+fn is_standard_camera(c: &env_blocks::Camera) -> bool {
+    *c == env_blocks::Camera::default()
 }
 
 impl Default for DetectorSettings {
@@ -81,6 +97,8 @@ impl Default for DetectorSettings {
             validation_tasks: 50,
             keypoints: true,
             ntp_on_estimates: true,
+            camera: env_blocks::Camera::default(),
+            stem: None,
         }
     }
 }
@@ -111,7 +129,8 @@ impl DetectorSettings {
                     .with_image_size(image_size)
                     .with_he_init(Some(true))
                     .with_centre_input(Some(true))
-                    .with_spatial_softmax(self.keypoints.then_some(true)),
+                    .with_spatial_softmax(self.keypoints.then_some(true))
+                    .with_stem(self.stem),
             ),
         )
         .with_hidden(self.hidden)
