@@ -41,10 +41,70 @@ pub enum ObsDtype {
     U8,
 }
 
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 enum ObsBuffer {
     F32(Vec<f32>),
     U8(Vec<u8>),
+    /// Bytes of a saved dataset's `observations.bin`, mapped rather than
+    /// read ([`DemoDataset::load_mapped`]): read-only.
+    MappedU8(MappedBytes),
+}
+
+/// Equal values, however stored (in memory or mapped).
+impl PartialEq for ObsBuffer {
+    fn eq(&self, other: &Self) -> bool {
+        match (self, other) {
+            (ObsBuffer::F32(a), ObsBuffer::F32(b)) => a == b,
+            _ => self.bytes().is_some() && self.bytes() == other.bytes(),
+        }
+    }
+}
+
+impl ObsBuffer {
+    /// The stored bytes, where the values are bytes.
+    fn bytes(&self) -> Option<&[u8]> {
+        match self {
+            ObsBuffer::F32(_) => None,
+            ObsBuffer::U8(b) => Some(b),
+            ObsBuffer::MappedU8(m) => Some(m.as_slice()),
+        }
+    }
+}
+
+/// A file mapped into memory, shared by the clones of its dataset; pages
+/// are read from disk as rows are used and the kernel may drop them again,
+/// so a dataset larger than the machine's memory can be trained on.
+#[derive(Clone)]
+struct MappedBytes(std::sync::Arc<memmap2::Mmap>);
+
+impl MappedBytes {
+    fn map(path: &Path) -> anyhow::Result<Self> {
+        let file = fs::File::open(path).with_context(|| format!("reading {}", path.display()))?;
+        // SAFETY: the mapped file is a finished dataset's
+        // `observations.bin`, which this crate only ever replaces by
+        // renaming a new file over it (`save`), never writes in place; a
+        // rename leaves the mapped file's pages as they were.
+        #[allow(unsafe_code)]
+        let map = unsafe { memmap2::Mmap::map(&file) }
+            .with_context(|| format!("mapping {}", path.display()))?;
+        Ok(MappedBytes(std::sync::Arc::new(map)))
+    }
+
+    fn as_slice(&self) -> &[u8] {
+        &self.0
+    }
+}
+
+impl PartialEq for MappedBytes {
+    fn eq(&self, other: &Self) -> bool {
+        self.as_slice() == other.as_slice()
+    }
+}
+
+impl std::fmt::Debug for MappedBytes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "MappedBytes({} bytes)", self.0.len())
+    }
 }
 
 /// One demonstration's entry in a [`DemoDataset`].
@@ -171,6 +231,7 @@ impl DemoDataset {
                             buf.push((v * 255.0).round() as u8);
                         }
                     }
+                    ObsBuffer::MappedU8(_) => unreachable!("a new dataset is in memory"),
                 }
             }
             entries.push(DemoEntry {
@@ -237,6 +298,9 @@ impl DemoDataset {
                         buf.push((v * 255.0).round() as u8);
                     }
                 }
+                ObsBuffer::MappedU8(_) => {
+                    bail!("a dataset read from disk (mapped) takes no more demonstrations")
+                }
             }
         }
         self.demos.push(DemoEntry {
@@ -271,18 +335,19 @@ impl DemoDataset {
 
     /// Total observation rows.
     pub fn num_rows(&self) -> usize {
-        match &self.obs {
-            ObsBuffer::F32(b) => b.len() / self.obs_dim.max(1),
-            ObsBuffer::U8(b) => b.len() / self.obs_dim.max(1),
+        match (&self.obs, self.obs.bytes()) {
+            (ObsBuffer::F32(b), _) => b.len() / self.obs_dim.max(1),
+            (_, bytes) => bytes.map_or(0, <[u8]>::len) / self.obs_dim.max(1),
         }
     }
 
     /// Appends observation row `row` (as `f32`) to `out`.
     pub fn extend_row(&self, row: usize, out: &mut Vec<f32>) {
         let range = row * self.obs_dim..(row + 1) * self.obs_dim;
-        match &self.obs {
-            ObsBuffer::F32(b) => out.extend_from_slice(&b[range]),
-            ObsBuffer::U8(b) => out.extend(b[range].iter().map(|&v| f32::from(v) / 255.0)),
+        match (&self.obs, self.obs.bytes()) {
+            (ObsBuffer::F32(b), _) => out.extend_from_slice(&b[range]),
+            (_, Some(b)) => out.extend(b[range].iter().map(|&v| f32::from(v) / 255.0)),
+            (_, None) => unreachable!("values are f32 or bytes"),
         }
     }
 
@@ -316,7 +381,7 @@ impl DemoDataset {
             obs_dim: self.obs_dim,
             dtype: match self.obs {
                 ObsBuffer::F32(_) => ObsDtype::F32,
-                ObsBuffer::U8(_) => ObsDtype::U8,
+                ObsBuffer::U8(_) | ObsBuffer::MappedU8(_) => ObsDtype::U8,
             },
             vocabulary: self.vocab.clone(),
             demos: self.demos.clone(),
@@ -338,22 +403,14 @@ impl DemoDataset {
                 }
             }
             ObsBuffer::U8(b) => w.write_all(b)?,
+            ObsBuffer::MappedU8(m) => w.write_all(m.as_slice())?,
         }
         w.flush()
             .with_context(|| format!("writing {}", bin_tmp.display()))?;
         drop(w);
         fs::rename(&bin_tmp, &bin_path)
             .with_context(|| format!("renaming {} to {}", bin_tmp.display(), bin_path.display()))?;
-        let index_tmp = dir.join("index.json.partial");
-        fs::write(&index_tmp, serde_json::to_vec(&index)?)
-            .with_context(|| format!("writing {}", index_tmp.display()))?;
-        fs::rename(&index_tmp, &index_path).with_context(|| {
-            format!(
-                "renaming {} to {}",
-                index_tmp.display(),
-                index_path.display()
-            )
-        })
+        write_index(&index, &index_path)
     }
 
     /// The dataset cached in `dir` if there is one; otherwise `build`'s,
@@ -433,6 +490,109 @@ impl DemoDataset {
         Ok(whole)
     }
 
+    /// [`DemoDataset::load_or_build_in_parts`] for a dataset of bytes too
+    /// large to hold in memory (stage A's frames of 20,000 videos at
+    /// 128×128 are 18 GB): each part is built, saved in `DIR.parts/NNNNN/`
+    /// and dropped before the next, the whole is written by concatenating
+    /// the parts' files, and it is returned mapped from its file
+    /// ([`DemoDataset::load_mapped`]). Its rows are those
+    /// [`DemoDataset::load_or_build`] would give; at most one part's are in
+    /// memory at a time.
+    pub fn load_or_build_mapped_in_parts(
+        dir: &Path,
+        pairs: &[(usize, u64)],
+        part_len: usize,
+        mut build_part: impl FnMut(&[(usize, u64)], &str) -> anyhow::Result<Self>,
+    ) -> anyhow::Result<Self> {
+        ensure!(
+            part_len > 0,
+            "parts of a dataset must hold at least one demo"
+        );
+        let parts_dir = dir.with_extension("parts");
+        if dir.join("index.json").is_file() {
+            if parts_dir.exists() {
+                fs::remove_dir_all(&parts_dir)
+                    .with_context(|| format!("removing {}", parts_dir.display()))?;
+            }
+            return Self::load_mapped(dir);
+        }
+        if pairs.len() <= part_len {
+            build_part(pairs, "")?.save(dir)?;
+            return Self::load_mapped(dir);
+        }
+        let num_parts = pairs.len().div_ceil(part_len);
+        let mut parts = Vec::with_capacity(num_parts);
+        for (k, part_pairs) in pairs.chunks(part_len).enumerate() {
+            let part_dir = parts_dir.join(format!("{k:05}"));
+            if !part_dir.join("index.json").is_file() {
+                build_part(part_pairs, &format!(" {}/{num_parts}", k + 1))?.save(&part_dir)?;
+            }
+            let part = Self::load_mapped(&part_dir)?;
+            ensure!(
+                part.demos
+                    .iter()
+                    .map(|d| (d.task, d.seed))
+                    .eq(part_pairs.iter().copied()),
+                "{}: a part holding other demos than this build's part {k} \
+                 (built with other settings?); remove {} to build again",
+                part_dir.display(),
+                parts_dir.display()
+            );
+            parts.push(part);
+        }
+        Self::concatenate(&parts, dir)?;
+        drop(parts);
+        fs::remove_dir_all(&parts_dir)
+            .with_context(|| format!("removing {}", parts_dir.display()))?;
+        Self::load_mapped(dir)
+    }
+
+    /// Saves `parts` (of one vocabulary, row size and storage) one after the
+    /// other as one dataset in `dir`, as [`DemoDataset::save`] does, writing
+    /// each part's rows straight to the file.
+    fn concatenate(parts: &[Self], dir: &Path) -> anyhow::Result<()> {
+        let first = parts.first().context("no parts")?;
+        fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let mut demos = Vec::new();
+        let bin_tmp = dir.join("observations.bin.partial");
+        let file =
+            fs::File::create(&bin_tmp).with_context(|| format!("writing {}", bin_tmp.display()))?;
+        let mut w = BufWriter::new(file);
+        let mut offset = 0;
+        for part in parts {
+            ensure!(
+                part.vocab == first.vocab && part.obs_dim == first.obs_dim,
+                "datasets of different vocabularies or row sizes"
+            );
+            let bytes = part
+                .obs
+                .bytes()
+                .context("only datasets of bytes are concatenated on disk")?;
+            w.write_all(bytes)
+                .with_context(|| format!("writing {}", bin_tmp.display()))?;
+            demos.extend(part.demos.iter().map(|d| DemoEntry {
+                first_row: d.first_row + offset,
+                ..d.clone()
+            }));
+            offset += part.num_rows();
+        }
+        w.flush()
+            .with_context(|| format!("writing {}", bin_tmp.display()))?;
+        drop(w);
+        let index = Index {
+            format: FORMAT.into(),
+            obs_dim: first.obs_dim,
+            dtype: ObsDtype::U8,
+            vocabulary: first.vocab.clone(),
+            demos,
+        };
+        let bin_path = dir.join("observations.bin");
+        fs::rename(&bin_tmp, &bin_path)
+            .with_context(|| format!("renaming {} to {}", bin_tmp.display(), bin_path.display()))?;
+        let index_path = dir.join("index.json");
+        write_index(&index, &index_path)
+    }
+
     /// Appends every demonstration of `other`, which must have the same
     /// vocabulary, row size and storage.
     pub fn append(&mut self, other: DemoDataset) -> anyhow::Result<()> {
@@ -444,6 +604,10 @@ impl DemoDataset {
         match (&mut self.obs, other.obs) {
             (ObsBuffer::F32(a), ObsBuffer::F32(b)) => a.extend_from_slice(&b),
             (ObsBuffer::U8(a), ObsBuffer::U8(b)) => a.extend_from_slice(&b),
+            (ObsBuffer::U8(a), ObsBuffer::MappedU8(b)) => a.extend_from_slice(b.as_slice()),
+            (ObsBuffer::MappedU8(_), _) => {
+                bail!("a dataset read from disk (mapped) takes no more demonstrations")
+            }
             _ => bail!("datasets of different storage (f32 and u8)"),
         }
         self.demos
@@ -457,6 +621,19 @@ impl DemoDataset {
     /// Reads a dataset written by [`DemoDataset::save`], checking that the
     /// index and the observation file agree.
     pub fn load(dir: &Path) -> anyhow::Result<Self> {
+        Self::load_with(dir, false)
+    }
+
+    /// [`DemoDataset::load`], a dataset of bytes (frames) mapped from its
+    /// file rather than read into memory: the kernel reads its pages as
+    /// rows are used and may drop them under memory pressure, so a dataset
+    /// larger than memory can be trained on (at the cost of disk reads).
+    /// The same rows as [`DemoDataset::load`]'s; it takes no more demos.
+    pub fn load_mapped(dir: &Path) -> anyhow::Result<Self> {
+        Self::load_with(dir, true)
+    }
+
+    fn load_with(dir: &Path, mapped: bool) -> anyhow::Result<Self> {
         let index_path = dir.join("index.json");
         let text = fs::read_to_string(&index_path)
             .with_context(|| format!("reading {}", index_path.display()))?;
@@ -492,34 +669,43 @@ impl DemoDataset {
             expected_rows += d.num_rows();
         }
         let bin_path = dir.join("observations.bin");
-        let mut bytes = Vec::new();
-        BufReader::new(
-            fs::File::open(&bin_path).with_context(|| format!("reading {}", bin_path.display()))?,
-        )
-        .read_to_end(&mut bytes)
-        .with_context(|| format!("reading {}", bin_path.display()))?;
         let width = match index.dtype {
             ObsDtype::F32 => 4,
             ObsDtype::U8 => 1,
         };
         let expected = expected_rows * index.obs_dim * width;
-        if bytes.len() != expected {
-            bail!(
-                "{}: {} bytes, expected {expected} ({expected_rows} rows of {} {:?} values); the file is truncated or does not belong to this index",
+        let check_len = |len: usize| {
+            ensure!(
+                len == expected,
+                "{}: {len} bytes, expected {expected} ({expected_rows} rows of {} {:?} values); the file is truncated or does not belong to this index",
                 bin_path.display(),
-                bytes.len(),
                 index.obs_dim,
                 index.dtype
             );
-        }
-        let obs = match index.dtype {
-            ObsDtype::F32 => ObsBuffer::F32(
-                bytes
-                    .chunks_exact(4)
-                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                    .collect(),
-            ),
-            ObsDtype::U8 => ObsBuffer::U8(bytes),
+            Ok(())
+        };
+        let obs = if mapped && index.dtype == ObsDtype::U8 {
+            let map = MappedBytes::map(&bin_path)?;
+            check_len(map.as_slice().len())?;
+            ObsBuffer::MappedU8(map)
+        } else {
+            let mut bytes = Vec::new();
+            BufReader::new(
+                fs::File::open(&bin_path)
+                    .with_context(|| format!("reading {}", bin_path.display()))?,
+            )
+            .read_to_end(&mut bytes)
+            .with_context(|| format!("reading {}", bin_path.display()))?;
+            check_len(bytes.len())?;
+            match index.dtype {
+                ObsDtype::F32 => ObsBuffer::F32(
+                    bytes
+                        .chunks_exact(4)
+                        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                        .collect(),
+                ),
+                ObsDtype::U8 => ObsBuffer::U8(bytes),
+            }
         };
         Ok(DemoDataset {
             vocab: index.vocabulary,
@@ -528,6 +714,21 @@ impl DemoDataset {
             demos: index.demos,
         })
     }
+}
+
+/// Writes `index` to `index_path` through a temporary file renamed into
+/// place, so that an index is never half-written.
+fn write_index(index: &Index, index_path: &Path) -> anyhow::Result<()> {
+    let index_tmp = index_path.with_extension("json.partial");
+    fs::write(&index_tmp, serde_json::to_vec(index)?)
+        .with_context(|| format!("writing {}", index_tmp.display()))?;
+    fs::rename(&index_tmp, index_path).with_context(|| {
+        format!(
+            "renaming {} to {}",
+            index_tmp.display(),
+            index_path.display()
+        )
+    })
 }
 
 /// The parts of a long build of one item per `(task, seed)` of `pairs`, in
@@ -890,6 +1091,69 @@ mod tests {
         // Appending a dataset of other storage is refused.
         let mut f32s = dataset_of(&pairs[..1], ObsDtype::F32);
         assert!(f32s.append(dataset_of(&pairs[1..2], ObsDtype::U8)).is_err());
+    }
+
+    #[test]
+    fn a_dataset_of_bytes_built_in_parts_on_disk_is_read_mapped_with_the_same_rows() {
+        let pairs: Vec<(usize, u64)> = (0..3).flat_map(|t| [(t, 1), (t, 2), (t, 3)]).collect();
+        let whole = dataset_of(&pairs, ObsDtype::U8);
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("frames");
+        // Killed in its third part: the first two stay on disk.
+        let mut built = 0;
+        let err = DemoDataset::load_or_build_mapped_in_parts(&target, &pairs, 2, |part, _| {
+            built += 1;
+            anyhow::ensure!(built < 3, "killed");
+            Ok(dataset_of(part, ObsDtype::U8))
+        })
+        .unwrap_err();
+        assert_eq!(err.to_string(), "killed");
+        let mut rebuilt = Vec::new();
+        let mapped = DemoDataset::load_or_build_mapped_in_parts(&target, &pairs, 2, |part, _| {
+            rebuilt.push(part.to_vec());
+            Ok(dataset_of(part, ObsDtype::U8))
+        })
+        .unwrap();
+        assert_eq!(rebuilt.len(), 3, "parts 0 and 1 read back: {rebuilt:?}");
+        assert!(matches!(mapped.obs, ObsBuffer::MappedU8(_)));
+        assert_eq!(mapped, whole);
+        for row in 0..whole.num_rows() {
+            assert_eq!(mapped.row(row), whole.row(row));
+        }
+        assert_eq!(
+            mapped.demonstration(4).unwrap(),
+            whole.demonstration(4).unwrap()
+        );
+        assert!(!target.with_extension("parts").exists(), "parts removed");
+        // The file is the one an in-memory save writes.
+        let saved = dir.path().join("saved");
+        whole.save(&saved).unwrap();
+        assert_eq!(
+            fs::read(saved.join("observations.bin")).unwrap(),
+            fs::read(target.join("observations.bin")).unwrap()
+        );
+        assert_eq!(DemoDataset::load(&target).unwrap(), whole);
+        // Cached: read mapped, nothing built.
+        let cached =
+            DemoDataset::load_or_build_mapped_in_parts(&target, &pairs, 2, |_, _| panic!("cached"))
+                .unwrap();
+        assert_eq!(cached, whole);
+        // A mapped dataset takes no more demos.
+        let mut read_only = cached.clone();
+        let err = read_only
+            .append(dataset_of(&pairs[..1], ObsDtype::U8))
+            .unwrap_err();
+        assert!(err.to_string().contains("mapped"), "{err}");
+        // A truncated file is an error naming it.
+        let bin = target.join("observations.bin");
+        let bytes = fs::read(&bin).unwrap();
+        drop((mapped, cached, read_only));
+        fs::write(&bin, &bytes[..bytes.len() - 1]).unwrap();
+        let err = DemoDataset::load_mapped(&target).unwrap_err().to_string();
+        assert!(
+            err.contains("observations.bin") && err.contains("truncated"),
+            "{err}"
+        );
     }
 
     #[test]

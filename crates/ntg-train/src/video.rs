@@ -563,12 +563,28 @@ pub fn frame_dataset(
     frame_dim: usize,
     fraction: f64,
 ) -> anyhow::Result<DemoDataset> {
+    frame_dataset_labelled(vocab, pairs, record, frame_dim, fraction, "videos (A)")
+}
+
+/// Videos per part of stage A's frame dataset, built and saved one part at
+/// a time (about 4.6 GB of 128×128 frames per part).
+pub const STAGE_A_PART_VIDEOS: usize = 5000;
+
+/// [`frame_dataset`], its progress bar labelled `what`.
+fn frame_dataset_labelled(
+    vocab: &Vocabulary,
+    pairs: &[(usize, u64)],
+    record: VideoRecorder<'_>,
+    frame_dim: usize,
+    fraction: f64,
+    what: &str,
+) -> anyhow::Result<DemoDataset> {
     anyhow::ensure!(
         (0.0..=1.0).contains(&fraction),
         "the fraction of frames stage A trains on must be in [0, 1], got {fraction}"
     );
     let mut dataset = DemoDataset::from_demos(vocab.clone(), frame_dim, ObsDtype::U8, [])?;
-    record_in_chunks(pairs, record, "videos (A)", |videos| {
+    record_in_chunks(pairs, record, what, |videos| {
         for (t, seed, v) in videos {
             let v = if fraction < 1.0 {
                 keep_frames(v, fraction, seed, vocab)?
@@ -704,15 +720,25 @@ pub fn train_encoder(
         return Ok(net);
     }
     let demos = stage.demos.min(video.pairs.len());
-    let frames = DemoDataset::load_or_build(&dir.dataset_dir(), || {
-        frame_dataset(
-            video.vocabulary,
-            &video.pairs[..demos],
-            video.record,
-            video.frame_dim,
-            stage.frame_fraction,
-        )
-    })?;
+    // Built STAGE_A_PART_VIDEOS videos at a time, each part saved and
+    // dropped, and read back mapped from disk: at 128×128 the frames of
+    // 20,000 videos (18 GB) do not fit this project's 24 GB machine. The
+    // same frames as built in one go (each video's draw is its own).
+    let frames = DemoDataset::load_or_build_mapped_in_parts(
+        &dir.dataset_dir(),
+        &video.pairs[..demos],
+        STAGE_A_PART_VIDEOS,
+        |pairs, part| {
+            frame_dataset_labelled(
+                video.vocabulary,
+                pairs,
+                video.record,
+                video.frame_dim,
+                stage.frame_fraction,
+                &format!("videos (A){part}"),
+            )
+        },
+    )?;
     let net = stage
         .net_config(
             video.vocabulary.len(),
