@@ -1618,6 +1618,13 @@ fn detector_lines(points: &[NtpExpPoint]) -> Vec<String> {
                     ("obs", &p.curve_id().input()),
                     ("tasks", &p.train_tasks),
                     ("error", &format!("{:.4}", d.detector.position_error)),
+                    (
+                        "edges",
+                        &format!(
+                            "{:.2}",
+                            d.detector.position_error / f64::from(env_blocks::world::CUBE_SIZE)
+                        ),
+                    ),
                     ("frames", &d.detector.frames),
                     (
                         "mean_state_error",
@@ -3023,6 +3030,13 @@ mod tests {
         let held_out: crate::method::detector::DetectorHeldOut =
             RunDir::read_json(&stage.join("held_out.json")).unwrap();
         assert!(held_out.detector.frames > 0 && held_out.detector.position_error.is_finite());
+        // The report gives its error in cube edges too.
+        let edges = held_out.detector.position_error / f64::from(env_blocks::world::CUBE_SIZE);
+        let lines = detector_lines(&points);
+        assert!(
+            lines[0].contains(&format!("({edges:.2} cube edges)")),
+            "{lines:?}"
+        );
         let stage_seconds = RunDir::open(&stage)
             .unwrap()
             .epoch_compute_seconds()
