@@ -811,12 +811,17 @@ fn run_point(
         // run on its own (`--only`) after a baseline of its point finished
         // the same stage A, it links that one instead of training it again.
         // So does NTG's run of the other node source (which stage A does
-        // not read).
+        // not read), and then its embeddings too: the same frozen encoder
+        // over the same videos, which training does not read the node
+        // source from either (only the policy's rollouts do).
         let sources = [MethodId::Ntp, MethodId::NtpFlat]
             .map(|sibling| experiment.run_name(scale, (sibling, Variant::Full), n));
         let other = experiment.run_name_of_other_node_source(scale, n);
         for source in sources.iter().chain([&other]) {
             if share_stage_a(&runs.join(source), &run, &config)? {
+                if source == &other {
+                    share_embeddings(&runs.join(source), &run, &config)?;
+                }
                 break;
             }
         }
@@ -1170,6 +1175,25 @@ fn share_stage_a(
         |stage_a| crate::video::stage_a_finished(stage_a, &video.encoder),
         same_but_method(config),
         "stage A: the frame encoder",
+    )
+}
+
+/// Stage B's embeddings (every training video through the frozen frame
+/// encoder) of NTG's run of the other node source (`source_run`), linked
+/// into `run` once its stage A was linked from the same run: the same
+/// encoder over the same videos. Only complete caches (their `index.json`
+/// written) are linked.
+fn share_embeddings(
+    source_run: &Path,
+    run: &RunDir,
+    config: &BlocksRunConfig,
+) -> anyhow::Result<bool> {
+    share_part(
+        (source_run, crate::video::EMBEDDINGS_DIR),
+        run,
+        |embeddings: &Path| Ok(embeddings.join("index.json").is_file()),
+        same_but_method(config),
+        "stage B's embeddings of the training videos",
     )
 }
 
@@ -2985,6 +3009,59 @@ mod tests {
                 inode(gru_point),
                 inode(&points[1]),
                 "linked, not encoded again"
+            );
+        }
+    }
+
+    /// NTG's run of a panel with the other node source links the point's
+    /// stage A and stage B's embeddings (neither reads the node source)
+    /// and trains its own policy.
+    #[test]
+    fn ntg_of_the_other_node_source_links_stage_a_and_the_embeddings() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let smoke = &mut experiment.profiles.smoke;
+        smoke.panels.remove(0);
+        let panel = &mut smoke.panels[0];
+        panel.methods = Some(vec![MethodId::Ntg]);
+        panel.train_tasks = vec![2];
+        panel.test_tasks = 1;
+        let runs = dir.path().join("runs");
+        let first = run(&experiment, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
+        assert!(first[0].run.ends_with("ntp_exp-vid-2"));
+        assert!(!first[0].executed_node);
+        let mut executed = experiment.clone();
+        let panel = &mut executed.profiles.smoke.panels[0];
+        panel
+            .overrides
+            .entry("video")
+            .or_insert_with(|| toml::Value::Table(Default::default()))
+            .as_table_mut()
+            .unwrap()
+            .insert("executed_node".into(), toml::Value::Boolean(true));
+        let second = run(&executed, Profile::Smoke, &Plan::train_all(&runs, 1)).unwrap();
+        assert!(second[0].run.ends_with("ntp_exp-vid-executed-2"));
+        assert!(second[0].executed_node);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let inode =
+                |p: &NtpExpPoint, file: &str| std::fs::metadata(p.run.join(file)).unwrap().ino();
+            for file in [
+                "stage_a/metrics.jsonl",
+                "embeddings/index.json",
+                "embeddings/observations.bin",
+            ] {
+                assert_eq!(
+                    inode(&second[0], file),
+                    inode(&first[0], file),
+                    "{file}: linked, not computed again"
+                );
+            }
+            assert_ne!(
+                inode(&second[0], "checkpoint/model.bpk"),
+                inode(&first[0], "checkpoint/model.bpk"),
+                "the policy is trained in its own folder"
             );
         }
     }
