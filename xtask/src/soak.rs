@@ -162,6 +162,41 @@ fn without_clock_fields(path: &Path) -> anyhow::Result<Vec<serde_json::Value>> {
         .collect()
 }
 
+/// Wall time of one `ntg train` run of `epochs` epochs into `out`.
+fn timed_run(ntg: &Path, out: &Path, epochs: usize) -> anyhow::Result<Duration> {
+    let started = Instant::now();
+    let status = Command::new(ntg)
+        .args(train_args(out, epochs))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .context("could not start ntg")?;
+    if !status.success() {
+        bail!("the probe run of {epochs} epochs failed ({status})");
+    }
+    Ok(started.elapsed())
+}
+
+/// How many epochs the run needs so that it is still training when the
+/// last kill lands, measured on this machine: every attempt trains for at
+/// most `max_delay` before its kill, so `kills * max_delay` of epoch time
+/// is the most the kills can get through. A fixed count is too short on a
+/// fast machine (CI's soak once finished after 4 of 5 kills). The epoch
+/// time is the difference of a 1-epoch and a 5-epoch probe run (start-up
+/// and data generation cancel), and the count is twice what the kills
+/// could get through, never under 20.
+fn epochs_outlasting_kills(ntg: &Path, work: &Path, soak: &Soak) -> anyhow::Result<usize> {
+    let short = timed_run(ntg, &work.join("probe-1"), 1)?;
+    let long = timed_run(ntg, &work.join("probe-5"), 5)?;
+    for probe in ["probe-1", "probe-5"] {
+        let dir = work.join(probe);
+        std::fs::remove_dir_all(&dir).with_context(|| format!("removing {}", dir.display()))?;
+    }
+    let per_epoch = (long.saturating_sub(short).as_secs_f64() / 4.0).max(1e-3);
+    let reachable = soak.kills as f64 * soak.max_delay.as_secs_f64() / per_epoch;
+    Ok(((2.0 * reachable).ceil() as usize).max(20))
+}
+
 /// Runs the soak in `work` (created afresh) and prints its report.
 pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
     let ntg = match &soak.ntg {
@@ -175,9 +210,7 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
     std::fs::create_dir_all(work).with_context(|| format!("creating {}", work.display()))?;
     let straight = work.join("straight");
     let soaked = work.join("soaked");
-    // An epoch takes well under 0.15 s (2 shards, 2 cores): 8 per kill
-    // keeps the run training until the last kill lands.
-    let epochs = (8 * soak.kills).max(20);
+    let epochs = epochs_outlasting_kills(&ntg, work, soak)?;
 
     let started = Instant::now();
     let status = Command::new(&ntg)
