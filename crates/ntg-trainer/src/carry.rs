@@ -159,21 +159,14 @@ pub fn carry_run(runs: &Path, records: &Path, name: &str) -> anyhow::Result<Carr
         );
     }
     let to = record::in_progress_dir(records, name);
-    // An earlier carry killed while it swapped copies: its old copy back
-    // in place (or its new one kept), so that the check below sees it.
-    crate::run_dir::recover_dir(&to)?;
     let config: serde_json::Value = RunDir::read_json(&config_path)?;
-    let earlier = to.join("config.json");
-    if earlier.is_file() && RunDir::read_json::<serde_json::Value>(&earlier)? != config {
-        bail!(
+    prepare_copy(&to, &config, || {
+        format!(
             "{} holds a run of another configuration than {}: delete it to carry this one",
             to.display(),
             from.display()
-        );
-    }
-    if let Some(parent) = to.parent() {
-        fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
-    }
+        )
+    })?;
     let mut copied = Listing::new();
     replace_dir(&to, |next| {
         copied = snapshot(&from, next)?;
@@ -222,6 +215,107 @@ pub fn discard_carried(
     }
     fs::remove_dir_all(&carried).with_context(|| format!("removing {}", carried.display()))?;
     Ok(Some(carried))
+}
+
+/// Runs of at least this many training tasks keep their selected weights
+/// beside their records ([`keep_selected_weights`]): the paper profile's
+/// 1000-task runs, whose weights take hours to train again on 2 cores.
+pub const KEEP_WEIGHTS_FROM_TASKS: u64 = 1000;
+
+/// Where the selected weights of recorded run `name` are kept:
+/// `weights/NAME/` beside the `records` folder.
+pub fn weights_dir(records: &Path, name: &str) -> PathBuf {
+    records
+        .parent()
+        .unwrap_or(Path::new("."))
+        .join("weights")
+        .join(name)
+}
+
+/// What [`keep_selected_weights`] kept.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct KeptWeights {
+    /// The folder written.
+    pub to: PathBuf,
+    /// Files in it.
+    pub files: usize,
+    /// Their total size in bytes.
+    pub bytes: u64,
+}
+
+/// Readies `to` for a copy of a run of `config`: an earlier copy killed
+/// while it swapped folders is put back in place (or its new one kept), so
+/// that the check sees it, and `to`'s parent is made. A copy of another
+/// configuration already in `to` is never overwritten: the error says
+/// `conflict()`.
+fn prepare_copy(
+    to: &Path,
+    config: &serde_json::Value,
+    conflict: impl FnOnce() -> String,
+) -> anyhow::Result<()> {
+    crate::run_dir::recover_dir(to)?;
+    let earlier = to.join("config.json");
+    if earlier.is_file() && RunDir::read_json::<serde_json::Value>(&earlier)? != *config {
+        bail!(conflict());
+    }
+    if let Some(parent) = to.parent() {
+        fs::create_dir_all(parent).with_context(|| format!("creating {}", parent.display()))?;
+    }
+    Ok(())
+}
+
+/// After run folder `run` (named `name`) is recorded in `records`: when its
+/// `config.json` says it trained on at least [`KEEP_WEIGHTS_FROM_TASKS`]
+/// tasks (`train_tasks`), copies its configuration and every selected-weights
+/// folder in it (`best/`, and a stage's `stage_a/best/`, ...) into
+/// [`weights_dir`], replacing an earlier copy of the same configuration
+/// (one of another configuration is kept, and this one is not). A run of
+/// fewer tasks, or one without a `best/` folder, keeps nothing (`None`).
+pub fn keep_selected_weights(
+    records: &Path,
+    name: &str,
+    run: &Path,
+) -> anyhow::Result<Option<KeptWeights>> {
+    let config_path = run.join("config.json");
+    let config: serde_json::Value = RunDir::read_json(&config_path)?;
+    let tasks = config["train_tasks"].as_u64().unwrap_or(0);
+    if tasks < KEEP_WEIGHTS_FROM_TASKS {
+        return Ok(None);
+    }
+    let selected: Listing = listing(run)?
+        .into_iter()
+        .filter(|(rel, _, _)| rel.components().any(|c| c.as_os_str() == "best"))
+        .collect();
+    if selected.is_empty() {
+        return Ok(None);
+    }
+    let to = weights_dir(records, name);
+    prepare_copy(&to, &config, || {
+        format!(
+            "{} holds the weights of another configuration than {}: delete it to keep this run's",
+            to.display(),
+            run.display()
+        )
+    })?;
+    replace_dir(&to, |next| {
+        fs::create_dir_all(next)?;
+        fs::copy(&config_path, next.join("config.json"))
+            .with_context(|| format!("copying {}", config_path.display()))?;
+        for (rel, _, _) in &selected {
+            let target = next.join(rel);
+            if let Some(parent) = target.parent() {
+                fs::create_dir_all(parent)?;
+            }
+            fs::copy(run.join(rel), &target)
+                .with_context(|| format!("copying {}", run.join(rel).display()))?;
+        }
+        Ok(())
+    })?;
+    Ok(Some(KeptWeights {
+        files: selected.len() + 1,
+        bytes: selected.iter().map(|(_, len, _)| len).sum(),
+        to,
+    }))
 }
 
 #[cfg(test)]
@@ -356,5 +450,73 @@ mod tests {
         assert_eq!(removed, Some(record::in_progress_dir(&records, "r")));
         assert!(!record::in_progress_dir(&records, "r").exists());
         assert_eq!(discard_carried(&records, "r", Some(&own)).unwrap(), None);
+    }
+
+    #[test]
+    fn a_recorded_thousand_task_run_keeps_its_selected_weights_only() {
+        let tmp = tempfile::tempdir().unwrap();
+        let (runs, records) = (tmp.path().join("runs"), tmp.path().join("figures/records"));
+        let run = run_folder(&runs, "big", r#"{"train_tasks": 1000}"#);
+        write(&run.join("best/model.bpk"), "selected");
+        write(&run.join("best/frame_encoder/model.bpk"), "encoder");
+        write(&run.join("stage_a/best/model.bpk"), "stage a");
+        let kept = keep_selected_weights(&records, "big", &run)
+            .unwrap()
+            .unwrap();
+        assert_eq!(kept.to, weights_dir(&records, "big"));
+        assert!(kept.to.ends_with("figures/weights/big"));
+        let files: Vec<PathBuf> = listing(&kept.to)
+            .unwrap()
+            .into_iter()
+            .map(|(p, _, _)| p)
+            .collect();
+        let expected = [
+            "best/frame_encoder/model.bpk",
+            "best/model.bpk",
+            "config.json",
+            "stage_a/best/model.bpk",
+        ];
+        assert_eq!(files, expected.map(PathBuf::from));
+        assert_eq!(kept.files, 4);
+        // Kept again (the record extended): replaced, same files.
+        write(&run.join("best/model.bpk"), "selected again");
+        keep_selected_weights(&records, "big", &run)
+            .unwrap()
+            .unwrap();
+        assert_eq!(
+            fs::read_to_string(kept.to.join("best/model.bpk")).unwrap(),
+            "selected again"
+        );
+        // Another configuration of the same name: refused, the copy kept.
+        write(
+            &run.join("config.json"),
+            r#"{"train_tasks": 1000, "seed": 1}"#,
+        );
+        let err = keep_selected_weights(&records, "big", &run)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("another configuration"), "{err}");
+        assert_eq!(
+            fs::read_to_string(kept.to.join("best/model.bpk")).unwrap(),
+            "selected again"
+        );
+    }
+
+    #[test]
+    fn a_smaller_run_or_one_without_selected_weights_keeps_nothing() {
+        let tmp = tempfile::tempdir().unwrap();
+        let (runs, records) = (tmp.path().join("runs"), tmp.path().join("figures/records"));
+        let small = run_folder(&runs, "small", r#"{"train_tasks": 500}"#);
+        write(&small.join("best/model.bpk"), "selected");
+        assert_eq!(
+            keep_selected_weights(&records, "small", &small).unwrap(),
+            None
+        );
+        let unselected = run_folder(&runs, "none", r#"{"train_tasks": 1000}"#);
+        assert_eq!(
+            keep_selected_weights(&records, "none", &unselected).unwrap(),
+            None
+        );
+        assert!(!records.parent().unwrap().join("weights").exists());
     }
 }

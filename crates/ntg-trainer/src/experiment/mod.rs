@@ -250,6 +250,20 @@ impl<'a> Plan<'a> {
         } else {
             record.write(&path)?;
         }
+        // A 1000-task run's selected weights beside the records; not
+        // keeping them (another configuration's there) leaves the record
+        // as written, and says so.
+        match crate::carry::keep_selected_weights(records, &record.run, dir) {
+            Ok(Some(kept)) => eprintln!(
+                "  [{}] selected weights kept in {} ({} files, {:.1} MB)",
+                record.run,
+                kept.to.display(),
+                kept.files,
+                kept.bytes as f64 / 1e6
+            ),
+            Ok(None) => {}
+            Err(e) => eprintln!("  [{}] selected weights not kept: {e:#}", record.run),
+        }
         discard_carried(&record.run, record.config())
     }
 }
@@ -1152,26 +1166,49 @@ mod tests {
                 _ => checked += 1,
             }
         }
-        let carried = figures.join("in-progress");
-        if carried.is_dir() {
-            for entry in std::fs::read_dir(&carried).unwrap() {
-                let dir = entry.unwrap().path();
-                if !dir.is_dir() {
-                    continue; // its README
-                }
-                let name = dir.file_name().unwrap().to_string_lossy().into_owned();
-                let config: Value =
-                    crate::run_dir::RunDir::read_json(&dir.join("config.json")).unwrap();
-                match planned.get(&name) {
-                    None => problems.push(format!(
-                        "in-progress/{name}: no paper-profile run has this name"
-                    )),
-                    Some(now) if *now != config => problems.push(format!(
-                        "in-progress/{name}: another configuration: {}",
-                        differing_fields(&config, now).join("; ")
-                    )),
-                    _ => checked += 1,
-                }
+        // The run folders under `folder` (beside its README), each with its
+        // name and configuration.
+        let run_copies = |folder: &str| -> Vec<(String, Value)> {
+            let folder = figures.join(folder);
+            if !folder.is_dir() {
+                return Vec::new();
+            }
+            std::fs::read_dir(&folder)
+                .unwrap()
+                .map(|entry| entry.unwrap().path())
+                .filter(|dir| dir.is_dir())
+                .map(|dir| {
+                    let name = dir.file_name().unwrap().to_string_lossy().into_owned();
+                    let config = crate::run_dir::RunDir::read_json(&dir.join("config.json"));
+                    (name, config.unwrap())
+                })
+                .collect()
+        };
+        for (name, config) in run_copies("in-progress") {
+            match planned.get(&name) {
+                None => problems.push(format!(
+                    "in-progress/{name}: no paper-profile run has this name"
+                )),
+                Some(now) if *now != config => problems.push(format!(
+                    "in-progress/{name}: another configuration: {}",
+                    differing_fields(&config, now).join("; ")
+                )),
+                _ => checked += 1,
+            }
+        }
+        // Kept selected weights belong to a recorded run of the same
+        // configuration.
+        for (name, config) in run_copies("weights") {
+            let record = crate::record::path(&records, &name);
+            if !record.is_file() {
+                problems.push(format!("weights/{name}: no record of this run"));
+                continue;
+            }
+            let recorded = crate::record::RunRecord::read(&record).unwrap();
+            if recorded.config() != Some(&config) {
+                problems.push(format!(
+                    "weights/{name}: another configuration than its record's"
+                ));
             }
         }
         assert!(problems.is_empty(), "{}", problems.join("\n"));
