@@ -6,6 +6,7 @@ use std::sync::OnceLock;
 
 use anyhow::{Context, anyhow};
 use plotters::coord::Shift;
+use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 use serde::{Deserialize, Serialize};
@@ -61,6 +62,124 @@ pub struct Series {
     pub name: String,
     /// Points, in x order.
     pub points: Vec<Point>,
+    /// How it is drawn; absent: a colour of its own by its name's place
+    /// among the figure's series, round markers, a solid line.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub look: Option<Look>,
+}
+
+/// A point marker.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Marker {
+    /// A filled circle.
+    Circle,
+    /// A filled triangle.
+    Triangle,
+    /// A filled square.
+    Square,
+    /// A filled diamond.
+    Diamond,
+    /// A cross.
+    Cross,
+}
+
+/// A line's dash pattern.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Dash {
+    /// Unbroken.
+    Solid,
+    /// Dashes of 8 pixels.
+    Dashed,
+    /// Dots.
+    Dotted,
+    /// Dashes of 16 pixels.
+    LongDashed,
+}
+
+impl Dash {
+    /// The dash patterns in the order variants of a method get them.
+    pub const ALL: [Dash; 4] = [Dash::Solid, Dash::Dashed, Dash::Dotted, Dash::LongDashed];
+}
+
+/// How a series is drawn: a method's colour and marker ([`method_look`]),
+/// and the dash that tells its variants (recipe, input) apart.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct Look {
+    /// Index into the palette.
+    pub colour: usize,
+    /// Point marker.
+    pub marker: Marker,
+    /// Line pattern.
+    pub dash: Dash,
+}
+
+/// The methods of this project's figures, each with its colour and marker
+/// in every figure (index: colour).
+const METHOD_LOOKS: [(&str, Marker); 5] = [
+    ("NTG (ours)", Marker::Circle),
+    ("NTP", Marker::Triangle),
+    ("NTP Flat", Marker::Square),
+    ("NTP (Detector)", Marker::Diamond),
+    ("Flat Policy", Marker::Cross),
+];
+
+/// The look of method `method` (its legend name, e.g. `NTP Flat`) drawn
+/// with `dash`: the same colour and marker in every figure. A method not
+/// in the table gets a colour after theirs.
+pub fn method_look(method: &str, dash: Dash) -> Look {
+    match METHOD_LOOKS.iter().position(|(name, _)| *name == method) {
+        Some(i) => Look {
+            colour: i,
+            marker: METHOD_LOOKS[i].1,
+            dash,
+        },
+        None => Look {
+            colour: METHOD_LOOKS.len() + method.len() % (PALETTE.len() - METHOD_LOOKS.len()),
+            marker: Marker::Circle,
+            dash,
+        },
+    }
+}
+
+/// Each series' look in `panel`: its own, or the default one
+/// ([`Series::look`]) with its colour by its name's place in `names`.
+fn panel_looks(panel: &Panel, names: &[&str]) -> Vec<Look> {
+    panel
+        .series
+        .iter()
+        .map(|series| {
+            series.look.unwrap_or_else(|| Look {
+                colour: names
+                    .iter()
+                    .position(|n| *n == series.name)
+                    .unwrap_or_default(),
+                marker: Marker::Circle,
+                dash: Dash::Solid,
+            })
+        })
+        .collect()
+}
+
+/// The first pair of series of one panel drawn alike (the same colour,
+/// marker and dash), as `(panel title, one name, the other)`; `None` when
+/// every panel's series can be told apart.
+pub fn same_looks(panels: &[Panel]) -> Option<(String, String, String)> {
+    let names = series_names(panels);
+    for panel in panels {
+        let looks = panel_looks(panel, &names);
+        for (i, a) in looks.iter().enumerate() {
+            if let Some(j) = looks[i + 1..].iter().position(|b| b == a) {
+                return Some((
+                    panel.title.clone(),
+                    panel.series[i].name.clone(),
+                    panel.series[i + 1 + j].name.clone(),
+                ));
+            }
+        }
+    }
+    None
 }
 
 /// One chart: lines with error bars over a (possibly logarithmic) x axis.
@@ -160,57 +279,154 @@ fn series_names(panels: &[Panel]) -> Vec<&str> {
     names
 }
 
-/// The legend's entries, `(colour index, name)`: the series names with
-/// points in some panel (a profile completed run by run lists none it has
-/// not drawn), each with its index in [`series_names`].
-fn legend_entries(panels: &[Panel]) -> Vec<(usize, &str)> {
-    series_names(panels)
-        .into_iter()
-        .enumerate()
-        .filter(|&(_, name)| {
-            panels
-                .iter()
-                .flat_map(|p| &p.series)
-                .any(|s| s.name == name && !s.points.is_empty())
+/// Pixels per legend row.
+const LEGEND_ROW: u32 = 18;
+
+/// Size in pixels of one panel's chart (its legend goes to its right).
+const CHART_WIDTH: u32 = 460;
+const PANEL_HEIGHT: u32 = 360;
+
+/// Panels per row of a figure; more go on further rows.
+const PANELS_PER_ROW: usize = 2;
+
+/// Width in pixels of the legend beside each panel: room for the longest
+/// series name of the figure (about 7 pixels per character at the
+/// legend's 12-point font, after a 40-pixel line sample).
+fn legend_width(panels: &[Panel]) -> u32 {
+    let longest = panels
+        .iter()
+        .flat_map(|p| &p.series)
+        .filter(|s| !s.points.is_empty())
+        .map(|s| s.name.chars().count())
+        .max();
+    match longest {
+        Some(chars) => (chars as u32 * 7 + 56).clamp(120, 440),
+        None => 0,
+    }
+}
+
+/// The figure's size in pixels: panels in rows of [`PANELS_PER_ROW`], each
+/// with its legend at its right; a panel's legend longer than the panel
+/// makes its row taller.
+fn figure_size(panels: &[Panel]) -> (u32, u32) {
+    let columns = panels.len().clamp(1, PANELS_PER_ROW) as u32;
+    let width = columns * (CHART_WIDTH + legend_width(panels));
+    (
+        width,
+        row_heights(panels).iter().sum::<u32>().max(PANEL_HEIGHT),
+    )
+}
+
+/// Each row's height: the panel's, or its longest legend's.
+fn row_heights(panels: &[Panel]) -> Vec<u32> {
+    panels
+        .chunks(PANELS_PER_ROW)
+        .map(|row| {
+            let rows = row.iter().map(|p| drawn(p).count()).max().unwrap_or(0) as u32;
+            PANEL_HEIGHT.max(40 + rows * LEGEND_ROW + 8)
         })
         .collect()
 }
 
-/// Height in pixels of the legend strip under the panels: one row of
-/// [`LEGEND_ROW`] pixels per `columns` names.
-fn legend_height(names: usize, columns: usize) -> u32 {
-    (names.div_ceil(columns.max(1)) as u32) * LEGEND_ROW + 8
+/// The series of `panel` that have points, with their index in it.
+fn drawn(panel: &Panel) -> impl Iterator<Item = (usize, &Series)> {
+    panel
+        .series
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| !s.points.is_empty())
 }
 
-/// Pixels per legend row.
-const LEGEND_ROW: u32 = 18;
+/// The outline of `marker`, in pixels around its point (about 8 across;
+/// a circle as an octagon, a cross as its outline), so that every marker
+/// is one polygon element.
+fn marker_outline(marker: Marker) -> Vec<(i32, i32)> {
+    match marker {
+        Marker::Circle => vec![
+            (-2, -4),
+            (2, -4),
+            (4, -2),
+            (4, 2),
+            (2, 4),
+            (-2, 4),
+            (-4, 2),
+            (-4, -2),
+        ],
+        Marker::Triangle => vec![(0, -5), (5, 4), (-5, 4)],
+        Marker::Square => vec![(-4, -4), (4, -4), (4, 4), (-4, 4)],
+        Marker::Diamond => vec![(0, -5), (5, 0), (0, 5), (-5, 0)],
+        Marker::Cross => vec![
+            (-4, -5),
+            (0, -1),
+            (4, -5),
+            (5, -4),
+            (1, 0),
+            (5, 4),
+            (4, 5),
+            (0, 1),
+            (-4, 5),
+            (-5, 4),
+            (-1, 0),
+            (-5, -4),
+        ],
+    }
+}
 
+/// A marker of `look`'s shape and colour at `at` (a macro: plotters does
+/// not name the type of a composed element).
+macro_rules! marker {
+    ($at:expr, $look:expr) => {
+        EmptyElement::at($at)
+            + Polygon::new(
+                marker_outline($look.marker),
+                PALETTE[$look.colour % PALETTE.len()].filled(),
+            )
+    };
+}
+
+/// The dash and gap lengths in pixels of a dashed `dash`; `None` for a
+/// solid line.
+fn dash_pattern(dash: Dash) -> Option<(i32, i32)> {
+    match dash {
+        Dash::Solid => None,
+        Dash::Dashed => Some((8, 5)),
+        Dash::Dotted => Some((2, 4)),
+        Dash::LongDashed => Some((18, 5)),
+    }
+}
+
+/// `panel`'s legend, one row per series with points: a sample of its line
+/// and marker, then its name.
 fn draw_legend<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
-    entries: &[(usize, &str)],
-    columns: usize,
+    panel: &Panel,
+    looks: &[Look],
 ) -> anyhow::Result<()>
 where
     DB::ErrorType: 'static,
 {
-    let (width, _) = area.dim_in_pixel();
-    let column_width = (width / columns.max(1) as u32) as i32;
-    let style = TextStyle::from(("sans-serif", 13).into_font()).color(&BLACK);
-    for (i, &(colour, name)) in entries.iter().enumerate() {
-        let colour = PALETTE[colour % PALETTE.len()];
+    let style = TextStyle::from(("sans-serif", 12).into_font()).color(&BLACK);
+    for (row, (i, series)) in drawn(panel).enumerate() {
         let (x, y) = (
-            12 + (i % columns) as i32 * column_width,
-            4 + (i / columns) as i32 * LEGEND_ROW as i32 + LEGEND_ROW as i32 / 2,
+            6,
+            40 + row as i32 * LEGEND_ROW as i32 + LEGEND_ROW as i32 / 2,
         );
-        area.draw(&PathElement::new(
-            vec![(x, y), (x + 18, y)],
-            colour.stroke_width(2),
-        ))
+        let look = looks[i];
+        let stroke = PALETTE[look.colour % PALETTE.len()].stroke_width(2);
+        let sample = vec![(x, y), (x + 40, y)];
+        match dash_pattern(look.dash) {
+            None => area.draw(&PathElement::new(sample, stroke)),
+            Some((dash, gap)) => area.draw(&DashedPathElement::new(sample, dash, gap, stroke)),
+        }
+        .and_then(|_| area.draw(&marker!((x + 20, y), look)))
+        .and_then(|_| {
+            area.draw(&Text::new(
+                series.name.clone(),
+                (x + 48, y - 7),
+                style.clone(),
+            ))
+        })
         .map_err(|e| anyhow!("drawing the legend: {e}"))?;
-        area.draw(&Circle::new((x + 9, y), 3, colour.filled()))
-            .map_err(|e| anyhow!("drawing the legend: {e}"))?;
-        area.draw(&Text::new(name.to_string(), (x + 26, y - 7), style.clone()))
-            .map_err(|e| anyhow!("drawing the legend: {e}"))?;
     }
     Ok(())
 }
@@ -218,7 +434,7 @@ where
 fn draw_panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     panel: &Panel,
-    names: &[&str],
+    looks: &[Look],
 ) -> anyhow::Result<()>
 where
     DB::ErrorType: 'static,
@@ -228,7 +444,7 @@ where
     let (y0, y1) = panel.y_range;
     let mut builder = ChartBuilder::on(area);
     builder
-        .caption(&panel.title, ("sans-serif", 18))
+        .caption(&panel.title, ("sans-serif", 17))
         .margin(12)
         .x_label_area_size(36)
         .y_label_area_size(48);
@@ -245,33 +461,64 @@ where
                 .light_line_style(WHITE)
                 .draw()
                 .map_err(|e| anyhow!("drawing the axes: {e}"))?;
-            for series in &panel.series {
-                let i = names
-                    .iter()
-                    .position(|n| *n == series.name)
-                    .unwrap_or_default();
-                let colour = PALETTE[i % PALETTE.len()];
-                let style = ShapeStyle::from(&colour).stroke_width(2);
+            for (i, series) in drawn(panel) {
+                let look = looks[i];
+                let colour = PALETTE[look.colour % PALETTE.len()];
                 // Left to right, whatever order the points came in (a
                 // curve can gather points of several panels of a file).
-                let mut line: Vec<(f64, f64)> = series.points.iter().map(|p| (p.x, p.y)).collect();
-                line.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let mut points = series.points.clone();
+                points.sort_by(|a, b| a.x.total_cmp(&b.x));
+                let ys = |p: &Point| (p.x, p.y);
+                let fail = |e| anyhow!("drawing {}: {e}", series.name);
+                // The interval: a band along the line, or a bar where a
+                // single point has no neighbour to span to.
+                if points.len() > 1 && points.iter().any(|p| p.hi > p.lo) {
+                    let band: Vec<(f64, f64)> = points
+                        .iter()
+                        .map(|p| (p.x, p.hi))
+                        .chain(points.iter().rev().map(|p| (p.x, p.lo)))
+                        .collect();
+                    chart
+                        .draw_series(std::iter::once(Polygon::new(
+                            band,
+                            colour.mix(0.15).filled(),
+                        )))
+                        .map_err(fail)?;
+                } else if points.len() == 1 {
+                    chart
+                        .draw_series(points.iter().filter(|p| p.hi > p.lo).map(|p| {
+                            ErrorBar::new_vertical(p.x, p.lo, p.y, p.hi, colour.stroke_width(1), 6)
+                        }))
+                        .map_err(fail)?;
+                }
+                // A lone point gets a short stretch of its line through it,
+                // so that its dash still tells it from its method's other
+                // variants.
+                let stroke = colour.stroke_width(2);
+                if let [lone] = points.as_slice() {
+                    let stretch = vec![(-16, 0), (16, 0)];
+                    let at = EmptyElement::at(ys(lone));
+                    match dash_pattern(look.dash) {
+                        None => chart
+                            .draw_series(std::iter::once(at + PathElement::new(stretch, stroke))),
+                        Some((dash, gap)) => chart.draw_series(std::iter::once(
+                            at + DashedPathElement::new(stretch, dash, gap, stroke),
+                        )),
+                    }
+                    .map_err(fail)?;
+                } else {
+                    let path: Vec<(f64, f64)> = points.iter().map(ys).collect();
+                    match dash_pattern(look.dash) {
+                        None => chart.draw_series(std::iter::once(PathElement::new(path, stroke))),
+                        Some((dash, gap)) => chart.draw_series(std::iter::once(
+                            DashedPathElement::new(path, dash, gap, stroke),
+                        )),
+                    }
+                    .map_err(fail)?;
+                }
                 chart
-                    .draw_series(LineSeries::new(line, style))
-                    .map_err(|e| anyhow!("drawing {}: {e}", series.name))?;
-                chart
-                    .draw_series(series.points.iter().map(|p| {
-                        ErrorBar::new_vertical(p.x, p.lo, p.y, p.hi, colour.stroke_width(1), 6)
-                    }))
-                    .map_err(|e| anyhow!("drawing {}: {e}", series.name))?;
-                chart
-                    .draw_series(
-                        series
-                            .points
-                            .iter()
-                            .map(|p| Circle::new((p.x, p.y), 3, colour.filled())),
-                    )
-                    .map_err(|e| anyhow!("drawing {}: {e}", series.name))?;
+                    .draw_series(points.iter().map(|p| marker!(ys(p), look)))
+                    .map_err(fail)?;
             }
         }};
     }
@@ -308,36 +555,43 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
-    // The legend under the panels, not over their lines: one entry per
-    // series name, the same colour in every panel.
     let names = series_names(panels);
-    let columns = legend_columns(panels);
-    let (charts, legend) = root.split_vertically(PANEL_HEIGHT);
-    let areas = charts.split_evenly((1, panels.len().max(1)));
-    for (area, panel) in areas.iter().zip(panels) {
-        draw_panel(area, panel, &names)?;
+    let legend = legend_width(panels);
+    let mut top = 0;
+    for (row, height) in panels.chunks(PANELS_PER_ROW).zip(row_heights(panels)) {
+        for (column, panel) in row.iter().enumerate() {
+            let left = column as u32 * (CHART_WIDTH + legend);
+            let area = root
+                .clone()
+                .shrink((left, top), (CHART_WIDTH + legend, height));
+            let (chart, beside) = area.split_horizontally(CHART_WIDTH);
+            let looks = panel_looks(panel, &names);
+            draw_panel(
+                &chart.shrink((0, 0), (CHART_WIDTH, PANEL_HEIGHT)),
+                panel,
+                &looks,
+            )?;
+            draw_legend(&beside, panel, &looks)?;
+        }
+        top += height;
     }
-    draw_legend(&legend, &legend_entries(panels), columns)?;
     root.present().map_err(|e| anyhow!("{e}"))?;
     Ok(())
 }
 
-/// Height in pixels of the panels (the legend strip goes below).
-const PANEL_HEIGHT: u32 = 360;
-
-/// Legend columns: one per panel's width (460 pixels fits the longest
-/// names).
-fn legend_columns(panels: &[Panel]) -> usize {
-    panels.len().max(1)
-}
-
-/// Writes `panels` side by side as `<stem>.svg` and `<stem>.png`.
+/// Writes `panels` as `<stem>.svg` and `<stem>.png`, in rows of
+/// two, each with its legend at its right. Series of one
+/// panel drawn alike ([`same_looks`]) are an error: the reader could not
+/// tell them apart.
 pub fn write_figure(panels: &[Panel], stem: &Path) -> anyhow::Result<()> {
+    if let Some((panel, a, b)) = same_looks(panels) {
+        anyhow::bail!(
+            "{}: \"{a}\" and \"{b}\" of panel \"{panel}\" would be drawn alike (colour, marker and dash)",
+            stem.display()
+        );
+    }
     register_font()?;
-    let size = (
-        460 * panels.len().max(1) as u32,
-        PANEL_HEIGHT + legend_height(legend_entries(panels).len(), legend_columns(panels)),
-    );
+    let size = figure_size(panels);
     let svg = stem.with_extension("svg");
     let png = stem.with_extension("png");
     if let Some(dir) = stem.parent() {
@@ -374,6 +628,17 @@ pub struct BarChart {
     pub bars: Vec<Bar>,
 }
 
+/// The label of tick `x` on a category axis (categories at 0, 1, ...):
+/// the category's at a whole number, none between.
+fn category_label(labels: &[String], x: f64) -> String {
+    let i = x.round();
+    if (x - i).abs() < 1e-6 && i >= 0.0 {
+        labels.get(i as usize).cloned().unwrap_or_default()
+    } else {
+        String::new()
+    }
+}
+
 fn draw_bars<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     chart: &BarChart,
@@ -401,14 +666,7 @@ where
     c.configure_mesh()
         .disable_x_mesh()
         .x_labels(n)
-        .x_label_formatter(&|x| {
-            let i = x.round();
-            if (x - i).abs() < 1e-6 && i >= 0.0 {
-                labels.get(i as usize).cloned().unwrap_or_default()
-            } else {
-                String::new()
-            }
-        })
+        .x_label_formatter(&|x| category_label(&labels[..], *x))
         .y_desc(chart.y_label.as_str())
         .label_style(("sans-serif", 13))
         .light_line_style(WHITE)
@@ -474,6 +732,135 @@ fn write_png(
         .with_context(|| format!("writing {}", path.display()))
 }
 
+/// Bars of several series over shared categories (e.g. success and goals
+/// met per model variant), drawn side by side within each category.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GroupedBars {
+    /// Title above the chart.
+    pub title: String,
+    /// y-axis label.
+    pub y_label: String,
+    /// Category labels, left to right.
+    pub categories: Vec<String>,
+    /// Each series' name and its bar per category (`bars[i]` for
+    /// `categories[i]`; a bar whose `lo` equals its `hi` has no error bar).
+    pub series: Vec<(String, Vec<Bar>)>,
+}
+
+/// Width in pixels of one grouped-bar chart (its legend to its right).
+const GROUPED_WIDTH: u32 = 520;
+
+fn draw_grouped<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    chart: &GroupedBars,
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let (plot, beside) = area.split_horizontally(GROUPED_WIDTH);
+    let n = chart.categories.len().max(1);
+    let mut c = ChartBuilder::on(&plot)
+        .caption(&chart.title, ("sans-serif", 17))
+        .margin(12)
+        .x_label_area_size(56)
+        .y_label_area_size(48)
+        .build_cartesian_2d(-0.5f64..n as f64 - 0.5, 0.0..1.05)
+        .map_err(|e| anyhow!("building the chart: {e}"))?;
+    let labels = &chart.categories;
+    c.configure_mesh()
+        .disable_x_mesh()
+        .x_labels(n)
+        .x_label_formatter(&|x| category_label(&labels[..], *x))
+        .y_desc(chart.y_label.as_str())
+        .label_style(("sans-serif", 12))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(|e| anyhow!("drawing the axes: {e}"))?;
+    let k = chart.series.len().max(1) as f64;
+    let width = 0.8 / k;
+    for (j, (name, bars)) in chart.series.iter().enumerate() {
+        let colour = PALETTE[j % PALETTE.len()];
+        let fail = |e| anyhow!("drawing {name}: {e}");
+        for (i, bar) in bars.iter().enumerate() {
+            let left = i as f64 - 0.4 + j as f64 * width;
+            let mid = left + width / 2.0;
+            c.draw_series(std::iter::once(Rectangle::new(
+                [(left + 0.02, 0.0), (left + width - 0.02, bar.value)],
+                colour.mix(0.85).filled(),
+            )))
+            .map_err(fail)?;
+            if bar.hi > bar.lo {
+                c.draw_series(std::iter::once(ErrorBar::new_vertical(
+                    mid,
+                    bar.lo,
+                    bar.value,
+                    bar.hi,
+                    BLACK.stroke_width(1),
+                    6,
+                )))
+                .map_err(fail)?;
+            }
+            c.draw_series(std::iter::once(Text::new(
+                format!("{:.2}", bar.value),
+                (mid - width * 0.3, bar.hi.max(bar.value) + 0.045),
+                ("sans-serif", 10),
+            )))
+            .map_err(fail)?;
+        }
+    }
+    let style = TextStyle::from(("sans-serif", 12).into_font()).color(&BLACK);
+    for (j, (name, _)) in chart.series.iter().enumerate() {
+        let y = 40 + j as i32 * LEGEND_ROW as i32;
+        beside
+            .draw(&Rectangle::new(
+                [(6, y), (26, y + 12)],
+                PALETTE[j % PALETTE.len()].mix(0.85).filled(),
+            ))
+            .and_then(|_| beside.draw(&Text::new(name.clone(), (32, y), style.clone())))
+            .map_err(|e| anyhow!("drawing the legend: {e}"))?;
+    }
+    Ok(())
+}
+
+/// Writes grouped-bar `charts` side by side, each with its legend at its
+/// right, as `<stem>.svg` and `<stem>.png`.
+pub fn write_grouped_bars(charts: &[GroupedBars], stem: &Path) -> anyhow::Result<()> {
+    register_font()?;
+    let longest = charts
+        .iter()
+        .flat_map(|c| c.series.iter().map(|(name, _)| name.chars().count()))
+        .max()
+        .unwrap_or(0) as u32;
+    let legend = (longest * 7 + 44).clamp(100, 300);
+    let size = (
+        (GROUPED_WIDTH + legend) * charts.len().max(1) as u32,
+        PANEL_HEIGHT,
+    );
+    let svg = stem.with_extension("svg");
+    let png = stem.with_extension("png");
+    if let Some(dir) = stem.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    draw_grouped_all(SVGBackend::new(&svg, size).into_drawing_area(), charts)
+        .with_context(|| format!("writing {}", svg.display()))?;
+    write_png(&png, size, |area| draw_grouped_all(area, charts))
+}
+
+fn draw_grouped_all<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    charts: &[GroupedBars],
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+    let areas = root.split_evenly((1, charts.len().max(1)));
+    for (area, chart) in areas.iter().zip(charts) {
+        draw_grouped(area, chart)?;
+    }
+    root.present().map_err(|e| anyhow!("{e}"))
+}
+
 // --- end of bar charts ---
 
 #[cfg(test)]
@@ -503,6 +890,7 @@ mod tests {
             series: vec![Series {
                 name: "a".into(),
                 points: points(0.5),
+                look: None,
             }],
         };
         // plotters' ticks over the panel's x range, with the label count
@@ -550,6 +938,7 @@ mod tests {
                         hi: 0.25 * i as f64,
                     })
                     .collect(),
+                look: None,
             }],
         };
         let stem = dir.path().join("fig");
@@ -557,18 +946,20 @@ mod tests {
         let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
         assert!(svg.contains("NTG") && svg.contains("training tasks"));
         let png = image::open(stem.with_extension("png")).unwrap();
-        // The panels, then one legend row for the one series.
-        assert_eq!((png.width(), png.height()), (920, 360 + 18 + 8));
+        // Two panels in a row, each with its legend (its narrowest) at its
+        // right.
+        assert_eq!((png.width(), png.height()), (2 * (460 + 120), 360));
     }
 
     #[test]
-    fn the_legend_lists_drawn_series_once_with_one_colour_each() {
-        let series = |name: &str, points: usize| Series {
+    fn series_of_one_panel_drawn_alike_are_found_and_refused() {
+        let series = |name: &str, look: Option<Look>| Series {
             name: name.into(),
-            points: (0..points).map(|i| Point::exact(i as f64, 0.5)).collect(),
+            points: (0..3).map(|i| Point::exact(i as f64, 0.5)).collect(),
+            look,
         };
-        let panel = |series: Vec<Series>| Panel {
-            title: String::new(),
+        let panel = |title: &str, series: Vec<Series>| Panel {
+            title: title.into(),
             x_label: String::new(),
             y_label: String::new(),
             x_log: false,
@@ -576,14 +967,52 @@ mod tests {
             y_range: (0.0, 1.0),
             series,
         };
-        let panels = [
-            panel(vec![series("a", 2), series("b", 0)]),
-            panel(vec![series("c", 1), series("a", 1)]),
+        // A method keeps its colour and marker in every figure; dashes
+        // tell its variants apart.
+        let ntp = method_look("NTP", Dash::Solid);
+        assert_eq!(
+            ntp,
+            Look {
+                colour: 1,
+                marker: Marker::Triangle,
+                dash: Dash::Solid
+            }
+        );
+        assert_ne!(method_look("NTP Flat", Dash::Solid), ntp);
+        let recommended = method_look("NTP", Dash::Dashed);
+        let distinct = [
+            panel(
+                "a",
+                vec![
+                    series("NTP", Some(ntp)),
+                    series("NTP, recommended", Some(recommended)),
+                ],
+            ),
+            // The same look in another panel is no clash; default looks
+            // differ by name.
+            panel(
+                "b",
+                vec![
+                    series("NTP", Some(ntp)),
+                    series("x", None),
+                    series("y", None),
+                ],
+            ),
         ];
-        assert_eq!(series_names(&panels), ["a", "b", "c"]);
-        // "b" has no point: not in the legend, and "c" keeps its colour.
-        assert_eq!(legend_entries(&panels), [(0, "a"), (2, "c")]);
-        assert_eq!(legend_height(3, 2), 2 * LEGEND_ROW + 8);
+        assert_eq!(same_looks(&distinct), None);
+        let dir = tempfile::tempdir().unwrap();
+        write_figure(&distinct, &dir.path().join("fine")).unwrap();
+        let clash = [panel(
+            "c",
+            vec![series("NTP", Some(ntp)), series("NTP, GRU core", Some(ntp))],
+        )];
+        assert_eq!(
+            same_looks(&clash),
+            Some(("c".into(), "NTP".into(), "NTP, GRU core".into()))
+        );
+        let err = write_figure(&clash, &dir.path().join("clash")).unwrap_err();
+        assert!(format!("{err}").contains("drawn alike"), "{err}");
+        assert!(!dir.path().join("clash.png").exists());
     }
 
     #[test]

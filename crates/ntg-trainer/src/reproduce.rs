@@ -203,13 +203,7 @@ pub fn reproduce(
         runs_missing,
     };
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    ntp_exp::write_figure(&results.ntp_exp, &out.join("ntp_exp"))?;
-    ablation::write_figure(
-        &results.ablation,
-        &results.ablation_b,
-        &out.join("ablation"),
-    )?;
-    thor_all::write_figure(&results.thor_all, &out.join("thor_all"))?;
+    write_figures(&results, out)?;
     RunDir::write_json(&out.join("results.json"), &results)?;
     std::fs::write(
         out.join("REPORT.md"),
@@ -217,6 +211,18 @@ pub fn reproduce(
     )
     .with_context(|| format!("writing {}", out.join("REPORT.md").display()))?;
     Ok(results)
+}
+
+/// Writes the rollout figures of `results` into `out` (fig. jigsaws is
+/// written with its report).
+fn write_figures(results: &Results, out: &Path) -> anyhow::Result<()> {
+    ntp_exp::write_figure(&results.ntp_exp, &out.join("ntp_exp"))?;
+    ablation::write_figure(
+        &results.ablation,
+        &results.ablation_b,
+        &out.join("ablation"),
+    )?;
+    thor_all::write_figure(&results.thor_all, &out.join("thor_all"))
 }
 
 /// The `not_yet` lines of the runs `missing` (sorted): one per figure, by
@@ -744,6 +750,34 @@ mod tests {
 
     /// A run's stage trained in stretches of its own: its threads are
     /// found in its own `sessions.jsonl`, not only the run's.
+    /// Every figure drawn from a committed results file tells its series
+    /// apart: no two series of one panel share colour, marker and dash
+    /// (writing a figure refuses such a pair).
+    #[test]
+    fn every_committed_figure_draws_each_series_of_a_panel_its_own_way() {
+        let figures = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures");
+        let mut checked = 0;
+        for dir in [figures.clone(), figures.join("quick")] {
+            let file = dir.join("results.json");
+            if !file.is_file() {
+                continue;
+            }
+            let results: Results = RunDir::read_json(&file).unwrap();
+            let out = tempfile::tempdir().unwrap();
+            write_figures(&results, out.path())
+                .unwrap_or_else(|e| panic!("{}: {e:#}", file.display()));
+            checked += 1;
+        }
+        if figures.is_dir() {
+            assert!(checked > 0, "no results.json in {}", figures.display());
+        } else {
+            eprintln!(
+                "skipped: no {} (not a checkout of the repository)",
+                figures.display()
+            );
+        }
+    }
+
     #[test]
     fn compute_threads_names_a_stage_that_ran_on_more_threads_than_its_run() {
         let dir = tempfile::tempdir().unwrap();

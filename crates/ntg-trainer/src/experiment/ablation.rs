@@ -19,7 +19,7 @@ use crate::domain::DomainId;
 use crate::domain::sorting::{self, SortingRunConfig};
 use crate::experiment::ntp_exp::{self, NtpExpExperiment, NtpExpPoint};
 use crate::experiment::template::ABLATION;
-use crate::figure::{Panel, Point, Series};
+use crate::figure::{Bar, GroupedBars, Point};
 use crate::method::ntg::Variant;
 use crate::run_dir::RunDir;
 use crate::spec::Profile;
@@ -30,49 +30,44 @@ pub fn load(source: crate::experiment::Source<'_>) -> anyhow::Result<NtpExpExper
     NtpExpExperiment::load_named("ablation", source)
 }
 
-/// Writes the figure as `stem.svg` and `stem.png`: panel (a), success and
-/// goals met per block-stacking variant, and panel (b), success and
-/// objects sorted per sorting variant (x: the variant's number in the axis
-/// label's order).
+/// Writes the figure as `stem.svg` and `stem.png`, grouped bars: panel
+/// (a), success (with its interval: over seeds, from the lowest seed's end
+/// to the highest's) and goals met per block-stacking variant, and panel
+/// (b), success and objects sorted per sorting variant.
 pub fn write_figure(
     points: &[NtpExpPoint],
     sorting: &[SortingPoint],
     stem: &Path,
 ) -> anyhow::Result<()> {
-    // (variant, success point at x = 0, partial progress)
-    let panel = |title: &str, rows: Vec<(Variant, Point, f64)>, partial: &str| {
-        let x = |i: usize| (i + 1) as f64;
-        let legend: Vec<String> = rows
-            .iter()
-            .enumerate()
-            .map(|(i, r)| format!("{} {}", i + 1, short_name(r.0)))
-            .collect();
-        Panel {
-            title: title.into(),
-            x_label: legend.join(", "),
-            y_label: format!("unseen tasks: success, {partial}"),
-            x_log: false,
-            x_ticks_at_points: true,
-            y_range: (0.0, 1.0),
-            series: vec![
-                Series {
-                    name: "success".into(),
-                    points: rows
-                        .iter()
-                        .enumerate()
-                        .map(|(i, r)| Point { x: x(i), ..r.1 })
-                        .collect(),
-                },
-                Series {
-                    name: partial.into(),
-                    points: rows
-                        .iter()
-                        .enumerate()
-                        .map(|(i, r)| Point::exact(x(i), r.2))
-                        .collect(),
-                },
-            ],
-        }
+    // (variant, success point, partial progress)
+    let panel = |title: &str, rows: Vec<(Variant, Point, f64)>, partial: &str| GroupedBars {
+        title: title.into(),
+        y_label: format!("unseen tasks: success, {partial}"),
+        categories: rows.iter().map(|r| short_name(r.0).to_owned()).collect(),
+        series: vec![
+            (
+                "success (95% interval)".into(),
+                rows.iter()
+                    .map(|r| Bar {
+                        label: short_name(r.0).into(),
+                        value: r.1.y,
+                        lo: r.1.lo,
+                        hi: r.1.hi,
+                    })
+                    .collect(),
+            ),
+            (
+                partial.into(),
+                rows.iter()
+                    .map(|r| Bar {
+                        label: short_name(r.0).into(),
+                        value: r.2,
+                        lo: r.2,
+                        hi: r.2,
+                    })
+                    .collect(),
+            ),
+        ],
     };
     // Panel (a): one point per variant, the mean over its seeds.
     let mut variants: Vec<Variant> = Vec::new();
@@ -118,7 +113,7 @@ pub fn write_figure(
             )
         })
         .collect();
-    crate::figure::write_figure(
+    crate::figure::write_grouped_bars(
         &[
             panel("(a) block stacking: NTG without each part", a, "goals met"),
             panel(

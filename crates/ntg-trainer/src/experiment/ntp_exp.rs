@@ -16,7 +16,7 @@ use crate::blocks::{self, BlocksRunConfig, Recipe, Variant};
 use crate::domain::{DomainId, TranscriptionSplit};
 use crate::experiment::template::NTP_EXP;
 use crate::experiment::{Plan, share_part};
-use crate::figure::{Panel, Point, Series};
+use crate::figure::{Dash, Panel, Point, Series, method_look};
 use crate::method::MethodId;
 use crate::method::ntp::NtpCoreKind;
 use crate::run_dir::RunDir;
@@ -1242,57 +1242,133 @@ pub fn ablation_part(ablation: Variant) -> &'static str {
     }
 }
 
-/// Writes the figure (two panels: success and goals met against training
-/// tasks) as `stem.svg` and `stem.png`.
+/// Writes the figure as `stem.svg` and `stem.png`: success on unseen tasks
+/// against training tasks, one panel per input (state, then video per frame
+/// side), one line per curve: its method's colour and marker, a dash per
+/// variant (recipe, core network, node source) the same in every panel, the
+/// mean over seeds with its interval as a band. The same panels of goals
+/// met (partial progress, which shows what a model learned where whole
+/// tasks rarely succeed) go to `stem-goals.svg` and `.png`.
 pub fn write_figure(points: &[NtpExpPoint], stem: &Path) -> anyhow::Result<()> {
+    let name = stem
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let (success, goals) = figure_panels(points);
+    crate::figure::write_figure(&success, stem)?;
+    crate::figure::write_figure(&goals, &stem.with_file_name(format!("{name}-goals")))
+}
+
+/// The dash of each of a panel's `curves`, which tells apart the curves of
+/// one method: the same in every panel by what the curve adds (NTP's GRU
+/// core long-dashed, NTG's executed node dotted, the recommended recipe
+/// dashed, the paper's solid), unless two curves of one method would get
+/// the same; then the method's curves are dashed in turn.
+fn panel_dashes(curves: &[CurveId]) -> Vec<Dash> {
+    let by_addition: Vec<Dash> = curves
+        .iter()
+        .map(|c| {
+            if c.ntp_core != NtpCoreKind::Reactive {
+                Dash::LongDashed
+            } else if c.executed_node {
+                Dash::Dotted
+            } else if c.recipe == Recipe::Recommended || !c.ablation.is_full() {
+                Dash::Dashed
+            } else {
+                Dash::Solid
+            }
+        })
+        .collect();
+    let clash = curves
+        .iter()
+        .zip(&by_addition)
+        .enumerate()
+        .any(|(i, (a, da))| {
+            curves[..i]
+                .iter()
+                .zip(&by_addition)
+                .any(|(b, db)| a.method == b.method && da == db)
+        });
+    if !clash {
+        return by_addition;
+    }
+    curves
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let nth = curves[..i].iter().filter(|b| b.method == c.method).count();
+            Dash::ALL[nth % Dash::ALL.len()]
+        })
+        .collect()
+}
+
+/// The figure's panels: success, and goals met ([`write_figure`]).
+pub(crate) fn figure_panels(points: &[NtpExpPoint]) -> (Vec<Panel>, Vec<Panel>) {
     let mut curves: Vec<CurveId> = Vec::new();
     for p in points {
         if !curves.contains(&p.curve_id()) {
             curves.push(p.curve_id());
         }
     }
-    let panel = |obs: ObsKind, title: &str| Panel {
-        title: title.into(),
-        x_label: "seen training tasks".into(),
-        y_label: "unseen tasks: success, goals met".into(),
-        x_log: true,
-        x_ticks_at_points: false,
-        y_range: (0.0, 1.0),
-        series: curves
+    // The inputs, state first, then video by frame side (the standard
+    // camera first).
+    let mut inputs: Vec<(ObsKind, Option<u32>)> =
+        curves.iter().map(|c| (c.obs, c.camera)).collect();
+    inputs.sort_by_key(|&(obs, camera)| (obs != ObsKind::State, camera));
+    inputs.dedup();
+    let letters = "abcdefghijklmnopqrstuvwxyz";
+    let panel = |(i, &(obs, camera)): (usize, &(ObsKind, Option<u32>)), goals: bool| {
+        let input = match (obs, camera) {
+            (ObsKind::State, _) => "state input".to_owned(),
+            (ObsKind::Vid, None) => "video input".to_owned(),
+            (ObsKind::Vid, Some(side)) => format!("video input, {side}×{side} frames"),
+        };
+        let of_panel: Vec<CurveId> = curves
             .iter()
-            .filter(|curve| curve.obs == obs)
-            .flat_map(|&curve| {
-                let of = |p: &&NtpExpPoint| p.curve_id() == curve;
-                let name = curve.legend();
-                let groups = by_point(points.iter().filter(of));
-                [
-                    Series {
-                        name: format!("{name}: success"),
-                        points: groups.iter().map(|g| g.success_point()).collect(),
-                    },
-                    // Partial progress, so that reduced profiles, where whole
-                    // tasks rarely succeed, still show what a model learned.
-                    Series {
-                        name: format!("{name}: goals met"),
-                        points: groups
-                            .iter()
-                            .map(|g| {
-                                Point::exact(g.train_tasks as f64, g.mean(|p| p.goal_fraction))
-                            })
-                            .collect(),
-                    },
-                ]
+            .filter(|c| c.obs == obs && c.camera == camera)
+            .copied()
+            .collect();
+        let dashes = panel_dashes(&of_panel);
+        let series = of_panel
+            .iter()
+            .zip(dashes)
+            .map(|(&curve, dash)| {
+                let look = method_look(curve.method.legend(), dash);
+                let groups = by_point(points.iter().filter(|p| p.curve_id() == curve));
+                let points = groups
+                    .iter()
+                    .map(|g| {
+                        if goals {
+                            Point::exact(g.train_tasks as f64, g.mean(|p| p.goal_fraction))
+                        } else {
+                            g.success_point()
+                        }
+                    })
+                    .collect();
+                Series {
+                    name: curve.method_name(),
+                    points,
+                    look: Some(look),
+                }
             })
             .filter(|series| !series.points.is_empty())
-            .collect(),
+            .collect();
+        Panel {
+            title: format!("({}) {input}", &letters[i % 26..i % 26 + 1]),
+            x_label: "seen training tasks".into(),
+            y_label: if goals {
+                "unseen tasks: goals met".into()
+            } else {
+                "unseen tasks: success rate".into()
+            },
+            x_log: true,
+            x_ticks_at_points: false,
+            y_range: (0.0, 1.0),
+            series,
+        }
     };
-    crate::figure::write_figure(
-        &[
-            panel(ObsKind::State, "(a) state input"),
-            panel(ObsKind::Vid, "(b) video input"),
-        ],
-        stem,
-    )
+    let panels = |goals: bool| inputs.iter().enumerate().map(|i| panel(i, goals)).collect();
+    (panels(false), panels(true))
 }
 
 /// The seeds of one point of one curve.

@@ -12,7 +12,7 @@ use crate::collect::{CollectRunConfig, EVAL_OBJECTS, NPoint, evaluate, train_run
 use crate::domain::DomainId;
 use crate::experiment::Profiles;
 use crate::experiment::template::THOR_ALL;
-use crate::figure::{Panel, Point, Series, write_figure as draw};
+use crate::figure::{Dash, Panel, Point, Series, method_look, write_figure as draw};
 use crate::method::MethodId;
 use crate::run_dir::RunDir;
 use crate::spec::{ObsKind, Profile};
@@ -422,9 +422,65 @@ fn share_videos(
     Ok(())
 }
 
-/// Writes the figure (one panel, success vs N for both methods) as
-/// `stem.svg` and `stem.png`.
+/// Writes the figure (one panel, success vs N) as `stem.svg` and
+/// `stem.png`: one line per method (and memory setting: the variant
+/// without is dashed), the mean over its seeds, with a band from the
+/// lowest seed's interval end to the highest's (one seed: its interval).
 pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
+    let mut kinds: Vec<(MethodId, bool)> = Vec::new();
+    for l in &result.lines {
+        if !kinds.contains(&(l.method, l.memory)) {
+            kinds.push((l.method, l.memory));
+        }
+    }
+    let series = kinds
+        .into_iter()
+        .map(|(method, memory)| {
+            let seeds: Vec<&ThorAllLine> = result
+                .lines
+                .iter()
+                .filter(|l| l.method == method && l.memory == memory)
+                .collect();
+            let mut objects: Vec<usize> = seeds
+                .iter()
+                .flat_map(|l| l.points.iter().map(|p| p.objects))
+                .collect();
+            objects.sort_unstable();
+            objects.dedup();
+            let points = objects
+                .into_iter()
+                .map(|n| {
+                    let rates: Vec<&crate::stats::SuccessRate> = seeds
+                        .iter()
+                        .filter_map(|l| l.points.iter().find(|p| p.objects == n))
+                        .map(|p| &p.success)
+                        .collect();
+                    match rates.as_slice() {
+                        [one] => Point::success(n as f64, one),
+                        many => Point {
+                            x: n as f64,
+                            y: many.iter().map(|r| r.rate).sum::<f64>() / many.len() as f64,
+                            lo: many.iter().map(|r| r.ci_low).fold(1.0, f64::min),
+                            hi: many.iter().map(|r| r.ci_high).fold(0.0, f64::max),
+                        },
+                    }
+                })
+                .collect();
+            let mut name = method.legend().to_owned();
+            if seeds.len() > 1 {
+                name.push_str(&format!(", mean of {} seeds", seeds.len()));
+            }
+            if !memory {
+                name.push_str(", no memory");
+            }
+            let dash = if memory { Dash::Solid } else { Dash::Dashed };
+            Series {
+                name,
+                points,
+                look: Some(method_look(method.legend(), dash)),
+            }
+        })
+        .collect();
     let panel = Panel {
         title: format!(
             "(b) object collection, {} input",
@@ -435,18 +491,7 @@ pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
         x_log: false,
         x_ticks_at_points: true,
         y_range: (0.0, 1.0),
-        series: result
-            .lines
-            .iter()
-            .map(|l| Series {
-                name: line_name(l),
-                points: l
-                    .points
-                    .iter()
-                    .map(|p| Point::success(p.objects as f64, &p.success))
-                    .collect(),
-            })
-            .collect(),
+        series,
     };
     draw(&[panel], stem)
 }
