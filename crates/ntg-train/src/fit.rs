@@ -335,14 +335,25 @@ impl<M, F: FnMut(&M) -> anyhow::Result<ValidationScore>> Validator<M> for F {
     }
 }
 
-/// Model selection of a [`fit`]: a validator, and how often it runs.
+/// Model selection of a [`fit`]: a validator, how often it runs, and what
+/// its numbers are.
 pub struct Selection<'a, M> {
     /// Scores the model.
     pub validator: &'a mut dyn Validator<M>,
     /// Validate after every this many epochs (and after the last); 0 and 1
     /// mean every epoch.
     pub every: usize,
+    /// The names of the score's two numbers in the training log.
+    pub scores: ScoreNames,
 }
+
+/// The names of a [`ValidationScore`]'s [`success`](ValidationScore::success)
+/// and [`goal_fraction`](ValidationScore::goal_fraction) in the training
+/// log: what the validator measures with them.
+pub type ScoreNames = [&'static str; 2];
+
+/// Rollouts on validation tasks: the fraction completed, the goals met.
+pub const ROLLOUT_SCORES: ScoreNames = ["success", "goals met"];
 
 /// The epoch `run`'s `best/` folder holds, if validation selected one.
 pub fn selected_epoch(run: &RunDir) -> anyhow::Result<Option<ValidationRecord>> {
@@ -490,8 +501,9 @@ where
         if let Some(sel) = selection.as_mut().filter(|s| validate_now(s.every)) {
             let score = sel.validator.validate(&model)?;
             // Labelled: `ntg reproduce --jobs` interleaves runs' lines.
+            let [first, second] = sel.scores;
             eprintln!(
-                "  [{}] epoch {epoch:>3} validation: success {:.3}, goals met {:.3}",
+                "  [{}] epoch {epoch:>3} validation: {first} {:.3}, {second} {:.3}",
                 run.root().file_name().unwrap_or_default().to_string_lossy(),
                 score.success,
                 score.goal_fraction
@@ -853,6 +865,7 @@ mod tests {
                 selecting.then_some(Selection {
                     validator,
                     every: 1,
+                    scores: ROLLOUT_SCORES,
                 })
             }
             let two = OptimConfig {
@@ -939,6 +952,7 @@ mod tests {
                 Some(Selection {
                     validator: &mut validator,
                     every: 1,
+                    scores: ROLLOUT_SCORES,
                 }),
                 |_| {},
             )
@@ -990,6 +1004,7 @@ mod tests {
             Some(Selection {
                 validator: &mut validator,
                 every: 1,
+                scores: ROLLOUT_SCORES,
             }),
             |_| {},
         )

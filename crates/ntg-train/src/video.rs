@@ -791,6 +791,8 @@ pub fn train_encoder(
     let selection = held_out_step.is_some().then_some(Selection {
         validator: &mut validator as &mut dyn crate::fit::Validator<FrameStageNet>,
         every: 1,
+        // Frames of validation videos, not rollouts.
+        scores: ["localizer accuracy", "edge accuracy"],
     });
     fit(
         net,

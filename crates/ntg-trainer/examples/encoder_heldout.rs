@@ -419,6 +419,7 @@ fn main() -> anyhow::Result<()> {
                 Some(Selection {
                     validator: &mut validator,
                     every: 1,
+                    scores: ["keyframe localizer accuracy", "localizer accuracy"],
                 }),
                 |m: &EncoderEpochMetrics| {
                     println!(

@@ -219,6 +219,7 @@ where
     let selection = Selection {
         validator: &mut validator as &mut dyn Validator<M>,
         every: validation.every,
+        scores: crate::fit::ROLLOUT_SCORES,
     };
     crate::fit::fit(
         model,

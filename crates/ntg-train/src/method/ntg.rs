@@ -624,6 +624,7 @@ pub fn train_with(
     let selection = extras.validator.map(|validator| Selection {
         validator,
         every: extras.validate_every,
+        scores: crate::fit::ROLLOUT_SCORES,
     });
     fit(model, &step, optim, run, device, selection, on_epoch)
 }

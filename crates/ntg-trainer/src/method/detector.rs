@@ -254,6 +254,7 @@ pub fn train_detector(
     let selection = (!frames.select.is_empty()).then_some(Selection {
         validator: &mut validator as &mut dyn crate::fit::Validator<Detector>,
         every: 1,
+        scores: ["negated position error", "gripper accuracy"],
     });
     let net = fit(
         net,
