@@ -205,8 +205,8 @@ pub struct Panel {
     pub series: Vec<Series>,
 }
 
-/// Series colours, in order (the first six as before; ten, so that the
-/// five curves of success and goals met in one panel stay distinct).
+/// Series colours: the first five are the methods' ([`METHOD_LOOKS`]),
+/// the rest go to series without a method's look.
 const PALETTE: [RGBColor; 10] = [
     RGBColor(31, 119, 180),
     RGBColor(214, 39, 40),
