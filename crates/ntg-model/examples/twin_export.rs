@@ -297,8 +297,17 @@ fn encoder_dims(encoder: &EncoderConfig) -> Result<Value, Box<dyn Error>> {
 /// `path` (see the module doc).
 pub fn export(path: &Path) -> Result<(), Box<dyn Error>> {
     let device: Device = ntg_model::cpu_device().autodiff();
-    let config = recommended_config(MODEL_SEED);
-    let model = NtgModel::new(config.clone(), &device)?;
+    let model = NtgModel::new(recommended_config(MODEL_SEED), &device)?;
+    export_model(&model, &device, path)
+}
+
+/// Runs the batch through `model` (block stacking's sizes, on `device`, an
+/// autodiff device) and writes the file as [`export`] does: how the
+/// weights of a trained run are checked (`ntg export`'s round trip, in
+/// ntg-trainer's tests).
+pub fn export_model(model: &NtgModel, device: &Device, path: &Path) -> Result<(), Box<dyn Error>> {
+    let device = device.clone();
+    let config = model.config().clone();
     let (n, d) = (NUM_NODES, STATE_DIM);
 
     let demos = demos(BATCH_SEED);
@@ -397,7 +406,7 @@ pub fn export(path: &Path) -> Result<(), Box<dyn Error>> {
         param_grads: Map::new(),
         count: 0,
     };
-    collector.model(&model)?;
+    collector.model(model)?;
     if collector.count != model.num_params() {
         return Err(format!(
             "exported {} parameter values, the model has {}",

@@ -48,6 +48,7 @@ mod detector;
 mod edge;
 mod encoder;
 mod error;
+pub mod export;
 mod flat_policy;
 pub mod float_mode;
 mod frame_stage;

@@ -365,6 +365,15 @@ pub fn selected_epoch(run: &RunDir) -> anyhow::Result<Option<ValidationRecord>> 
     }
 }
 
+/// The folder of `run`'s trained model: `best/` when validation selected
+/// an epoch, else the last checkpoint.
+pub fn trained_dir(run: &RunDir) -> anyhow::Result<std::path::PathBuf> {
+    Ok(match selected_epoch(run)? {
+        Some(_) => run.best_dir(),
+        None => run.checkpoint_dir(),
+    })
+}
+
 /// Progress saved with each checkpoint.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct Progress {

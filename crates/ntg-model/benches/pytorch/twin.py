@@ -33,6 +33,11 @@ a gradient by more than --tol times its tensor's largest magnitude.
     cargo run --release -p ntg-model --example twin_export -- /tmp/ntg_twin.json
     python3 crates/ntg-model/benches/pytorch/twin.py /tmp/ntg_twin.json
 
+With `--weights DIR/model.safetensors` (a trained run's `ntg export`), the
+twin takes its weights from that file instead, in PyTorch's layout, and
+checks that they are the weights the reference outputs were computed with
+(ntg-trainer's `export` test writes such a JSON file from a trained run).
+
 Bench: times one training step (forward, backward, Adam with burn's
 defaults: betas 0.9/0.999, eps 1e-5, lr 3e-3) on a deterministic synthetic
 batch of 32 demos (12, 14 or 16 actions each, so 13 to 17 state rows; the
@@ -363,6 +368,31 @@ def load_weights(twin, params):
             to_burn(p).copy_(src)
 
 
+def load_safetensors(twin, path):
+    """Copies the weights of an `ntg export` file (PyTorch's layout: every
+    tensor has the shape of the twin's parameter, Linear and GRU weights
+    already transposed) into `twin`; every parameter on both sides must be
+    used exactly once, with matching shapes. Returns the file's tensors."""
+    from safetensors.torch import load_file
+
+    tensors = load_file(path)
+    entries = parameter_map(twin)
+    names = [name for name, _, _ in entries]
+    missing = sorted(set(names) - set(tensors))
+    extra = sorted(set(tensors) - set(names))
+    if missing or extra:
+        raise SystemExit(f"{path}: tensor names differ from the twin's: missing {missing}, "
+                         f"not used {extra}")
+    with torch.no_grad():
+        for name, p, _ in entries:
+            src = tensors[name]
+            if tuple(p.shape) != tuple(src.shape):
+                raise SystemExit(f"{path}: {name} has shape {tuple(src.shape)}, the twin's "
+                                 f"parameter {tuple(p.shape)}")
+            p.copy_(src)
+    return tensors
+
+
 # -------------------------------------------------------------- file input
 
 
@@ -398,14 +428,27 @@ def read_export(path):
 # --------------------------------------------------------------- check mode
 
 
-def check(path, tol):
+def check(path, tol, weights=None):
     dims, params, grads, inputs, expected = read_export(path)
     if not same_dims(dims, DEFAULT_DIMS):
         print("note: the exported model's sizes differ from DEFAULT_DIMS, which --bench "
               f"uses without a FILE:\n  exported {dims}\n  default  {DEFAULT_DIMS}")
     torch.manual_seed(0)
     twin = NtgTwin(dims)
-    load_weights(twin, params)
+    if weights is None:
+        load_weights(twin, params)
+    else:
+        # The weights come from the safetensors file alone; the JSON's copy
+        # (burn's layout) only says that they are the weights the reference
+        # outputs were computed with.
+        load_safetensors(twin, weights)
+        worst = max((to_burn(p.detach()) - params[name]).abs().max().item()
+                    for name, p, to_burn in parameter_map(twin))
+        print(f"weights read from {weights}; largest difference from the reference's "
+              f"weights {worst:.3e}")
+        if worst != 0.0:
+            print("FAILED: the safetensors file does not hold the reference's weights")
+            return 1
     out = twin(inputs)
     out["total_loss"].backward()
 
@@ -747,6 +790,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("file", nargs="?", help="JSON file written by the twin_export example")
     ap.add_argument("--tol", type=float, default=1e-4, help="max abs error allowed (check mode)")
+    ap.add_argument("--weights", metavar="SAFETENSORS",
+                    help="check mode: take the weights from this file of `ntg export` "
+                         "(model.safetensors) instead of the JSON file's copy")
     ap.add_argument("--bench", nargs="?", const="state_step", metavar="ROW",
                     help="time ROW instead (default state_step; 'all' or ROW,ROW: "
                          f"{', '.join(BENCH_ROWS)})")
@@ -764,7 +810,7 @@ def main():
     if not args.file:
         ap.error("give the exported FILE (or --bench)")
     torch.set_num_threads(args.threads)
-    return check(args.file, args.tol)
+    return check(args.file, args.tol, args.weights)
 
 
 if __name__ == "__main__":

@@ -262,6 +262,12 @@ impl TrainedPolicy for FlatPolicy {
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }
+    fn export_safetensors(
+        &self,
+        dir: &std::path::Path,
+    ) -> anyhow::Result<Vec<crate::method::ExportedFile>> {
+        Ok(vec![crate::method::export_network(self, dir, "")?])
+    }
 }
 
 /// The Flat Policy conditioned on a demo.

@@ -76,6 +76,46 @@ pub trait TrainedPolicy: Send + Sync {
     ) -> anyhow::Result<Box<dyn Agent>>;
     /// The concrete model (for tests and tools that need its weights).
     fn as_any(&self) -> &dyn Any;
+    /// Writes the weights into `dir` as safetensors files in PyTorch's
+    /// layout ([`ntg_model::export`]): one file per folder the model is
+    /// saved in, `model.safetensors` for the network at the top and
+    /// `NAME.safetensors` for a network saved in the subfolder `NAME`
+    /// (`frame_encoder`, `detector`). Returns what it wrote, top first.
+    fn export_safetensors(&self, dir: &Path) -> anyhow::Result<Vec<ExportedFile>>;
+}
+
+/// One safetensors file written by [`TrainedPolicy::export_safetensors`].
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ExportedFile {
+    /// The file's name in the export folder (`model.safetensors`).
+    pub file: String,
+    /// The model folder's subfolder whose network it holds (empty for the
+    /// network saved at the folder's top).
+    pub folder: String,
+    /// Its tensors, by name.
+    pub tensors: Vec<ntg_model::export::ExportedTensor>,
+}
+
+/// Exports one network: the network saved in the model folder's
+/// subfolder `folder` (empty: at its top) into `dir` (see
+/// [`TrainedPolicy::export_safetensors`]).
+pub fn export_network<M: burn::module::Module>(
+    network: &M,
+    dir: &Path,
+    folder: &str,
+) -> anyhow::Result<ExportedFile> {
+    let file = if folder.is_empty() {
+        "model.safetensors".to_owned()
+    } else {
+        format!("{folder}.safetensors")
+    };
+    let metadata = std::collections::BTreeMap::from([("ntg.folder".to_owned(), folder.to_owned())]);
+    let tensors = ntg_model::export::save_safetensors(network, &dir.join(&file), &metadata)?;
+    Ok(ExportedFile {
+        file,
+        folder: folder.to_owned(),
+        tensors,
+    })
 }
 
 /// A trained model of any method.

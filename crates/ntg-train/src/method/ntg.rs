@@ -1084,6 +1084,12 @@ impl TrainedPolicy for NtgModel {
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }
+    fn export_safetensors(
+        &self,
+        dir: &std::path::Path,
+    ) -> anyhow::Result<Vec<crate::method::ExportedFile>> {
+        Ok(vec![crate::method::export_network(self, dir, "")?])
+    }
 }
 
 /// NTG's agent: the graph executor over the demo's completed task graph.

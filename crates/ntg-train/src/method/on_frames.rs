@@ -178,6 +178,15 @@ where
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }
+    fn export_safetensors(&self, dir: &Path) -> anyhow::Result<Vec<crate::method::ExportedFile>> {
+        let mut files = self.policy.export_safetensors(dir)?;
+        files.push(crate::method::export_network(
+            &self.frames,
+            dir,
+            ENCODER_DIR,
+        )?);
+        Ok(files)
+    }
 }
 
 /// An agent on frames: each observed frame is encoded once, then the

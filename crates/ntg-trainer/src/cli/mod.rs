@@ -11,6 +11,7 @@ use clap::{Parser, Subcommand};
 pub mod blocks;
 pub mod carry;
 pub mod collect;
+pub mod export;
 pub mod graph;
 pub mod jigsaws;
 pub mod trace;
@@ -39,6 +40,9 @@ pub enum Command {
     /// frames, the CTG (DOT and SVG), and per step the localised node and
     /// chosen edge.
     Trace(trace::TraceArgs),
+    /// Write a trained run's weights as safetensors files that PyTorch
+    /// loads, with their name map (`names.json`) and configurations.
+    Export(export::ExportArgs),
     /// Reproduce the paper's figures (what `cargo xtask reproduce-figures` runs).
     Reproduce(train::ReproduceArgs),
     /// Save unfinished paper-profile runs into docs/figures/in-progress/
@@ -72,6 +76,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(args) => train::run_train(&args),
         Command::Eval(args) => train::run_eval(&args),
         Command::Trace(args) => trace::run(&args),
+        Command::Export(args) => export::run(&args),
         Command::Reproduce(args) => train::run_reproduce(&args),
         Command::Carry(args) => carry::run(&args),
         Command::Blocks(cmd) => blocks::run(cmd),

@@ -34,7 +34,15 @@ pub type EvalArgs = crate::domain::EvalFlags;
 
 /// Runs `ntg eval` on the run in `--run`, with the domain it belongs to.
 pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
-    let run = RunDir::open(&args.run)?;
+    let (run, domain) = open_run(&args.run)?;
+    // It writes the run's `eval/`: not while another process trains it.
+    let _writer = run.lock()?;
+    domain.runs().evaluate(&run, args)
+}
+
+/// Opens the run folder `path` and finds the domain it is a run of.
+pub fn open_run(path: &std::path::Path) -> anyhow::Result<(RunDir, DomainId)> {
+    let run = RunDir::open(path)?;
     let config: serde_json::Value = RunDir::read_json(&run.config_path())?;
     let domain = DomainId::of_run(&config).with_context(|| {
         format!(
@@ -42,9 +50,7 @@ pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
             run.config_path().display()
         )
     })?;
-    // It writes the run's `eval/`: not while another process trains it.
-    let _writer = run.lock()?;
-    domain.runs().evaluate(&run, args)
+    Ok((run, domain))
 }
 
 /// Arguments of `ntg reproduce`.

@@ -2024,6 +2024,20 @@ impl DomainRuns for Blocks {
         let (name, result) = evaluate_run(run, flags)?;
         write_eval(run, &name, &result)
     }
+    fn trained(&self, run: &RunDir) -> anyhow::Result<super::TrainedRun> {
+        let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+        let dir = crate::fit::trained_dir(run)?;
+        let model = config
+            .method
+            .load(&dir, &crate::spec::device())
+            .with_context(|| format!("loading the trained model of {}", run.root().display()))?;
+        crate::method::on_frames::check_model_obs(&dir, config.obs, &run.config_path())?;
+        Ok(super::TrainedRun {
+            model,
+            dir,
+            method: config.method.name(),
+        })
+    }
 }
 
 /// `ntg eval --decisions`: the NTP baseline of `run` checked decision by

@@ -833,6 +833,14 @@ impl DomainRuns for Collect {
         println!("records in {}", path.display());
         Ok(())
     }
+    fn trained(&self, run: &RunDir) -> anyhow::Result<super::TrainedRun> {
+        let config: CollectRunConfig = RunDir::read_json(&run.config_path())?;
+        Ok(super::TrainedRun {
+            model: load_model(run, &config)?,
+            dir: crate::fit::trained_dir(run)?,
+            method: config.method.name(),
+        })
+    }
 }
 
 #[cfg(test)]

@@ -44,6 +44,20 @@ pub trait DomainRuns: Sync {
     /// `ntg eval` on a run of this domain: evaluates it on unseen tasks,
     /// writes the records under `eval/` and prints the success rates.
     fn evaluate(&self, run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()>;
+    /// The trained model of a run of this domain (`ntg export`): the epoch
+    /// selected on validation tasks if there is one, else the last
+    /// checkpoint, on the inference device.
+    fn trained(&self, run: &RunDir) -> anyhow::Result<TrainedRun>;
+}
+
+/// A run's trained model and where it was read from ([`DomainRuns::trained`]).
+pub struct TrainedRun {
+    /// The model.
+    pub model: crate::method::Model,
+    /// The model folder it was loaded from (`best/` or `checkpoint/`).
+    pub dir: PathBuf,
+    /// Its method's name (`ntg`, `flat`, `ntp`, ...).
+    pub method: &'static str,
 }
 
 /// The registry: one line per domain, `Identifier => value implementing

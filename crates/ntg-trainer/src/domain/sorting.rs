@@ -459,6 +459,14 @@ impl DomainRuns for Sorting {
         );
         Ok(())
     }
+    fn trained(&self, run: &RunDir) -> anyhow::Result<super::TrainedRun> {
+        let model = load_model(run, &crate::spec::device())?;
+        Ok(super::TrainedRun {
+            model: Box::new(model),
+            dir: crate::fit::trained_dir(run)?,
+            method: MethodId::Ntg.name(),
+        })
+    }
 }
 
 #[cfg(test)]

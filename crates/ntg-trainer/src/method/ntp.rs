@@ -1237,6 +1237,13 @@ impl TrainedPolicy for NtpModel {
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }
+    fn export_safetensors(
+        &self,
+        dir: &Path,
+    ) -> anyhow::Result<Vec<ntg_train::method::ExportedFile>> {
+        // The network as saved (`NtpNet::save`): its names carry no `net.`.
+        Ok(vec![ntg_train::method::export_network(&self.net, dir, "")?])
+    }
 }
 
 /// NTP conditioned on a demo, with its program stack.

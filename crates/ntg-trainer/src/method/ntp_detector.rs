@@ -193,6 +193,18 @@ impl TrainedPolicy for NtpOnDetector {
     fn as_any(&self) -> &dyn std::any::Any {
         self
     }
+    fn export_safetensors(
+        &self,
+        dir: &Path,
+    ) -> anyhow::Result<Vec<ntg_train::method::ExportedFile>> {
+        let mut files = self.ntp.export_safetensors(dir)?;
+        files.push(ntg_train::method::export_network(
+            &self.detector,
+            dir,
+            DETECTOR_DIR,
+        )?);
+        Ok(files)
+    }
 }
 
 /// NTP acting on the state the detector estimates from each frame.

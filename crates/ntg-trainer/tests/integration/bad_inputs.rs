@@ -9,7 +9,7 @@ use crate::common;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use common::ntg;
+use common::{TINY_RUN, ntg, train_tiny_run};
 
 /// Every file under `dir` (relative path → contents).
 fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
@@ -28,30 +28,6 @@ fn snapshot(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
         }
     }
     files
-}
-
-/// The `ntg train` flags of the tiny fixture run (state input, 1 epoch).
-const TINY_RUN: &[&str] = &[
-    "train",
-    "--domain",
-    "blocks",
-    "--train-tasks",
-    "2",
-    "--demos-per-task",
-    "2",
-    "--epochs",
-    "1",
-    "--validation-tasks",
-    "0",
-];
-
-/// A tiny trained block-stacking run in `dir/run` ([`TINY_RUN`]).
-fn train_tiny_run(dir: &Path) -> PathBuf {
-    let run = dir.join("run");
-    let args = [TINY_RUN, &["--out", run.to_str().unwrap()]].concat();
-    let (code, _, err) = ntg(&args);
-    assert_eq!(code, 0, "training the fixture run failed: {err}");
-    run
 }
 
 /// Copies the folder `from` to `to` (files and folders only).
@@ -354,6 +330,28 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         (
             s(&["eval", "--run", &other_obs]),
             "reads state observations".into(),
+        ),
+        // `ntg export`: not a run, damaged weights, an --out that holds
+        // something else (never replaced, even with --force) or is a file.
+        (
+            s(&["export", &p("missing"), "--out", &p("x")]),
+            p("missing"),
+        ),
+        (
+            s(&["export", &p("norun"), "--out", &p("x")]),
+            "config.json".into(),
+        ),
+        (
+            s(&["export", &flipped, "--out", &p("x")]),
+            "model.bpk".into(),
+        ),
+        (
+            s(&["export", &run_s, "--out", &p("nonempty"), "--force"]),
+            "holds no export".into(),
+        ),
+        (
+            s(&["export", &run_s, "--out", &p("existing.json")]),
+            "not a folder".into(),
         ),
         (
             s(&["eval", "--run", &run_s, "--test-tasks", "0"]),

@@ -9,6 +9,7 @@ mod cli_graph;
 mod cli_sorting;
 mod cli_trace;
 mod common;
+mod export;
 mod module_cycles;
 mod resume;
 mod smoke;

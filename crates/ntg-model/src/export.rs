@@ -1,0 +1,114 @@
+//! Weights as safetensors files that PyTorch loads (`ntg export`).
+//!
+//! [`save_safetensors`] writes every parameter of a module under its path
+//! in the module (`interpreter.enc_gru.input.weight`, `mid.0.bias`; enum
+//! variant names left out, as PyTorch names have none), in PyTorch's
+//! layout: a burn `Linear` keeps its weight as `[in, out]` and computes
+//! `x W + b`, PyTorch's `nn.Linear` as `[out, in]`, so every `Linear`
+//! weight is transposed (burn-store's `BurnToPyTorchAdapter`); everything
+//! else (convolutions `[out, in, kh, kw]`, biases, embedding tables) has
+//! the same layout in both and is written as is. The returned
+//! [`ExportedTensor`]s say which were transposed, for the name map that
+//! `ntg export` writes beside the files.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+
+use burn::module::Module;
+use burn::store::{
+    BurnToPyTorchAdapter, ModuleAdapter, ModuleContext, ModuleSnapshot, SafetensorsStore,
+};
+
+use crate::{ModelError, Result};
+
+/// One tensor of an exported file.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ExportedTensor {
+    /// Its key in the safetensors file: the parameter's path in the module.
+    pub name: String,
+    /// Its shape in the file (PyTorch's layout).
+    pub shape: Vec<usize>,
+    /// Its element type (`F32` for every network here).
+    pub dtype: String,
+    /// The module type that holds it (`Linear`, `Conv2d`, or the network
+    /// for a bare parameter such as a node-embedding table).
+    pub module: String,
+    /// Whether the file holds the transpose of burn's tensor (a `Linear`
+    /// weight: `[out, in]` in the file, `[in, out]` in burn).
+    pub transposed: bool,
+}
+
+/// Wraps [`BurnToPyTorchAdapter`] and records, for every tensor it sees,
+/// the module type that holds it and whether it was transposed.
+#[derive(Clone, Default)]
+struct Recording {
+    seen: Arc<Mutex<Vec<ExportedTensor>>>,
+}
+
+impl ModuleAdapter for Recording {
+    fn adapt(&self, tensor: burn_pack::Tensor, ctx: ModuleContext<'_>) -> burn_pack::Tensor {
+        let module = ctx
+            .module_type()
+            .map(|t| t.split_once(':').map_or(t, |(_, name)| name).to_owned())
+            .unwrap_or_default();
+        let out = BurnToPyTorchAdapter.adapt(tensor, ctx);
+        let shape = out.shape.to_vec();
+        // The adapter's own rule: a Linear's 2-D `weight` is transposed.
+        let transposed =
+            module == "Linear" && out.name.rsplit('.').next() == Some("weight") && shape.len() == 2;
+        if let Ok(mut seen) = self.seen.lock() {
+            seen.push(ExportedTensor {
+                name: out.name.clone(),
+                shape,
+                dtype: format!("{:?}", out.dtype).to_uppercase(),
+                module,
+                transposed,
+            });
+        }
+        out
+    }
+
+    fn clone_box(&self) -> Box<dyn ModuleAdapter> {
+        Box::new(self.clone())
+    }
+}
+
+/// Writes the parameters of `module` to the safetensors file `path` in
+/// PyTorch's layout (see the module doc), with `metadata` in the file's
+/// header beside burn-store's own (`format`, `producer`, `version`).
+/// Refuses an existing file. Returns the tensors written, sorted by name.
+pub fn save_safetensors<M: Module>(
+    module: &M,
+    path: &Path,
+    metadata: &BTreeMap<String, String>,
+) -> Result<Vec<ExportedTensor>> {
+    if path.exists() {
+        return Err(ModelError::file(path, "already exists; not overwritten"));
+    }
+    let recording = Recording::default();
+    let mut store = SafetensorsStore::from_file(path)
+        .with_to_adapter(recording.clone())
+        .skip_enum_variants(true)
+        .overwrite(false);
+    for (key, value) in metadata {
+        store = store.metadata(key.clone(), value.clone());
+    }
+    module
+        .save_into(&mut store)
+        .map_err(|e| ModelError::file(path, e))?;
+    let mut seen = recording
+        .seen
+        .lock()
+        .map(|s| s.clone())
+        .map_err(|_| ModelError::file(path, "the exporter's record was poisoned"))?;
+    seen.sort_by(|a, b| a.name.cmp(&b.name));
+    seen.dedup_by(|a, b| a.name == b.name);
+    if seen.is_empty() {
+        return Err(ModelError::file(
+            path,
+            "the module has no parameters to export",
+        ));
+    }
+    Ok(seen)
+}
