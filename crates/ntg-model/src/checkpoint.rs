@@ -91,18 +91,29 @@ pub(crate) fn load_config<C: DeserializeOwned>(
 }
 
 /// Loads `dir/model.bpk` into `module` (freshly built from the saved
-/// configuration); a missing file or a mismatched record is an error.
+/// configuration), or, in a folder without one, `dir/model.safetensors`
+/// (a model zoo entry); a missing file or a mismatched record is an error.
 pub(crate) fn load_weights<M: Module>(module: M, dir: &Path) -> Result<M> {
-    let weights = dir.join(WEIGHTS_FILE);
-    if !weights.is_file() {
-        return Err(ModelError::file(&weights, "no such file"));
-    }
-    verify(&weights)?;
-    let module = decode(&weights, || {
-        module
-            .try_load_file(&weights)
-            .map_err(|e| ModelError::file(&weights, e))
-    })?;
+    let mut weights = dir.join(WEIGHTS_FILE);
+    let safetensors = dir.join(crate::export::SAFETENSORS_WEIGHTS_FILE);
+    let module = if !weights.is_file() && safetensors.is_file() {
+        // A model zoo entry: the weights in PyTorch's layout.
+        weights = safetensors;
+        verify(&weights)?;
+        decode(&weights, || {
+            crate::export::load_safetensors(module, &weights)
+        })?
+    } else {
+        if !weights.is_file() {
+            return Err(ModelError::file(&weights, "no such file"));
+        }
+        verify(&weights)?;
+        decode(&weights, || {
+            module
+                .try_load_file(&weights)
+                .map_err(|e| ModelError::file(&weights, e))
+        })?
+    };
     let mut check = NonFinite::default();
     module.visit(&mut check);
     if check.tensors > 0 {

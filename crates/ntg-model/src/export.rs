@@ -9,7 +9,12 @@
 //! else (convolutions `[out, in, kh, kw]`, biases, embedding tables) has
 //! the same layout in both and is written as is. The returned
 //! [`ExportedTensor`]s say which were transposed, for the name map that
-//! `ntg export` writes beside the files.
+//! `ntg export` writes beside the files. Each file gets a `.sha256`
+//! sidecar, as checkpoints do.
+//!
+//! [`load_safetensors`] reads such a file back into a module (the model
+//! zoo's entries hold their weights this way: a model folder with
+//! `model.safetensors` instead of `model.bpk` loads like any checkpoint).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -17,7 +22,8 @@ use std::sync::{Arc, Mutex};
 
 use burn::module::Module;
 use burn::store::{
-    BurnToPyTorchAdapter, ModuleAdapter, ModuleContext, ModuleSnapshot, SafetensorsStore,
+    BurnToPyTorchAdapter, ModuleAdapter, ModuleContext, ModuleSnapshot, PyTorchToBurnAdapter,
+    SafetensorsStore,
 };
 
 use crate::{ModelError, Result};
@@ -74,10 +80,15 @@ impl ModuleAdapter for Recording {
     }
 }
 
+/// The weights file of a model folder saved as safetensors (the model
+/// zoo's entries), read when the folder has no `model.bpk`.
+pub const SAFETENSORS_WEIGHTS_FILE: &str = "model.safetensors";
+
 /// Writes the parameters of `module` to the safetensors file `path` in
 /// PyTorch's layout (see the module doc), with `metadata` in the file's
-/// header beside burn-store's own (`format`, `producer`, `version`).
-/// Refuses an existing file. Returns the tensors written, sorted by name.
+/// header beside burn-store's own (`format`, `producer`, `version`), and
+/// its checksum beside it (`path.sha256`). Refuses an existing file.
+/// Returns the tensors written, sorted by name.
 pub fn save_safetensors<M: Module>(
     module: &M,
     path: &Path,
@@ -110,5 +121,30 @@ pub fn save_safetensors<M: Module>(
             "the module has no parameters to export",
         ));
     }
+    crate::checkpoint::seal(path)?;
     Ok(seen)
+}
+
+/// Loads the safetensors file `path` (written by [`save_safetensors`]:
+/// PyTorch's layout) into `module`, freshly built from the saved
+/// configuration. Every parameter of the module must be in the file with
+/// its shape, and the file must hold nothing else.
+pub fn load_safetensors<M: Module>(mut module: M, path: &Path) -> Result<M> {
+    let mut store = SafetensorsStore::from_file(path)
+        .with_from_adapter(PyTorchToBurnAdapter)
+        .skip_enum_variants(true);
+    let applied = module
+        .load_from(&mut store)
+        .map_err(|e| ModelError::file(path, e))?;
+    if !applied.missing.is_empty() || !applied.unused.is_empty() || !applied.errors.is_empty() {
+        let missing: Vec<&str> = applied.missing.iter().map(|(p, _)| p.as_str()).collect();
+        return Err(ModelError::file(
+            path,
+            format!(
+                "does not match the network its config.json builds: missing {missing:?}, not used {:?}, errors {:?}",
+                applied.unused, applied.errors
+            ),
+        ));
+    }
+    Ok(module)
 }

@@ -860,6 +860,59 @@ fn the_executed_node_replaces_the_localizer_with_the_last_action_taken() {
 }
 
 #[test]
+fn a_model_folder_with_safetensors_weights_loads_the_same_model() {
+    let dev = device();
+    let dir = tempfile::tempdir().unwrap();
+    let model = NtgModel::new(small_config(12), &dev).unwrap();
+    model.save(dir.path()).unwrap();
+    let file = dir.path().join(export::SAFETENSORS_WEIGHTS_FILE);
+    let tensors =
+        export::save_safetensors(&model, &file, &std::collections::BTreeMap::new()).unwrap();
+    assert!(file.with_extension("safetensors.sha256").is_file());
+    // Written once: an existing file is refused.
+    assert!(export::save_safetensors(&model, &file, &Default::default()).is_err());
+    // PyTorch's layout: a Linear weight transposed, a bare table not.
+    let out = tensors
+        .iter()
+        .find(|t| t.name == "interpreter.out.weight")
+        .unwrap();
+    let [d_in, d_out] = model.interpreter.out.weight.val().dims();
+    assert!(out.transposed && out.module == "Linear" && out.shape == [d_out, d_in]);
+    let nodes = tensors
+        .iter()
+        .find(|t| t.name == "localizer.nodes")
+        .unwrap();
+    assert!(!nodes.transposed);
+
+    std::fs::remove_file(dir.path().join(WEIGHTS_FILE)).unwrap();
+    let loaded = NtgModel::load(dir.path(), &dev).unwrap();
+    let values = |m: &NtgModel| {
+        [
+            to_vec(m.interpreter.out.weight.val()).unwrap(),
+            to_vec(m.localizer.nodes.val()).unwrap(),
+            to_vec(m.gcn.rnn.hidden.weight.val()).unwrap(),
+            to_vec(m.edges.w.weight.val()).unwrap(),
+        ]
+    };
+    assert_eq!(values(&loaded), values(&model));
+
+    // The file of another network is refused, naming it.
+    let other = tempfile::tempdir().unwrap();
+    let mut config = small_config(12);
+    config.interpreter.hidden += 1;
+    let bigger = NtgModel::new(config, &dev).unwrap();
+    bigger.save(other.path()).unwrap();
+    std::fs::remove_file(other.path().join(WEIGHTS_FILE)).unwrap();
+    std::fs::copy(&file, other.path().join(export::SAFETENSORS_WEIGHTS_FILE)).unwrap();
+    match NtgModel::load(other.path(), &dev) {
+        Err(ModelError::File { path, .. }) => {
+            assert!(path.ends_with(export::SAFETENSORS_WEIGHTS_FILE))
+        }
+        other => panic!("expected a file error, got {:?}", other.map(|_| ())),
+    }
+}
+
+#[test]
 fn save_then_load_gives_identical_outputs() {
     let dev = device();
     let dir = tempfile::tempdir().unwrap();

@@ -266,27 +266,22 @@ fn prepare_copy(
 
 /// After run folder `run` (named `name`) is recorded in `records`: when its
 /// `config.json` says it trained on at least [`KEEP_WEIGHTS_FROM_TASKS`]
-/// tasks (`train_tasks`), copies its configuration and every selected-weights
-/// folder in it (`best/`, and a stage's `stage_a/best/`, ...) into
-/// [`weights_dir`], replacing an earlier copy of the same configuration
-/// (one of another configuration is kept, and this one is not). A run of
-/// fewer tasks, or one without a `best/` folder, keeps nothing (`None`).
+/// tasks (`train_tasks`) and validation selected an epoch (`best/`), has
+/// `write(run, folder)` fill a new folder with its selected weights
+/// ([`crate::export::keep_in_zoo`] in the paper profile) and puts it in
+/// place as [`weights_dir`], replacing an earlier copy of the same
+/// configuration (one of another configuration is kept, and this one is
+/// not). Otherwise keeps nothing (`None`).
 pub fn keep_selected_weights(
     records: &Path,
     name: &str,
     run: &Path,
+    write: &dyn Fn(&Path, &Path) -> anyhow::Result<()>,
 ) -> anyhow::Result<Option<KeptWeights>> {
     let config_path = run.join("config.json");
     let config: serde_json::Value = RunDir::read_json(&config_path)?;
     let tasks = config["train_tasks"].as_u64().unwrap_or(0);
-    if tasks < KEEP_WEIGHTS_FROM_TASKS {
-        return Ok(None);
-    }
-    let selected: Listing = listing(run)?
-        .into_iter()
-        .filter(|(rel, _, _)| rel.components().any(|c| c.as_os_str() == "best"))
-        .collect();
-    if selected.is_empty() {
+    if tasks < KEEP_WEIGHTS_FROM_TASKS || !run.join("best").is_dir() {
         return Ok(None);
     }
     let to = weights_dir(records, name);
@@ -299,21 +294,16 @@ pub fn keep_selected_weights(
     })?;
     replace_dir(&to, |next| {
         fs::create_dir_all(next)?;
-        fs::copy(&config_path, next.join("config.json"))
-            .with_context(|| format!("copying {}", config_path.display()))?;
-        for (rel, _, _) in &selected {
-            let target = next.join(rel);
-            if let Some(parent) = target.parent() {
-                fs::create_dir_all(parent)?;
-            }
-            fs::copy(run.join(rel), &target)
-                .with_context(|| format!("copying {}", run.join(rel).display()))?;
-        }
+        write(run, next)?;
+        let written: serde_json::Value = RunDir::read_json(&next.join("config.json"))
+            .context("the kept weights' folder needs the run's config.json")?;
+        anyhow::ensure!(written == config, "the kept config.json is not the run's");
         Ok(())
     })?;
+    let kept = listing(&to)?;
     Ok(Some(KeptWeights {
-        files: selected.len() + 1,
-        bytes: selected.iter().map(|(_, len, _)| len).sum(),
+        files: kept.len(),
+        bytes: kept.iter().map(|(_, len, _)| len).sum(),
         to,
     }))
 }
@@ -452,6 +442,18 @@ mod tests {
         assert_eq!(discard_carried(&records, "r", Some(&own)).unwrap(), None);
     }
 
+    /// Stands in for `export::keep_in_zoo`: the run's config.json and its
+    /// `best/model.bpk` as `best/model.safetensors`.
+    fn fake_zoo(run: &Path, next: &Path) -> anyhow::Result<()> {
+        fs::copy(run.join("config.json"), next.join("config.json"))?;
+        fs::create_dir_all(next.join("best"))?;
+        fs::copy(
+            run.join("best/model.bpk"),
+            next.join("best/model.safetensors"),
+        )?;
+        Ok(())
+    }
+
     #[test]
     fn a_recorded_thousand_task_run_keeps_its_selected_weights_only() {
         let tmp = tempfile::tempdir().unwrap();
@@ -460,7 +462,7 @@ mod tests {
         write(&run.join("best/model.bpk"), "selected");
         write(&run.join("best/frame_encoder/model.bpk"), "encoder");
         write(&run.join("stage_a/best/model.bpk"), "stage a");
-        let kept = keep_selected_weights(&records, "big", &run)
+        let kept = keep_selected_weights(&records, "big", &run, &fake_zoo)
             .unwrap()
             .unwrap();
         assert_eq!(kept.to, weights_dir(&records, "big"));
@@ -470,21 +472,16 @@ mod tests {
             .into_iter()
             .map(|(p, _, _)| p)
             .collect();
-        let expected = [
-            "best/frame_encoder/model.bpk",
-            "best/model.bpk",
-            "config.json",
-            "stage_a/best/model.bpk",
-        ];
+        let expected = ["best/model.safetensors", "config.json"];
         assert_eq!(files, expected.map(PathBuf::from));
-        assert_eq!(kept.files, 4);
+        assert_eq!(kept.files, 2);
         // Kept again (the record extended): replaced, same files.
         write(&run.join("best/model.bpk"), "selected again");
-        keep_selected_weights(&records, "big", &run)
+        keep_selected_weights(&records, "big", &run, &fake_zoo)
             .unwrap()
             .unwrap();
         assert_eq!(
-            fs::read_to_string(kept.to.join("best/model.bpk")).unwrap(),
+            fs::read_to_string(kept.to.join("best/model.safetensors")).unwrap(),
             "selected again"
         );
         // Another configuration of the same name: refused, the copy kept.
@@ -492,12 +489,12 @@ mod tests {
             &run.join("config.json"),
             r#"{"train_tasks": 1000, "seed": 1}"#,
         );
-        let err = keep_selected_weights(&records, "big", &run)
+        let err = keep_selected_weights(&records, "big", &run, &fake_zoo)
             .unwrap_err()
             .to_string();
         assert!(err.contains("another configuration"), "{err}");
         assert_eq!(
-            fs::read_to_string(kept.to.join("best/model.bpk")).unwrap(),
+            fs::read_to_string(kept.to.join("best/model.safetensors")).unwrap(),
             "selected again"
         );
     }
@@ -509,12 +506,12 @@ mod tests {
         let small = run_folder(&runs, "small", r#"{"train_tasks": 500}"#);
         write(&small.join("best/model.bpk"), "selected");
         assert_eq!(
-            keep_selected_weights(&records, "small", &small).unwrap(),
+            keep_selected_weights(&records, "small", &small, &fake_zoo).unwrap(),
             None
         );
         let unselected = run_folder(&runs, "none", r#"{"train_tasks": 1000}"#);
         assert_eq!(
-            keep_selected_weights(&records, "none", &unselected).unwrap(),
+            keep_selected_weights(&records, "none", &unselected, &fake_zoo).unwrap(),
             None
         );
         assert!(!records.parent().unwrap().join("weights").exists());

@@ -13,6 +13,8 @@
 //! - [`domain`]: this repository's domains, one file each (block stacking,
 //!   object collection, object sorting) behind ntg-train's `Domain` trait;
 //!   [`jigsaws`]: the JIGSAWS cross-task experiment, scored by NLL;
+//!   [`export`]: a trained run's weights as safetensors for PyTorch
+//!   (`ntg export`, and the model zoo's entries);
 //! - [`experiment`]: the paper's figures as experiment files
 //!   (`experiments/*.toml`), run and drawn ([`figure`], [`svg`]);
 //!   [`reproduce`] runs them all; [`record`] keeps the paper profile's
@@ -32,6 +34,7 @@ pub mod carry;
 pub mod cli;
 pub mod domain;
 pub mod experiment;
+pub mod export;
 pub mod figure;
 pub mod jigsaws;
 pub mod method;

@@ -6,16 +6,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use serde::Serialize;
 
-use crate::method::ExportedFile;
-
-/// The `format` of `names.json`.
-pub const EXPORT_FORMAT: &str = "ntg-export/1";
-/// The name map's file name in an export folder.
-pub const NAMES_FILE: &str = "names.json";
-/// The run configuration's copy in an export folder.
-pub const RUN_CONFIG_FILE: &str = "run.json";
+use crate::export::{Layout, NAMES_FILE};
 
 /// Arguments of `ntg export`.
 #[derive(Debug, Args)]
@@ -33,62 +25,33 @@ pub struct ExportArgs {
     /// any other folder is never replaced.
     #[arg(long)]
     pub force: bool,
+    /// Write a run folder instead (the model zoo's layout: the run's
+    /// `config.json`, `best/` with `model.safetensors` in place of
+    /// `model.bpk`), which `ntg eval --run` and `ntg trace` read.
+    #[arg(long)]
+    pub run_folder: bool,
 }
-
-/// `names.json`: what an export folder holds.
-#[derive(Debug, Serialize)]
-struct NameMap<'a> {
-    format: &'static str,
-    /// The run folder, as given on the command line.
-    run: String,
-    domain: &'static str,
-    method: &'static str,
-    /// The model folder of the run the weights come from (`best` or
-    /// `checkpoint`).
-    source: String,
-    /// The epoch validation selected (from 1), if it selected one.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    epoch: Option<usize>,
-    layout: &'static str,
-    /// The run configuration's copy.
-    run_config: &'static str,
-    files: Vec<FileEntry<'a>>,
-}
-
-#[derive(Debug, Serialize)]
-struct FileEntry<'a> {
-    #[serde(flatten)]
-    exported: &'a ExportedFile,
-    /// The network's configuration, as saved beside its weights.
-    config: String,
-}
-
-/// What `layout` says in every name map.
-const LAYOUT: &str = "PyTorch's: each Linear weight is [out, in] (burn keeps [in, out]; \
-    \"transposed\": true marks them); every other tensor as burn keeps it (convolutions \
-    [out, in, kh, kw], biases, embedding tables [N, E]). Names are the parameters' paths \
-    in the burn module, without enum variant names";
 
 /// Runs `ntg export`.
 pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
-    let (run, domain) = super::train::open_run(&args.run)?;
+    let (run, domain) = crate::domain::open_run(&args.run)?;
     check_out(&args.out, args.force)?;
     let trained = domain.runs().trained(&run)?;
-    // Counted from 1, as the training log prints epochs.
     let epoch = crate::fit::selected_epoch(&run)?.map(|s| s.epoch + 1);
 
     // Written into a sibling folder, then moved into place: a failure
     // leaves no half-written export at --out.
     let staging = staging_dir(&args.out)?;
-    let written = write_export(
+    let written = crate::export::write_export(
         &staging,
+        &run,
         &trained,
-        &run.config_path(),
-        NameMapHead {
-            run: args.run.display().to_string(),
-            domain: domain.name(),
-            epoch,
+        if args.run_folder {
+            Layout::RunFolder
+        } else {
+            Layout::Flat
         },
+        &args.run.display().to_string(),
     );
     let files = match written {
         Ok(files) => files,
@@ -125,57 +88,6 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
         args.out.join(NAMES_FILE).display()
     );
     Ok(())
-}
-
-/// What the name map says of the run.
-struct NameMapHead {
-    run: String,
-    domain: &'static str,
-    epoch: Option<usize>,
-}
-
-/// Writes the safetensors files, the configurations and `names.json`
-/// into the new folder `dir`.
-fn write_export(
-    dir: &Path,
-    trained: &crate::domain::TrainedRun,
-    run_config: &Path,
-    head: NameMapHead,
-) -> anyhow::Result<Vec<ExportedFile>> {
-    let files = trained.model.export_safetensors(dir)?;
-    let mut entries = Vec::new();
-    for file in &files {
-        let stem = file.file.trim_end_matches(".safetensors");
-        let config = format!("{stem}.config.json");
-        let source = trained.dir.join(&file.folder).join(ntg_model::CONFIG_FILE);
-        std::fs::copy(&source, dir.join(&config))
-            .with_context(|| format!("copying {}", source.display()))?;
-        entries.push(FileEntry {
-            exported: file,
-            config,
-        });
-    }
-    std::fs::copy(run_config, dir.join(RUN_CONFIG_FILE))
-        .with_context(|| format!("copying {}", run_config.display()))?;
-    let map = NameMap {
-        format: EXPORT_FORMAT,
-        run: head.run,
-        domain: head.domain,
-        method: trained.method,
-        source: trained
-            .dir
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default(),
-        epoch: head.epoch,
-        layout: LAYOUT,
-        run_config: RUN_CONFIG_FILE,
-        files: entries,
-    };
-    let path = dir.join(NAMES_FILE);
-    std::fs::write(&path, serde_json::to_string_pretty(&map)? + "\n")
-        .with_context(|| format!("writing {}", path.display()))?;
-    Ok(files)
 }
 
 /// Refuses an `--out` that holds anything but an earlier export replaced

@@ -4,11 +4,9 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use clap::Args;
 
 use crate::domain::{DomainFlags, DomainId, TrainFlags};
-use crate::run_dir::RunDir;
 
 /// Arguments of `ntg train`.
 #[derive(Debug, Args)]
@@ -34,23 +32,10 @@ pub type EvalArgs = crate::domain::EvalFlags;
 
 /// Runs `ntg eval` on the run in `--run`, with the domain it belongs to.
 pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
-    let (run, domain) = open_run(&args.run)?;
+    let (run, domain) = crate::domain::open_run(&args.run)?;
     // It writes the run's `eval/`: not while another process trains it.
     let _writer = run.lock()?;
     domain.runs().evaluate(&run, args)
-}
-
-/// Opens the run folder `path` and finds the domain it is a run of.
-pub fn open_run(path: &std::path::Path) -> anyhow::Result<(RunDir, DomainId)> {
-    let run = RunDir::open(path)?;
-    let config: serde_json::Value = RunDir::read_json(&run.config_path())?;
-    let domain = DomainId::of_run(&config).with_context(|| {
-        format!(
-            "{} is not a run of any domain ntg knows",
-            run.config_path().display()
-        )
-    })?;
-    Ok((run, domain))
 }
 
 /// Arguments of `ntg reproduce`.

@@ -127,6 +127,19 @@ impl DomainId {
     }
 }
 
+/// Opens the run folder `path` and finds the domain it is a run of.
+pub fn open_run(path: &std::path::Path) -> anyhow::Result<(RunDir, DomainId)> {
+    let run = RunDir::open(path)?;
+    let config: serde_json::Value = RunDir::read_json(&run.config_path())?;
+    let domain = DomainId::of_run(&config).ok_or_else(|| {
+        anyhow::anyhow!(
+            "{} is not a run of any domain ntg knows",
+            run.config_path().display()
+        )
+    })?;
+    Ok((run, domain))
+}
+
 /// The `ntg train` flags every domain reads.
 #[derive(Debug, Clone, clap::Args)]
 pub struct TrainFlags {

@@ -253,7 +253,12 @@ impl<'a> Plan<'a> {
         // A 1000-task run's selected weights beside the records; not
         // keeping them (another configuration's there) leaves the record
         // as written, and says so.
-        match crate::carry::keep_selected_weights(records, &record.run, dir) {
+        match crate::carry::keep_selected_weights(
+            records,
+            &record.run,
+            dir,
+            &crate::export::keep_in_zoo,
+        ) {
             Ok(Some(kept)) => eprintln!(
                 "  [{}] selected weights kept in {} ({} files, {:.1} MB)",
                 record.run,
@@ -1209,6 +1214,13 @@ mod tests {
                 problems.push(format!(
                     "weights/{name}: another configuration than its record's"
                 ));
+            }
+            // As safetensors, with their name map (`export::keep_in_zoo`).
+            let entry = figures.join("weights").join(&name);
+            for needed in ["best/model.safetensors", crate::export::NAMES_FILE] {
+                if !entry.join(needed).is_file() {
+                    problems.push(format!("weights/{name}: no {needed}"));
+                }
             }
         }
         assert!(problems.is_empty(), "{}", problems.join("\n"));

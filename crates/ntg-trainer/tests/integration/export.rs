@@ -129,6 +129,25 @@ fn an_exported_run_holds_its_trained_weights_in_pytorch_layout() {
     let (code, _, err) = ntg(&["export", s(&run), "--out", s(&out), "--force"]);
     assert_eq!(code, 0, "{err}");
 
+    // As a run folder, the weights evaluate as the run's own do.
+    let as_run = tmp.path().join("as-run");
+    let (code, _, err) = ntg(&["export", s(&run), "--out", s(&as_run), "--run-folder"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(as_run.join("checkpoint/model.safetensors").is_file());
+    assert!(!as_run.join("checkpoint/model.bpk").exists());
+    let eval = |dir: &Path| {
+        let (code, out, err) = ntg(&["eval", "--run", s(dir), "--test-tasks", "4"]);
+        assert_eq!(code, 0, "{err}");
+        out.lines()
+            .find(|l| l.contains("success"))
+            .unwrap()
+            .to_owned()
+    };
+    assert_eq!(
+        eval(&as_run).replace(s(&as_run), ""),
+        eval(&run).replace(s(&run), "")
+    );
+
     // Every committed weights entry (a video run: its policy and its frame
     // encoder) exports too.
     let zoo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/figures/weights");
