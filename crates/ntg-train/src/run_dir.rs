@@ -235,6 +235,12 @@ impl RunDir {
 
     /// Opens an existing run folder (it must hold a `config.json`).
     pub fn open(root: &Path) -> anyhow::Result<Self> {
+        if root.exists() && !root.is_dir() {
+            bail!(
+                "{} is not a run folder (it is a file; a run folder holds config.json)",
+                root.display()
+            );
+        }
         if !root.is_dir() {
             bail!("{} is not a run folder (it does not exist)", root.display());
         }
@@ -567,7 +573,9 @@ impl RunDir {
 
     /// Writes `value` as pretty JSON to `path` atomically (temp file + rename).
     pub fn write_json(path: &Path, value: &impl Serialize) -> anyhow::Result<()> {
-        let tmp = path.with_extension("json.tmp");
+        // Named for this process: two writers of one file (two `ntg eval`s)
+        // never write into each other's temporary file.
+        let tmp = path.with_extension(format!("json.{}.tmp", std::process::id()));
         fs::write(&tmp, serde_json::to_vec_pretty(value)?)
             .with_context(|| format!("writing {}", tmp.display()))?;
         fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;

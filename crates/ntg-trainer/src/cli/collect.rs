@@ -45,8 +45,9 @@ pub struct FigureArgs {
     /// finished runs are reused.
     #[arg(long, value_name = "DIR", default_value = "runs/figures")]
     pub runs: PathBuf,
-    /// Where `thor_all.svg` and `thor_all.png` go.
-    #[arg(long, default_value = "docs/figures")]
+    /// Where `thor_all.svg` and `thor_all.png` go (`ntg reproduce` writes
+    /// the committed figures; this scratch folder keeps them apart).
+    #[arg(long, default_value = "runs/figures/thor_all")]
     pub out: PathBuf,
 }
 
@@ -92,6 +93,10 @@ pub struct DemoArgs {
     /// Most distractor objects in the scene.
     #[arg(long, default_value_t = 3)]
     pub max_distractors: usize,
+    /// Write into a non-empty --out (an earlier demo's frames there are
+    /// removed first, so none is left beside the new ones).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Arguments of `ntg collect tasks`.
@@ -123,6 +128,23 @@ pub fn run(command: CollectCommand) -> anyhow::Result<()> {
 
 /// `ntg collect demo`: writes the demonstration and prints a summary.
 pub fn demo(args: &DemoArgs, out: &mut impl Write) -> anyhow::Result<()> {
+    use env_collect::domain::{MAX_OBJECTS, MIN_OBJECTS};
+    if !(MIN_OBJECTS..=MAX_OBJECTS).contains(&args.objects) {
+        bail!(
+            "--objects {}: a task has {MIN_OBJECTS} to {MAX_OBJECTS} target objects",
+            args.objects
+        );
+    }
+    let occupied = std::fs::read_dir(&args.out).is_ok_and(|mut d| d.next().is_some());
+    if occupied && !args.force {
+        bail!(
+            "--out {} is not empty; pass --force to write the demo into it anyway, or choose another folder",
+            args.out.display()
+        );
+    }
+    if occupied {
+        remove_earlier_frames(&args.out)?;
+    }
     let room =
         env_collect::domain::NUM_CATEGORIES - args.objects.min(env_collect::domain::NUM_CATEGORIES);
     if args.max_distractors > room {
@@ -161,6 +183,24 @@ pub fn demo(args: &DemoArgs, out: &mut impl Write) -> anyhow::Result<()> {
     )?;
     if let Some(sheet) = &written.contact_sheet {
         writeln!(out, "wrote {}", sheet.display())?;
+    }
+    Ok(())
+}
+
+/// Removes the frames an earlier `ntg collect demo` wrote into `dir`
+/// (`frame_NNN.png`), so that a shorter demo leaves none of them behind.
+fn remove_earlier_frames(dir: &std::path::Path) -> anyhow::Result<()> {
+    for entry in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
+        let path = entry?.path();
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+        let frame = name.as_deref().is_some_and(|n| {
+            n.strip_prefix("frame_")
+                .and_then(|n| n.strip_suffix(".png"))
+                .is_some_and(|k| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()))
+        });
+        if frame && path.is_file() {
+            std::fs::remove_file(&path).with_context(|| format!("removing {}", path.display()))?;
+        }
     }
     Ok(())
 }
@@ -215,6 +255,7 @@ mod tests {
             task_seed: None,
             split: SplitArg::Test,
             max_distractors: 4,
+            force: false,
         };
         let err = demo(&args, &mut Vec::new()).unwrap_err().to_string();
         assert!(
@@ -234,6 +275,7 @@ mod tests {
             task_seed: None,
             split: SplitArg::Test,
             max_distractors: 3,
+            force: false,
         };
         let mut text = Vec::new();
         demo(&args, &mut text).unwrap();
@@ -242,6 +284,39 @@ mod tests {
         assert!(dir.path().join("demo/demo.json").is_file());
         assert!(dir.path().join("demo/frame_000.png").is_file());
         assert!(dir.path().join("demo/contact_sheet.png").is_file());
+
+        // Written again only with --force, leaving no frame of the earlier
+        // demo beside the new one's (a demo of one object is shorter), and
+        // files that are not frames as they were.
+        let frames = |dir: &std::path::Path| {
+            std::fs::read_dir(dir)
+                .unwrap()
+                .filter(|e| {
+                    e.as_ref()
+                        .unwrap()
+                        .file_name()
+                        .to_string_lossy()
+                        .starts_with("frame_")
+                })
+                .count()
+        };
+        let before = frames(&args.out);
+        std::fs::write(args.out.join("notes.txt"), "mine").unwrap();
+        let shorter = DemoArgs { objects: 1, ..args };
+        let err = demo(&shorter, &mut Vec::new()).unwrap_err().to_string();
+        assert!(err.contains("--force"), "{err}");
+        assert_eq!(frames(&shorter.out), before);
+        let shorter = DemoArgs {
+            force: true,
+            ..shorter
+        };
+        demo(&shorter, &mut Vec::new()).unwrap();
+        let after = frames(&shorter.out);
+        assert!(after < before, "{after} frames, {before} before");
+        assert_eq!(
+            std::fs::read_to_string(shorter.out.join("notes.txt")).unwrap(),
+            "mine"
+        );
     }
 
     #[test]
@@ -254,6 +329,7 @@ mod tests {
             task_seed: None,
             split: SplitArg::Any,
             max_distractors: 3,
+            force: false,
         };
         assert!(demo(&args, &mut Vec::new()).is_err());
         let args = TasksArgs {

@@ -2,7 +2,9 @@
 //! subcommand family.
 //!
 //! Every subcommand returns `anyhow::Result`; [`main`] prints an error as one
-//! line (`error: ...`, causes joined with `: `) and exits with status 1.
+//! line (`error: ...`, causes joined with `: `) and exits with status 1. A
+//! usage error is clap's (the error, a "did you mean" tip, the usage line)
+//! with status 2; bare `ntg` prints the help with the command list.
 
 use std::process::ExitCode;
 
@@ -19,7 +21,7 @@ pub mod train;
 
 /// Neural Task Graphs: one-shot visual imitation from a single demonstration.
 #[derive(Debug, Parser)]
-#[command(name = "ntg", version, about, long_about = None)]
+#[command(name = "ntg", version, long_about = None)]
 pub struct Cli {
     /// What to do.
     #[command(subcommand)]
@@ -145,9 +147,11 @@ pub fn main() -> ExitCode {
             return ExitCode::SUCCESS;
         }
         Err(err) => {
-            // Usage errors on one line: clap's first paragraph (with the
-            // missing flags after "not provided:", or the possible values).
-            eprintln!("{}", one_line(&err.render().to_string()));
+            // Usage errors as clap writes them: the error, a "did you
+            // mean" tip where one fits, the usage line and where to find
+            // more; bare `ntg` (or a family without its subcommand) gets
+            // the help with the command list.
+            eprint!("{}", usage_error(&err));
             return ExitCode::from(2);
         }
     };
@@ -180,18 +184,11 @@ pub fn error_chain(err: &anyhow::Error) -> String {
     text
 }
 
-/// Clap's first paragraph of an error message on one line.
-fn one_line(rendered: &str) -> String {
-    let words: Vec<&str> = rendered
-        .lines()
-        .take_while(|l| !l.trim().is_empty())
-        .map(str::trim)
-        .collect();
-    if words.is_empty() {
-        "error: invalid arguments".to_owned()
-    } else {
-        words.join(" ")
-    }
+/// What `ntg` prints for a usage error: clap's rendering (error, tip,
+/// usage line), ending in one newline.
+fn usage_error(err: &clap::Error) -> String {
+    let text = err.render().to_string();
+    format!("{}\n", text.trim_end())
 }
 
 #[cfg(test)]
@@ -211,27 +208,42 @@ mod tests {
     }
 
     #[test]
-    fn usage_errors_keep_their_first_paragraph_on_one_line() {
-        let err = Cli::try_parse_from(["ntg", "train"]).unwrap_err();
-        let line = one_line(&err.render().to_string());
+    fn usage_errors_suggest_the_flag_meant_and_show_the_usage_line() {
+        let err = parse_from(["ntg", "train", "--out", "r", "--train-task", "5"]).unwrap_err();
+        let text = usage_error(&err);
         assert!(
-            line.starts_with("error: the following required arguments were not provided:")
-                && line.contains("--out"),
-            "{line}"
+            text.starts_with("error: unexpected argument '--train-task'"),
+            "{text}"
         );
-        assert!(!line.contains('\n'));
-        let err = Cli::try_parse_from(["ntg", "train", "--out", "r", "--epochs", "x"]).unwrap_err();
-        let line = one_line(&err.render().to_string());
         assert!(
-            line.contains("--epochs") && !line.contains("Usage"),
-            "{line}"
+            text.contains("--train-tasks") && text.contains("Usage: ntg train"),
+            "{text}"
         );
+        let err = parse_from(["ntg", "eval", "--runs", "r"]).unwrap_err();
+        let text = usage_error(&err);
+        assert!(
+            text.contains("'--run'") && text.contains("Usage: ntg eval"),
+            "{text}"
+        );
+        let err = parse_from(["ntg", "train"]).unwrap_err();
+        let text = usage_error(&err);
+        assert!(
+            text.starts_with("error: the following required arguments were not provided:")
+                && text.contains("--out"),
+            "{text}"
+        );
+        // Bare `ntg`: the help, with every command.
+        let err = parse_from(["ntg"]).unwrap_err();
+        let text = usage_error(&err);
+        for command in ["train", "eval", "export", "trace", "reproduce"] {
+            assert!(text.contains(&format!("  {command}")), "{text}");
+        }
     }
 
     #[test]
     fn flags_of_another_domain_are_refused_not_ignored() {
         let err = parse_from(["ntg", "train", "--out", "r", "--memory"]).unwrap_err();
-        let line = one_line(&err.render().to_string());
+        let line = usage_error(&err);
         assert!(
             line.contains("--memory is a flag of --domain collect; this run is --domain blocks"),
             "{line}"

@@ -29,7 +29,14 @@ pub struct TraceArgs {
 
 /// Runs `ntg trace`.
 pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
-    let run = RunDir::open(&args.run)?;
+    let (run, domain) = crate::domain::open_run(&args.run)?;
+    if domain != crate::domain::DomainId::Blocks {
+        anyhow::bail!(
+            "{}: ntg trace replays block-stacking runs; this is a run of --domain {} (ntg eval evaluates it)",
+            run.root().display(),
+            domain.name()
+        );
+    }
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     let device = crate::spec::device();
     if config.method.is_ntp() {

@@ -33,8 +33,10 @@ pub type EvalArgs = crate::domain::EvalFlags;
 /// Runs `ntg eval` on the run in `--run`, with the domain it belongs to.
 pub fn run_eval(args: &EvalArgs) -> anyhow::Result<()> {
     let (run, domain) = crate::domain::open_run(&args.run)?;
-    // It writes the run's `eval/`: not while another process trains it.
-    let _writer = run.lock()?;
+    // No lock: evaluation reads the trained model (replaced whole by
+    // training, never half-written) and writes only its own records under
+    // `eval/`, each in one rename; a run folder it cannot write to (a
+    // read-only copy) is evaluated all the same.
     domain.runs().evaluate(&run, args)
 }
 

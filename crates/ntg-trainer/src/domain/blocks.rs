@@ -2059,13 +2059,13 @@ fn evaluate_decisions(run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()> {
     let (prefix, tasks, seeds) = eval_split(flags, &config)?;
     let model = load_baseline(run, &config, &device)?;
     let report = ntp_decisions(model.as_ref(), &config, &tasks, seeds, &device)?;
-    std::fs::create_dir_all(run.eval_dir())?;
-    let path = run
-        .eval_dir()
-        .join(format!("{prefix}decisions-{}.json", flags.test_tasks));
-    RunDir::write_json(&path, &report)?;
+    let recorded = super::record_eval(
+        run,
+        &format!("{prefix}decisions-{}.json", flags.test_tasks),
+        &report,
+    );
     print!("{}", report.table());
-    println!("records in {}", path.display());
+    println!("{recorded}");
     Ok(())
 }
 
@@ -2233,12 +2233,10 @@ fn eval_split(
 
 /// Writes `result` to the run's `eval/NAME.json` and prints its rates.
 fn write_eval(run: &RunDir, name: &str, result: &EvalResult) -> anyhow::Result<()> {
-    std::fs::create_dir_all(run.eval_dir())?;
-    let path = run.eval_dir().join(format!("{name}.json"));
-    RunDir::write_json(&path, result)?;
+    let recorded = super::record_eval(run, &format!("{name}.json"), result);
     let s = result.success;
     println!(
-        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); goals met {:.3}{}; records in {}",
+        "{}: success {}/{} = {:.3} (95% CI {:.3}-{:.3}); goals met {:.3}{}; {recorded}",
         result.variant,
         s.successes,
         s.trials,
@@ -2247,7 +2245,6 @@ fn write_eval(run: &RunDir, name: &str, result: &EvalResult) -> anyhow::Result<(
         s.ci_high,
         result.mean_goal_fraction,
         result.transcribed_note(),
-        path.display()
     );
     Ok(())
 }

@@ -666,8 +666,8 @@ pub fn evaluate(
 #[derive(Debug, Clone, clap::Args)]
 #[command(next_help_heading = "Object collection (--domain collect)")]
 pub struct CollectFlags {
-    /// Numbers of target objects of the training tasks.
-    #[arg(long, value_delimiter = ',', default_values_t = [2, 4])]
+    /// Numbers of target objects of the training tasks (`2,4` or `2 4`).
+    #[arg(long, value_delimiter = ',', num_args = 1.., default_values_t = [2, 4])]
     pub objects: Vec<usize>,
     /// NTG: train the demo interpreter on whole demos alone, without
     /// random stretches of them.
@@ -807,16 +807,14 @@ impl DomainRuns for Collect {
         );
         if flags.split != crate::domain::EvalSplit::Test {
             anyhow::bail!(
-                "--split validation and --split seen are for block-stacking runs; object collection evaluates its test episodes"
+                "--split {} is for block-stacking runs; object collection evaluates its test episodes (--split test)",
+                flags.split.name()
             );
         }
         let model = load_model(run, &config)?;
         let result = evaluate(model.as_ref(), &config, &EVAL_OBJECTS, flags.test_tasks)?;
-        std::fs::create_dir_all(run.eval_dir())?;
-        let path = run
-            .eval_dir()
-            .join(format!("collect-{}.json", flags.test_tasks));
-        RunDir::write_json(&path, &result)?;
+        let recorded =
+            super::record_eval(run, &format!("collect-{}.json", flags.test_tasks), &result);
         for p in &result.points {
             let s = p.success;
             println!(
@@ -830,7 +828,7 @@ impl DomainRuns for Collect {
                 s.ci_high
             );
         }
-        println!("records in {}", path.display());
+        println!("{recorded}");
         Ok(())
     }
     fn trained(&self, run: &RunDir) -> anyhow::Result<super::TrainedRun> {

@@ -127,6 +127,22 @@ impl DomainId {
     }
 }
 
+/// Writes the evaluation record `value` as `run`'s `eval/FILE` and says
+/// where, for the line that prints the result: "records in PATH", or, where
+/// the run folder cannot be written (a read-only copy, a model zoo entry
+/// checked out read-only), "not recorded (REASON)": the printed numbers are
+/// the result either way.
+pub fn record_eval(run: &RunDir, file: &str, value: &impl Serialize) -> String {
+    let path = run.eval_dir().join(file);
+    let written = std::fs::create_dir_all(run.eval_dir())
+        .map_err(anyhow::Error::from)
+        .and_then(|()| RunDir::write_json(&path, value));
+    match written {
+        Ok(()) => format!("records in {}", path.display()),
+        Err(e) => format!("not recorded ({})", crate::cli::error_chain(&e)),
+    }
+}
+
 /// Opens the run folder `path` and finds the domain it is a run of.
 pub fn open_run(path: &std::path::Path) -> anyhow::Result<(RunDir, DomainId)> {
     let run = RunDir::open(path)?;
@@ -354,4 +370,28 @@ pub enum EvalSplit {
     /// structures with a tower of five or more cubes
     /// (`env_blocks::structure_test_tasks`). Not in the paper.
     Structure,
+}
+
+impl EvalSplit {
+    /// Its name on the command line (`--split NAME`).
+    pub fn name(self) -> &'static str {
+        match self {
+            EvalSplit::Test => "test",
+            EvalSplit::Validation => "validation",
+            EvalSplit::Seen => "seen",
+            EvalSplit::Structure => "structure",
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_split_is_named_as_the_command_line_names_it() {
+        for split in EvalSplit::value_variants() {
+            assert_eq!(split.to_possible_value().unwrap().get_name(), split.name());
+        }
+    }
 }

@@ -438,16 +438,14 @@ impl DomainRuns for Sorting {
             crate::domain::EvalSplit::Validation => "validation-",
             _ => "",
         };
-        let path = run.eval_dir().join(format!(
-            "{name}{}-{}.json",
-            flags.variant.name(),
-            flags.test_tasks
-        ));
-        std::fs::create_dir_all(run.eval_dir())?;
-        RunDir::write_json(&path, &result)?;
+        let recorded = super::record_eval(
+            run,
+            &format!("{name}{}-{}.json", flags.variant.name(), flags.test_tasks),
+            &result,
+        );
         let s = result.success;
         println!(
-            "{} ({split_name}, scenes with 2-4 objects presorted): success {}/{} = {:.3} (95% CI {:.3}-{:.3}); objects sorted {:.3}; records in {}",
+            "{} ({split_name}, scenes with 2-4 objects presorted): success {}/{} = {:.3} (95% CI {:.3}-{:.3}); objects sorted {:.3}; {recorded}",
             flags.variant.name(),
             s.successes,
             s.trials,
@@ -455,7 +453,6 @@ impl DomainRuns for Sorting {
             s.ci_low,
             s.ci_high,
             result.goal_fraction,
-            path.display()
         );
         Ok(())
     }

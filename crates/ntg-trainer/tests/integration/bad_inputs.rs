@@ -58,6 +58,12 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
     std::fs::write(root.join("tasks.json"), r#"{"stack_0": "nope"}"#).unwrap();
     std::fs::create_dir(root.join("norun")).unwrap();
     std::fs::create_dir(root.join("badconfig")).unwrap();
+    std::fs::create_dir(root.join("collectrun")).unwrap();
+    std::fs::write(
+        root.join("collectrun/config.json"),
+        r#"{"domain": "collect"}"#,
+    )
+    .unwrap();
     std::fs::write(root.join("badconfig/config.json"), r#"{"obs": 3}"#).unwrap();
     std::fs::create_dir(root.join("emptyjigsaws")).unwrap();
     let run = train_tiny_run(root);
@@ -330,6 +336,57 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         (
             s(&["eval", "--run", &other_obs]),
             "reads state observations".into(),
+        ),
+        // Typos get a suggestion and the usage line; bare `ntg` the
+        // command list.
+        (
+            train(&["--train-task", "50"]),
+            "a similar argument exists: '--train-tasks'".into(),
+        ),
+        (s(&["eval", "--runs", &run_s]), "Usage: ntg eval".into()),
+        (s(&[]), "Commands:".into()),
+        // Messages that name the real cause.
+        (
+            s(&["eval", "--run", &p("existing.json")]),
+            "it is a file".into(),
+        ),
+        (
+            s(&[
+                "trace",
+                "--run",
+                &p("collectrun"),
+                "--task",
+                "0",
+                "--out",
+                &p("t"),
+            ]),
+            "this is a run of --domain collect".into(),
+        ),
+        (
+            s(&[
+                "collect",
+                "demo",
+                "--objects",
+                "7",
+                "--seed",
+                "0",
+                "--out",
+                &p("d"),
+            ]),
+            "--objects 7: a task has 1 to 5".into(),
+        ),
+        (
+            s(&[
+                "collect",
+                "demo",
+                "--objects",
+                "2",
+                "--seed",
+                "0",
+                "--out",
+                &p("nonempty"),
+            ]),
+            "--force".into(),
         ),
         // `ntg export`: not a run, damaged weights, an --out that holds
         // something else (never replaced, even with --force) or is a file.

@@ -147,6 +147,21 @@ fn an_exported_run_holds_its_trained_weights_in_pytorch_layout() {
         eval(&as_run).replace(s(&as_run), ""),
         eval(&run).replace(s(&run), "")
     );
+    // A folder it cannot write its records into is evaluated all the
+    // same, and says so (here `eval` is a file; a read-only copy is the
+    // real case).
+    std::fs::remove_dir_all(as_run.join("eval")).unwrap();
+    std::fs::write(as_run.join("eval"), "mine").unwrap();
+    let (code, out, err) = ntg(&["eval", "--run", s(&as_run), "--test-tasks", "4"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("success") && out.contains("not recorded ("),
+        "{out}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(as_run.join("eval")).unwrap(),
+        "mine"
+    );
 
     // Every committed weights entry (a video run: its policy and its frame
     // encoder) exports too.
