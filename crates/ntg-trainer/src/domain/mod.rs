@@ -139,7 +139,7 @@ pub fn record_eval(run: &RunDir, file: &str, value: &impl Serialize) -> String {
         .and_then(|()| RunDir::write_json(&path, value));
     match written {
         Ok(()) => format!("records in {}", path.display()),
-        Err(e) => format!("not recorded ({})", crate::cli::error_chain(&e)),
+        Err(e) => format!("not recorded ({e:#})"),
     }
 }
 
