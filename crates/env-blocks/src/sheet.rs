@@ -35,6 +35,42 @@ pub fn contact_sheet(frames: &[&RgbImage], columns: usize, scale: u32, gap: u32)
     sheet
 }
 
+/// [`contact_sheet`] with a caption under each frame (`frames[k].1`,
+/// upper-cased, in the sheet's 3×5 font at scale 1; clipped to the cell):
+/// which step a frame shows and what was done there.
+pub fn captioned_contact_sheet(
+    frames: &[(&RgbImage, String)],
+    columns: usize,
+    scale: u32,
+    gap: u32,
+) -> RgbImage {
+    let Some((first, _)) = frames.first() else {
+        return RgbImage::new(1, 1);
+    };
+    let columns = columns.clamp(1, frames.len()) as u32;
+    let rows = (frames.len() as u32).div_ceil(columns);
+    let scale = scale.max(1);
+    let (fw, fh) = (first.width() * scale, first.height() * scale);
+    // The caption's 5 font rows, with 2 pixels above and below.
+    let caption = 9;
+    let width = columns * fw + (columns + 1) * gap;
+    let height = rows * (fh + caption) + (rows + 1) * gap;
+    let mut sheet = RgbImage::from_pixel(width, height, BACKGROUND);
+    for (k, (frame, text)) in frames.iter().enumerate() {
+        let (c, r) = (k as u32 % columns, k as u32 / columns);
+        let (x0, y0) = (gap + c * (fw + gap), gap + r * (fh + caption + gap));
+        for y in 0..fh.min(frame.height() * scale) {
+            for x in 0..fw.min(frame.width() * scale) {
+                sheet.put_pixel(x0 + x, y0 + y, *frame.get_pixel(x / scale, y / scale));
+            }
+        }
+        // At most the characters that fit the cell's width.
+        let fit: String = text.chars().take((fw / 4).max(1) as usize).collect();
+        draw_label(&mut sheet, x0, y0 + fh + 2, &fit, 1, LABEL);
+    }
+    sheet
+}
+
 /// A 3×5 pixel glyph (rows top to bottom, 3 bits each, high bit left) for
 /// the characters of action names (upper-cased); `None` for others.
 fn glyph(c: char) -> Option<[u8; 5]> {
@@ -63,6 +99,22 @@ fn glyph(c: char) -> Option<[u8; 5]> {
         '2' => [0b110, 0b001, 0b010, 0b100, 0b111],
         '3' => [0b110, 0b001, 0b010, 0b001, 0b110],
         '4' => [0b101, 0b101, 0b111, 0b001, 0b001],
+        '5' => [0b111, 0b100, 0b110, 0b001, 0b110],
+        '6' => [0b011, 0b100, 0b110, 0b101, 0b010],
+        '7' => [0b111, 0b001, 0b010, 0b010, 0b010],
+        '8' => [0b010, 0b101, 0b010, 0b101, 0b010],
+        '9' => [0b010, 0b101, 0b011, 0b001, 0b110],
+        'J' => [0b001, 0b001, 0b001, 0b101, 0b010],
+        'Q' => [0b010, 0b101, 0b101, 0b110, 0b011],
+        'U' => [0b101, 0b101, 0b101, 0b101, 0b111],
+        'W' => [0b101, 0b101, 0b111, 0b111, 0b101],
+        'X' => [0b101, 0b101, 0b010, 0b101, 0b101],
+        'Y' => [0b101, 0b101, 0b010, 0b010, 0b010],
+        'Z' => [0b111, 0b001, 0b010, 0b100, 0b111],
+        '_' => [0, 0, 0, 0, 0b111],
+        '-' => [0, 0, 0b111, 0, 0],
+        '.' => [0, 0, 0, 0, 0b010],
+        ':' => [0, 0b010, 0, 0b010, 0],
         '(' => [0b010, 0b100, 0b100, 0b100, 0b010],
         ')' => [0b010, 0b001, 0b001, 0b001, 0b010],
         '<' => [0b001, 0b010, 0b100, 0b010, 0b001],
@@ -175,6 +227,28 @@ mod tests {
         assert_eq!(sheet.get_pixel(1, 10), &Rgb([255, 0, 0]));
         assert_eq!(sheet.get_pixel(0, 0), &Rgb([30, 30, 30]));
         assert_eq!(contact_sheet(&[], 3, 1, 0).dimensions(), (1, 1));
+    }
+
+    #[test]
+    fn captions_go_under_their_frames() {
+        let a = RgbImage::from_pixel(8, 8, Rgb([255, 0, 0]));
+        let sheet = captioned_contact_sheet(
+            &[(&a, "0 <start>".into()), (&a, "1 pick(A)".into())],
+            2,
+            2,
+            1,
+        );
+        assert_eq!(sheet.dimensions(), (2 * 16 + 3, 16 + 9 + 2));
+        // The caption's first glyph ('0': a full top row) under frame 0.
+        let y = 1 + 16 + 2;
+        assert_eq!(sheet.get_pixel(1, y), &LABEL);
+        assert_eq!(sheet.get_pixel(1, 1), &Rgb([255, 0, 0]));
+        // Every character of the captions has a glyph.
+        for c in
+            "0123456789 <START> <END> PICK(A) PLACE(BIN2) MOVE GRASP DROP: SLIPPED MISSED".chars()
+        {
+            assert!(glyph(c).is_some(), "{c:?}");
+        }
     }
 
     #[test]

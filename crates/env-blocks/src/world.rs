@@ -162,6 +162,55 @@ pub enum Failure {
     },
 }
 
+impl std::fmt::Display for Failure {
+    /// What went wrong, naming cubes by letter as the action names do:
+    /// `the drop of C missed B: it landed on the table`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        use crate::env::target_name;
+        use crate::task::cube_letter;
+        match *self {
+            Failure::MoveToHeld { object } => {
+                write!(
+                    f,
+                    "move to {}, which the gripper holds",
+                    cube_letter(object)
+                )
+            }
+            Failure::NothingToGrasp => write!(f, "grasp with nothing under the gripper"),
+            Failure::AlreadyHolding { object } => {
+                write!(f, "grasp while holding {}", cube_letter(object))
+            }
+            Failure::Covered { object, by } => write!(
+                f,
+                "grasp of {}, which {} rests on",
+                cube_letter(object),
+                cube_letter(by)
+            ),
+            Failure::Slipped { object } => {
+                write!(f, "the grasp of {} slipped", cube_letter(object))
+            }
+            Failure::NothingHeld => write!(f, "drop with nothing held"),
+            Failure::Missed {
+                object,
+                intended,
+                landed_on,
+            } => {
+                let landed = match landed_on {
+                    Support::Table => "the table".to_owned(),
+                    Support::Object(i) => cube_letter(i).to_string(),
+                    Support::Bin(b) => format!("bin{}", b + 1),
+                };
+                write!(
+                    f,
+                    "the drop of {} missed {}: it landed on {landed}",
+                    cube_letter(object),
+                    target_name(intended)
+                )
+            }
+        }
+    }
+}
+
 /// The result of one primitive.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case", tag = "kind")]
@@ -767,6 +816,27 @@ impl World {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn failures_name_cubes_by_letter() {
+        let missed = Failure::Missed {
+            object: 2,
+            intended: Target::Object(1),
+            landed_on: Support::Table,
+        };
+        assert_eq!(
+            missed.to_string(),
+            "the drop of C missed B: it landed on the table"
+        );
+        assert_eq!(
+            Failure::Covered { object: 0, by: 7 }.to_string(),
+            "grasp of A, which H rests on"
+        );
+        assert_eq!(
+            Failure::Slipped { object: 3 }.to_string(),
+            "the grasp of D slipped"
+        );
+    }
 
     #[test]
     fn bin_slots_lie_inside_the_pad_without_overlap() {

@@ -16,6 +16,12 @@ use crate::{CollectError, CollectExpert, Task, vocabulary};
 pub const DEMO_FORMAT: &str = "ntg-collect-demo/1";
 /// Frames per row of a contact sheet.
 pub const SHEET_COLUMNS: usize = 6;
+/// The folder of a written demo's frames (`step_NNN.png`).
+pub const FRAMES_DIR: &str = "frames";
+
+/// A written demo's contact sheet.
+pub const CONTACT_SHEET: &str = "contact-sheet.png";
+
 /// Magnification of frames on a contact sheet.
 pub const SHEET_SCALE: u32 = 2;
 /// Frames per row of a video's contact sheet.
@@ -139,8 +145,9 @@ fn save_png(img: &RgbImage, path: &Path) -> Result<(), CollectError> {
 }
 
 /// Records the expert's demonstration of `task` with `seed` and writes it to
-/// `dir` (created if needed): `demo.json` ([`DemoFile`]), `frame_NNN.png`
-/// and `contact_sheet.png` (frames only when `config.render`).
+/// `dir` (created if needed): `demo.json` ([`DemoFile`]),
+/// `frames/step_NNN.png` and `contact-sheet.png` (frames only when
+/// `config.render`): the file names of every demo and trace `ntg` writes.
 pub fn write_demo(
     dir: &Path,
     task: &Task,
@@ -156,9 +163,12 @@ pub fn write_demo(
         .cloned()
         .ok_or_else(|| CollectError::InvalidConfig("no scene after reset".into()))?;
 
-    fs::create_dir_all(dir).map_err(|source| CollectError::Io {
-        path: dir.to_owned(),
-        source,
+    let frames_dir = dir.join(FRAMES_DIR);
+    fs::create_dir_all(if config.render { &frames_dir } else { dir }).map_err(|source| {
+        CollectError::Io {
+            path: dir.to_owned(),
+            source,
+        }
     })?;
     let vocab = vocabulary();
     let name = |id| vocab.name(id).unwrap_or("?").to_owned();
@@ -169,7 +179,7 @@ pub fn write_demo(
     for (i, obs) in demo.observations().iter().enumerate() {
         let frame = match &obs.frame {
             Some(img) => {
-                let file = format!("frame_{i:03}.png");
+                let file = format!("{FRAMES_DIR}/step_{i:03}.png");
                 let path = dir.join(&file);
                 save_png(img, &path)?;
                 frames.push(path);
@@ -187,7 +197,7 @@ pub fn write_demo(
     }
     let sheet_path = match demo_contact_sheet(&demo) {
         Some(sheet) => {
-            let path = dir.join("contact_sheet.png");
+            let path = dir.join(CONTACT_SHEET);
             save_png(&sheet, &path)?;
             Some(path)
         }
@@ -204,7 +214,7 @@ pub fn write_demo(
         state_layout: state_layout(),
         steps,
         scene,
-        contact_sheet: sheet_path.as_ref().map(|_| "contact_sheet.png".to_owned()),
+        contact_sheet: sheet_path.as_ref().map(|_| CONTACT_SHEET.to_owned()),
     };
     let json = dir.join("demo.json");
     let text = serde_json::to_string_pretty(&file)?;

@@ -4,7 +4,8 @@
 //! indices, and how an epoch's mean step values become its metrics line);
 //! a domain optionally supplies a [`Validator`] (rollouts on held-out
 //! tasks). `fit` owns everything else: shuffling, the learning-rate
-//! schedule, Adam, the progress bar, `metrics.jsonl`, validation and
+//! schedule, Adam, the progress bar, `metrics.jsonl` (and its TensorBoard
+//! copy, [`crate::events`]), validation and
 //! best-epoch selection into `best/`, checkpoints and resuming.
 //!
 //! Determinism and resuming: epoch `e` shuffles with a generator seeded by
@@ -34,6 +35,7 @@ use rand::{RngCore, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::events::EventWriter;
 use crate::run_dir::{RunDir, drop_lines_from_epoch, recover_dir, replace_dir};
 
 /// Trainings and evaluations running in this process now, and how many
@@ -479,6 +481,10 @@ where
     let steps_per_epoch = num_examples.div_ceil(optim.batch_size);
     let total_steps = steps_per_epoch * optim.epochs;
     let last = if stopped_early { start } else { optim.epochs };
+    // TensorBoard's copy of the log, a file per session (see `events`).
+    let mut events = (start < last)
+        .then(|| EventWriter::start_session(run.root(), start))
+        .transpose()?;
     for epoch in start..last {
         let started = std::time::Instant::now();
         let cpu_clock = EpochCpuClock::start();
@@ -539,9 +545,24 @@ where
         }
         // Log, then checkpoint: a run killed in between redoes the epoch
         // and drops its lines first.
-        run.append_metrics(&with_cpu_seconds(&metrics, cpu_seconds)?)?;
+        let line = with_cpu_seconds(&metrics, cpu_seconds)?;
+        run.append_metrics(&line)?;
         if let Some(record) = validation {
             RunDir::append_jsonl(&run.validation_path(), &record)?;
+        }
+        if let Some(events) = events.as_mut() {
+            events.scalars("train", epoch, &line)?;
+            if let (Some(record), Some(sel)) = (validation, selection.as_ref()) {
+                let [first, second] = sel.scores;
+                events.named_scalars(
+                    "validation",
+                    epoch,
+                    &[
+                        (first, record.score.success),
+                        (second, record.score.goal_fraction),
+                    ],
+                )?;
+            }
         }
         replace_dir(&ckpt, |dir| {
             model.save_to(dir)?;

@@ -6,6 +6,7 @@
 //! - [`spec`] (observation kinds, named settings), [`run_dir`] (run
 //!   folders), [`provenance`] (where each stretch of training ran),
 //!   [`dataset`] (demo datasets generated in parallel and cached on disk),
+//!   [`events`] (the training log as TensorBoard event files),
 //!   [`stats`], [`symmetry`] (object renaming), [`evaluate`] (parallel
 //!   loops with a progress bar);
 //! - [`fit`]: the one epoch loop (checkpoints, exact resume, validation and
@@ -27,6 +28,7 @@
 pub mod dataset;
 pub mod domain;
 pub mod evaluate;
+pub mod events;
 pub mod fit;
 pub mod method;
 pub mod provenance;

@@ -10,6 +10,9 @@
 //!                    epoch's steps) and, where the run had its process to
 //!                    itself (Linux), `cpu_seconds` (the process's CPU time
 //!                    over those steps, every thread)
+//!   events.out.tfevents.*
+//!                    the same, and the validation scores, as TensorBoard
+//!                    event files: one per training session (`events`)
 //!   checkpoint/      latest weights, optimiser state and progress
 //!   validation.jsonl per epoch, the score on the validation tasks (if any)
 //!   best/            the weights of the epoch that scored best on them,

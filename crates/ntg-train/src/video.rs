@@ -49,6 +49,11 @@ use crate::run_dir::RunDir;
 
 /// Folder of the stage A run inside a video run's folder.
 pub const STAGE_A_DIR: &str = "stage_a";
+
+/// What stage A's validation score holds (its frames of validation
+/// videos, not rollouts): the localizer's and the edge classifier's
+/// accuracy.
+pub const STAGE_A_SCORES: crate::fit::ScoreNames = ["localizer accuracy", "edge accuracy"];
 /// Folder of the embedding cache inside a video run's folder.
 pub const EMBEDDINGS_DIR: &str = "embeddings";
 
@@ -791,8 +796,7 @@ pub fn train_encoder(
     let selection = held_out_step.is_some().then_some(Selection {
         validator: &mut validator as &mut dyn crate::fit::Validator<FrameStageNet>,
         every: 1,
-        // Frames of validation videos, not rollouts.
-        scores: ["localizer accuracy", "edge accuracy"],
+        scores: STAGE_A_SCORES,
     });
     fit(
         net,

@@ -5,7 +5,7 @@
 //! What is here, in layers (each module uses only those above it):
 //! - ntg-train's modules, re-exported under their own names ([`fit`],
 //!   [`dataset`], [`run_dir`], [`stats`], [`symmetry`], [`video`],
-//!   [`evaluate`], [`provenance`]); [`spec`] adds profiles, the device and
+//!   [`evaluate`], [`provenance`], [`events`]); [`spec`] adds profiles, the device and
 //!   the command line's parsers to ntg-train's;
 //! - [`method`]: ntg-train's methods (NTG, the Flat Policy) and this
 //!   repository's block-stacking baselines (NTP, NTP Flat, NTP
@@ -16,7 +16,8 @@
 //!   [`export`]: a trained run's weights as safetensors for PyTorch
 //!   (`ntg export`, and the model zoo's entries);
 //! - [`experiment`]: the paper's figures as experiment files
-//!   (`experiments/*.toml`), run and drawn ([`figure`], [`svg`]);
+//!   (`experiments/*.toml`), run and drawn ([`figure`], [`svg`]), and a
+//!   run's training curves ([`curves`], `ntg plot`);
 //!   [`reproduce`] runs them all; [`record`] keeps the paper profile's
 //!   finished runs as small committed records and [`carry`] its unfinished
 //!   ones carried between machines; [`trace`] executes one test task step
@@ -32,6 +33,7 @@
 pub mod block_world;
 pub mod carry;
 pub mod cli;
+pub mod curves;
 pub mod domain;
 pub mod experiment;
 pub mod export;
@@ -44,6 +46,6 @@ pub mod spec;
 pub mod svg;
 pub mod trace;
 
-pub use ntg_train::{dataset, evaluate, fit, provenance, run_dir, stats, symmetry, video};
+pub use ntg_train::{dataset, evaluate, events, fit, provenance, run_dir, stats, symmetry, video};
 
 pub use domain::{blocks, collect};

@@ -6,7 +6,8 @@
 //! action with π, and what the environment reported), `trace.txt` (the same
 //! as a table), `ctg.dot` / `ctg.svg` (the executed graph, rendered
 //! in-process), `demo.txt`, and one PNG per observation under `frames/`
-//! plus `contact-sheet.png`.
+//! plus `contact-sheet.png` (the frames captioned with each step's action)
+//! and `rollout.gif` (the same frames as an animation).
 //!
 //! The NTP baselines have no graph: their trace ([`trace_baseline`]) shows,
 //! per primitive, the programs running when it was chosen (NTP's call
@@ -191,7 +192,7 @@ pub fn trace_task(
                 name: vocab.name(action).unwrap_or("?").to_owned(),
                 p: dist.probability(action),
             },
-            failure: step.info.failure.as_ref().map(|f| format!("{f:?}")),
+            failure: step.info.failure.as_ref().map(|f| f.to_string()),
             success_after: step.info.success,
         });
         let done = step.is_done();
@@ -208,9 +209,12 @@ pub fn trace_task(
         )?;
         frames.push(frame.clone());
     }
-    let refs: Vec<&image::RgbImage> = frames.iter().collect();
-    let sheet = env_blocks::sheet::contact_sheet(&refs, 8, 2, 4);
-    save_png(&sheet, &out.join("contact-sheet.png"))?;
+    let mut captions: Vec<String> = steps
+        .iter()
+        .map(|st| format!("{} {}", st.step, st.chosen.name))
+        .collect();
+    captions.push(end_caption(success, truncated));
+    write_rollout_images(out, &frames, &captions)?;
 
     let dot = policy.graph().to_dot(&vocab)?;
     write(&out.join("ctg.dot"), &dot)?;
@@ -329,16 +333,17 @@ pub fn trace_baseline(
             step: steps.len(),
             programs: d.explanation,
             chosen: vocab.name(d.action).unwrap_or("?").to_owned(),
-            failure: d.step.info.failure.as_ref().map(|f| format!("{f:?}")),
+            failure: d.step.info.failure.as_ref().map(|f| f.to_string()),
             success_after: d.step.info.success,
         });
         Ok(())
     })?;
-    let refs: Vec<&image::RgbImage> = frames.iter().collect();
-    save_png(
-        &env_blocks::sheet::contact_sheet(&refs, 8, 2, 4),
-        &out.join("contact-sheet.png"),
-    )?;
+    let mut captions: Vec<String> = steps
+        .iter()
+        .map(|st: &BaselineStep| format!("{} {}", st.step, st.chosen))
+        .collect();
+    captions.push(end_caption(record.success, truncated));
+    write_rollout_images(out, &frames, &captions)?;
     let trace = BaselineTrace {
         method: method.name().to_owned(),
         index,
@@ -457,6 +462,64 @@ fn prepare_out(out: &Path) -> anyhow::Result<()> {
 
 fn write(path: &PathBuf, text: &str) -> anyhow::Result<()> {
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
+
+/// The caption of an episode's last frame.
+fn end_caption(success: bool, truncated: bool) -> String {
+    match (success, truncated) {
+        (true, _) => "end: success".into(),
+        (false, true) => "end: step limit".into(),
+        (false, false) => "end: failed".into(),
+    }
+}
+
+/// How long `rollout.gif` shows each frame, in milliseconds.
+const GIF_FRAME_MS: u32 = 700;
+
+/// Writes a rollout's frames (one per observation, the last after the
+/// last step) as `contact-sheet.png`, each captioned with `captions` (the
+/// step and the action chosen on it), and as the animation `rollout.gif`
+/// (frames scaled 2x, looping).
+fn write_rollout_images(
+    out: &Path,
+    frames: &[image::RgbImage],
+    captions: &[String],
+) -> anyhow::Result<()> {
+    let cells: Vec<(&image::RgbImage, String)> = frames
+        .iter()
+        .zip(
+            captions
+                .iter()
+                .cloned()
+                .chain(std::iter::repeat(String::new())),
+        )
+        .collect();
+    save_png(
+        &env_blocks::sheet::captioned_contact_sheet(&cells, 8, 2, 4),
+        &out.join("contact-sheet.png"),
+    )?;
+    let path = out.join("rollout.gif");
+    let file =
+        std::fs::File::create(&path).with_context(|| format!("writing {}", path.display()))?;
+    let mut encoder =
+        image::codecs::gif::GifEncoder::new_with_speed(std::io::BufWriter::new(file), 10);
+    encoder
+        .set_repeat(image::codecs::gif::Repeat::Infinite)
+        .with_context(|| format!("writing {}", path.display()))?;
+    let delay = image::Delay::from_numer_denom_ms(GIF_FRAME_MS, 1);
+    for frame in frames {
+        let scaled = image::imageops::resize(
+            frame,
+            frame.width() * 2,
+            frame.height() * 2,
+            image::imageops::FilterType::Nearest,
+        );
+        let rgba = image::DynamicImage::ImageRgb8(scaled).into_rgba8();
+        encoder
+            .encode_frame(image::Frame::from_parts(rgba, 0, 0, delay))
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
 }
 
 fn save_png(image: &image::RgbImage, path: &Path) -> anyhow::Result<()> {

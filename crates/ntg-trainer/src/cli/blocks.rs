@@ -6,8 +6,9 @@ use anyhow::{Context, bail};
 use clap::{Args, Subcommand};
 use env_blocks::{
     BlocksTask, EnvConfig, RichDemo, SortTask, StackTask, TaskStats, expert_success,
-    read_ntp_tasks, record_rich_demo, sheet::contact_sheet, standard_sort_tasks, standard_tasks,
-    write_ntp_tasks,
+    read_ntp_tasks, record_rich_demo,
+    sheet::{captioned_contact_sheet, contact_sheet},
+    standard_sort_tasks, standard_tasks, write_ntp_tasks,
 };
 
 /// Subcommands of `ntg blocks`.
@@ -228,7 +229,9 @@ fn save_png(img: &image::RgbImage, path: &Path) -> anyhow::Result<()> {
 }
 
 /// Records the demo and writes `demo.json`, `frames/*.png`,
-/// `contact_sheet.png` (flat steps) and `contact_sheet_primitives.png`.
+/// `contact-sheet.png` (flat steps, captioned) and
+/// `contact-sheet-primitives.png` (the frames `frames/step_NNN.png` and
+/// `frames/step_NNN_prim_J.png` tiled).
 pub fn write_demo(
     task: BlocksTask,
     opts: &DemoOptions,
@@ -258,26 +261,39 @@ pub fn write_demo(
         .with_context(|| format!("writing {}", json_path.display()))?;
     let mut all_frames = Vec::new();
     for (k, frame) in demo.frames.iter().enumerate() {
-        save_png(frame, &frames_dir.join(format!("step_{k:02}.png")))?;
+        save_png(frame, &frames_dir.join(format!("step_{k:03}.png")))?;
         all_frames.push(frame);
         if let Some(prims) = demo.primitive_frames.get(k) {
             for (j, f) in prims.iter().enumerate() {
                 save_png(
                     f,
-                    &frames_dir.join(format!("step_{:02}_prim_{j}.png", k + 1)),
+                    &frames_dir.join(format!("step_{:03}_prim_{j}.png", k + 1)),
                 )?;
                 all_frames.push(f);
             }
         }
     }
-    let flat: Vec<_> = demo.frames.iter().collect();
+    // Frame k shows the scene after the demo's k-th action.
+    let actions: Vec<&str> = demo.steps.iter().map(|st| st.action.as_str()).collect();
+    let flat: Vec<(&image::RgbImage, String)> = demo
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, frame)| {
+            let caption = match k.checked_sub(1).and_then(|i| actions.get(i)) {
+                Some(action) => format!("{k} {action}"),
+                None => format!("{k} <start>"),
+            };
+            (frame, caption)
+        })
+        .collect();
     save_png(
-        &contact_sheet(&flat, opts.columns, opts.scale, 2),
-        &opts.out.join("contact_sheet.png"),
+        &captioned_contact_sheet(&flat, opts.columns, opts.scale, 2),
+        &opts.out.join("contact-sheet.png"),
     )?;
     save_png(
         &contact_sheet(&all_frames, opts.columns, opts.scale, 2),
-        &opts.out.join("contact_sheet_primitives.png"),
+        &opts.out.join("contact-sheet-primitives.png"),
     )?;
     writeln!(
         out,
@@ -389,9 +405,9 @@ mod tests {
         assert_eq!(json["success"], true);
         assert_eq!(json["steps"].as_array().unwrap().len(), 8);
         assert_eq!(json["primitive_sequence"].as_array().unwrap().len(), 16);
-        assert!(dir.path().join("frames/step_00.png").exists());
-        assert!(dir.path().join("frames/step_08_prim_1.png").exists());
-        let sheet = image::open(dir.path().join("contact_sheet.png")).unwrap();
+        assert!(dir.path().join("frames/step_000.png").exists());
+        assert!(dir.path().join("frames/step_008_prim_1.png").exists());
+        let sheet = image::open(dir.path().join("contact-sheet.png")).unwrap();
         assert_eq!(sheet.width(), 4 * 128 + 5 * 2);
         assert!(find_stack_task(&tasks, "stack_9").is_err());
         assert!(find_stack_task(&tasks, "1").is_ok());

@@ -2,7 +2,8 @@
 //!
 //! - `ntg collect demo --objects N --seed S --out DIR`: draws a task with N
 //!   targets and records the expert's demonstration in the scene of seed S,
-//!   writing `DIR/demo.json`, `DIR/frame_NNN.png` and `DIR/contact_sheet.png`.
+//!   writing `DIR/demo.json`, `DIR/frames/step_NNN.png` and
+//!   `DIR/contact-sheet.png`.
 //! - `ntg collect tasks --objects N --count K --split test`: lists distinct
 //!   tasks of one side of the fixed train/test split.
 //!
@@ -188,13 +189,20 @@ pub fn demo(args: &DemoArgs, out: &mut impl Write) -> anyhow::Result<()> {
 }
 
 /// Removes the frames an earlier `ntg collect demo` wrote into `dir`
-/// (`frame_NNN.png`), so that a shorter demo leaves none of them behind.
+/// (`frames/step_NNN.png`), so that a shorter demo leaves none of them
+/// behind; other files in `frames/` stay.
 fn remove_earlier_frames(dir: &std::path::Path) -> anyhow::Result<()> {
-    for entry in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
+    let frames = dir.join(env_collect::export::FRAMES_DIR);
+    if !frames.is_dir() {
+        return Ok(());
+    }
+    for entry in
+        std::fs::read_dir(&frames).with_context(|| format!("reading {}", frames.display()))?
+    {
         let path = entry?.path();
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
         let frame = name.as_deref().is_some_and(|n| {
-            n.strip_prefix("frame_")
+            n.strip_prefix("step_")
                 .and_then(|n| n.strip_suffix(".png"))
                 .is_some_and(|k| !k.is_empty() && k.bytes().all(|b| b.is_ascii_digit()))
         });
@@ -282,21 +290,21 @@ mod tests {
         let text = String::from_utf8(text).unwrap();
         assert!(text.starts_with("task: "), "{text}");
         assert!(dir.path().join("demo/demo.json").is_file());
-        assert!(dir.path().join("demo/frame_000.png").is_file());
-        assert!(dir.path().join("demo/contact_sheet.png").is_file());
+        assert!(dir.path().join("demo/frames/step_000.png").is_file());
+        assert!(dir.path().join("demo/contact-sheet.png").is_file());
 
         // Written again only with --force, leaving no frame of the earlier
         // demo beside the new one's (a demo of one object is shorter), and
         // files that are not frames as they were.
         let frames = |dir: &std::path::Path| {
-            std::fs::read_dir(dir)
+            std::fs::read_dir(dir.join("frames"))
                 .unwrap()
                 .filter(|e| {
                     e.as_ref()
                         .unwrap()
                         .file_name()
                         .to_string_lossy()
-                        .starts_with("frame_")
+                        .starts_with("step_")
                 })
                 .count()
         };

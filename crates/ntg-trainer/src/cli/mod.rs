@@ -16,6 +16,7 @@ pub mod collect;
 pub mod export;
 pub mod graph;
 pub mod jigsaws;
+pub mod plot;
 pub mod trace;
 pub mod train;
 
@@ -45,6 +46,10 @@ pub enum Command {
     /// Write a trained run's weights as safetensors files that PyTorch
     /// loads, with their name map (`names.json`) and configurations.
     Export(export::ExportArgs),
+    /// Draw a run's training curves (losses, accuracies, validation
+    /// scores, its stages' too) as a PNG; `tensorboard --logdir` reads the
+    /// same log from the run's event files.
+    Plot(plot::PlotArgs),
     /// Reproduce the paper's figures (what `cargo xtask reproduce-figures` runs).
     Reproduce(train::ReproduceArgs),
     /// Save unfinished paper-profile runs into docs/figures/in-progress/
@@ -79,6 +84,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(args) => train::run_eval(&args),
         Command::Trace(args) => trace::run(&args),
         Command::Export(args) => export::run(&args),
+        Command::Plot(args) => plot::run(&args),
         Command::Reproduce(args) => train::run_reproduce(&args),
         Command::Carry(args) => carry::run(&args),
         Command::Blocks(cmd) => blocks::run(cmd),

@@ -26,6 +26,10 @@ use crate::run_dir::RunDir;
 /// Folder of the detector's training stage inside a run folder.
 pub const DETECTOR_STAGE_DIR: &str = "detector_stage";
 
+/// What the detector stage's validation score holds: the negated mean
+/// position error (higher is better) and the gripper's accuracy.
+pub const DETECTOR_SCORES: crate::fit::ScoreNames = ["negated position error", "gripper accuracy"];
+
 /// How the NTP (Detector) baseline's detector is trained (a run
 /// configuration's `detector`). The defaults were chosen on validation
 /// frames (`examples/detector_heldout.rs`, `docs/results/ntp-2026-11-25.md`):
@@ -254,7 +258,7 @@ pub fn train_detector(
     let selection = (!frames.select.is_empty()).then_some(Selection {
         validator: &mut validator as &mut dyn crate::fit::Validator<Detector>,
         every: 1,
-        scores: ["negated position error", "gripper accuracy"],
+        scores: DETECTOR_SCORES,
     });
     let net = fit(
         net,

@@ -167,10 +167,17 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
         "trace.txt",
         "demo.txt",
         "contact-sheet.png",
+        "rollout.gif",
         "frames/step_000.png",
     ] {
         assert!(out.join(file).is_file(), "{method}: missing {file}");
     }
+    // The animation has a frame per observation.
+    let gif = std::fs::File::open(out.join("rollout.gif")).unwrap();
+    let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif)).unwrap();
+    let animated = image::AnimationDecoder::into_frames(decoder).count();
+    let pngs = std::fs::read_dir(out.join("frames")).unwrap().count();
+    assert_eq!(animated, pngs, "rollout.gif frames vs frames/*.png");
     let trace = json(&out.join("trace.json"));
     let record = &eval["tasks"][1];
     assert_eq!(trace["task"], record["task"]);

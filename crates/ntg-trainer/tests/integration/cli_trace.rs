@@ -53,10 +53,17 @@ fn trace_writes_frames_graph_and_steps_consistent_with_eval() {
         "ctg.svg",
         "demo.txt",
         "contact-sheet.png",
+        "rollout.gif",
         "frames/step_000.png",
     ] {
         assert!(out.join(file).is_file(), "missing {file}");
     }
+    // The animation has a frame per observation.
+    let gif = std::fs::File::open(out.join("rollout.gif")).unwrap();
+    let decoder = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(gif)).unwrap();
+    let animated = image::AnimationDecoder::into_frames(decoder).count();
+    let pngs = std::fs::read_dir(out.join("frames")).unwrap().count();
+    assert_eq!(animated, pngs, "rollout.gif frames vs frames/*.png");
     let dot = std::fs::read_to_string(out.join("ctg.dot")).unwrap();
     assert!(dot.starts_with("digraph"), "{dot}");
     let svg = std::fs::read_to_string(out.join("ctg.svg")).unwrap();

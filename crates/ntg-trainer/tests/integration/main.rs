@@ -16,3 +16,4 @@ mod smoke;
 mod task_file;
 mod train_extras;
 mod video;
+mod watch;
