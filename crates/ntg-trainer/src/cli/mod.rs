@@ -161,6 +161,18 @@ pub fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    if let Some(hint) = resume_hint(&cli.command) {
+        // Training survives a kill at any moment (checkpoints and records
+        // are replaced whole), so Ctrl-C ends the process at once, saying
+        // how to go on.
+        let installed = ctrlc::set_handler(move || {
+            eprintln!("\ninterrupted: {hint}");
+            std::process::exit(130);
+        });
+        if let Err(e) = installed {
+            eprintln!("warning: Ctrl-C will not print how to resume ({e})");
+        }
+    }
     // rayon's global pool, its threads pinned to cores when it takes the
     // whole machine (see `ntg_model::init_thread_pool`).
     ntg_model::init_thread_pool();
@@ -170,6 +182,43 @@ pub fn main() -> ExitCode {
             eprintln!("error: {}", error_chain(&err));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// What to tell a user who stops `command` with Ctrl-C: how to resume a
+/// training command (`None` for the others, which redo their work).
+fn resume_hint(command: &Command) -> Option<String> {
+    match command {
+        Command::Train(args) => {
+            let mut words: Vec<String> = std::env::args().skip(1).collect();
+            if !args.flags.resume {
+                words.insert(1, "--resume".into());
+            }
+            let quoted: Vec<String> = words.iter().map(|w| shell_word(w)).collect();
+            Some(format!(
+                "{} keeps every finished epoch; `ntg {}` continues from the last one",
+                args.flags.out.display(),
+                quoted.join(" ")
+            ))
+        }
+        Command::Reproduce(_) => Some(
+            "finished runs are kept; the same command again reuses them and resumes the others where they stopped".into(),
+        ),
+        _ => None,
+    }
+}
+
+/// `word` as a shell reads it back: quoted when it holds anything but
+/// letters, digits and `-_./=,:`.
+fn shell_word(word: &str) -> String {
+    let plain = !word.is_empty()
+        && word
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./=,:".contains(c));
+    if plain {
+        word.to_owned()
+    } else {
+        format!("'{}'", word.replace('\'', "'\\''"))
     }
 }
 

@@ -2000,14 +2000,14 @@ impl DomainRuns for Blocks {
         );
         train_model(&run, &config, &device, |r| eprintln!("{r}"))?;
         match crate::fit::selected_epoch(&run)? {
-            Some(best) => eprintln!(
+            Some(best) => println!(
                 "done: epoch {} scored best on the validation tasks (success {:.3}, goals met {:.3}); its weights are in {}",
                 best.epoch,
                 best.score.success,
                 best.score.goal_fraction,
                 run.best_dir().display()
             ),
-            None => eprintln!("done: weights in {}", run.checkpoint_dir().display()),
+            None => println!("done: weights in {}", run.checkpoint_dir().display()),
         }
         Ok(())
     }

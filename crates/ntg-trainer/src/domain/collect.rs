@@ -786,7 +786,7 @@ impl DomainRuns for Collect {
         );
         let device = crate::spec::device().autodiff();
         train_run(&run, &config, &device, |r| eprintln!("{}", r.line))?;
-        eprintln!("done: weights in {}", run.checkpoint_dir().display());
+        println!("done: weights in {}", run.checkpoint_dir().display());
         Ok(())
     }
 

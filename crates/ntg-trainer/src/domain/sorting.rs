@@ -399,7 +399,7 @@ impl DomainRuns for Sorting {
         );
         let device = crate::spec::device().autodiff();
         train_run(&run, &config, &device, |r| eprintln!("{r}"))?;
-        eprintln!("done: weights in {}", run.checkpoint_dir().display());
+        println!("done: weights in {}", run.checkpoint_dir().display());
         Ok(())
     }
 

@@ -52,6 +52,7 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
 
     // Fixtures.
     std::fs::write(root.join("existing.json"), "mine").unwrap();
+    std::fs::write(root.join("existing.png"), "mine").unwrap();
     std::fs::create_dir(root.join("nonempty")).unwrap();
     std::fs::write(root.join("nonempty/notes.txt"), "mine").unwrap();
     std::fs::write(root.join("malformed.json"), "{ not json").unwrap();
@@ -409,6 +410,17 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         (
             s(&["export", &run_s, "--out", &p("existing.json")]),
             "not a folder".into(),
+        ),
+        // `ntg plot`: not a run, an --out that is not a PNG or exists
+        // (replaced only with --force).
+        (s(&["plot", &p("norun")]), "config.json".into()),
+        (
+            s(&["plot", &run_s, "--out", &p("curves.svg")]),
+            ".png".into(),
+        ),
+        (
+            s(&["plot", &run_s, "--out", &p("existing.png")]),
+            "--force".into(),
         ),
         (
             s(&["eval", "--run", &run_s, "--test-tasks", "0"]),

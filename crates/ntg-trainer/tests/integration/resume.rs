@@ -185,3 +185,71 @@ fn a_video_run_killed_in_stage_b_resumes_to_the_uninterrupted_run() {
     assert!(!a.is_empty());
     assert!(a == b, "the resumed video run's weights differ");
 }
+
+/// Ctrl-C (SIGINT) during `ntg train`: exit status 130 and a message with
+/// the command that resumes the run, which then finishes it.
+#[cfg(unix)]
+#[test]
+fn ctrl_c_says_how_to_resume() {
+    use std::io::Read;
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_ntg"))
+        .args([
+            "train",
+            "--domain",
+            "blocks",
+            "--train-tasks",
+            "20",
+            "--demos-per-task",
+            "4",
+            "--epochs",
+            "400",
+            "--validation-tasks",
+            "0",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Interrupted once training has started (the first epoch logged).
+    let started = std::time::Instant::now();
+    while !out.join("metrics.jsonl").is_file() {
+        assert!(
+            started.elapsed().as_secs() < 120,
+            "no epoch logged in 2 minutes"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let killed = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let status = child.wait().unwrap();
+    let mut stderr = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    assert_eq!(status.code(), Some(130), "{stderr}");
+    let hint = stderr
+        .lines()
+        .find(|l| l.starts_with("interrupted: "))
+        .unwrap_or_else(|| panic!("no resume hint: {stderr}"));
+    assert!(hint.contains("train --resume --domain blocks"), "{hint}");
+    // The command it names parses as `ntg train --resume` of this run
+    // (resuming 400 epochs is left out: minutes).
+    let command = hint.split('`').nth(1).unwrap_or_else(|| panic!("{hint}"));
+    let words: Vec<&str> = command.split_whitespace().collect();
+    let cli = ntg_trainer::cli::parse_from(words).unwrap_or_else(|e| panic!("{command}: {e}"));
+    let ntg_trainer::cli::Command::Train(args) = cli.command else {
+        panic!("{command}: not ntg train");
+    };
+    assert!(args.flags.resume, "{command}");
+    assert_eq!(args.flags.out, out);
+}
