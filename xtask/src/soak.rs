@@ -327,7 +327,19 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
     if !stray.is_empty() {
         problems.push(format!("stray files left: {stray:?}"));
     }
-    if listing(&straight)? != listing(&soaked)? {
+    // TensorBoard's event files: one per training session, named by its
+    // start time, so the soaked run has one per resume (TensorBoard merges
+    // them; their encoding is tested in ntg-train's `events`). Compared by
+    // presence, the rest by name.
+    let is_events = |p: &PathBuf| p.to_string_lossy().contains("events.out.tfevents.");
+    let (straight_files, soaked_files) = (listing(&straight)?, listing(&soaked)?);
+    if !straight_files.iter().any(is_events) || !soaked_files.iter().any(is_events) {
+        problems.push("a run folder has no TensorBoard event file".into());
+    }
+    let others = |files: Vec<PathBuf>| -> Vec<PathBuf> {
+        files.into_iter().filter(|p| !is_events(p)).collect()
+    };
+    if others(straight_files) != others(soaked_files) {
         problems.push("the two run folders hold different files".into());
     }
 
