@@ -280,10 +280,22 @@ impl RunDir {
             // Compared as saved: a setting whose values are written alike
             // (shards 0 and 1: "one shard", not written) is the same.
             if serde_json::to_value(&saved)? != serde_json::to_value(config)? {
-                let differences = config_differences(
-                    &serde_json::to_value(&saved)?,
-                    &serde_json::to_value(config)?,
-                );
+                let (old, new) = (serde_json::to_value(&saved)?, serde_json::to_value(config)?);
+                let differences = config_differences(&old, &new);
+                if differences.len() == 1 && differences[0].starts_with("optim.epochs:") {
+                    // More epochs for the same run: allowed where the run
+                    // so extended equals one trained that long from the
+                    // start (see `extension_refusal`).
+                    if let Some(why) = extension_refusal(&old, &new) {
+                        bail!(
+                            "{}: cannot extend the run to --epochs {}: {why}; start a new run in another --out",
+                            run.config_path().display(),
+                            new["optim"]["epochs"]
+                        );
+                    }
+                    RunDir::write_json(&run.config_path(), config)?;
+                    return Ok(run);
+                }
                 bail!(
                     "{} was started with a different configuration ({}); resume it with the same arguments as the original run ({hint}or start a new run in another --out)",
                     run.config_path().display(),
@@ -623,6 +635,38 @@ impl RunDir {
             .with_context(|| format!("writing {}", path.display()))?;
         Ok(())
     }
+}
+
+/// Why a run saved with configuration `old` cannot be extended to `new`,
+/// which differs from it in `optim.epochs` alone, so that the extended
+/// run equals one trained for `new`'s epochs from the start; `None` when
+/// it can. It cannot when the new count is not larger, when the learning
+/// rate decays over the whole schedule (`optim.cosine_decay`: every
+/// epoch's rate depends on the total), or when the old count is not a
+/// multiple of `validate_every` (the old run scored its last epoch on the
+/// validation tasks, which the longer run would not have, so their
+/// selected epochs could differ).
+pub fn extension_refusal(old: &serde_json::Value, new: &serde_json::Value) -> Option<String> {
+    let epochs = |c: &serde_json::Value| c["optim"]["epochs"].as_u64().unwrap_or(0);
+    let (from, to) = (epochs(old), epochs(new));
+    if to <= from {
+        return Some(format!(
+            "it was started with --epochs {from}; only more epochs extend it"
+        ));
+    }
+    if old["optim"]["cosine_decay"].as_bool() == Some(true) {
+        return Some(
+            "its learning rate follows a cosine decay over all its epochs, so every epoch's rate would change"
+                .into(),
+        );
+    }
+    let every = old["validate_every"].as_u64().unwrap_or(1).max(1);
+    if from % every != 0 {
+        return Some(format!(
+            "it scored its last epoch ({from}) on the validation tasks, which a run of {to} epochs validated every {every} would not"
+        ));
+    }
+    None
 }
 
 /// The fields in which two configurations differ, as `name: saved S, now N`

@@ -209,7 +209,11 @@ pub struct TrainFlags {
     /// Run folder to create (or, with --resume, to continue).
     #[arg(long)]
     pub out: PathBuf,
-    /// Continue the run in --out from its last checkpoint.
+    /// Continue the run in --out from its last checkpoint, with the
+    /// arguments it was started with; a larger --epochs extends a finished
+    /// run where the result equals a run of that many epochs from the
+    /// start (no cosine decay; the old count a multiple of
+    /// --validate-every), and is refused, saying why, where not.
     #[arg(long)]
     pub resume: bool,
     /// --obs vid: demo videos whose frames train the shared frame encoder

@@ -253,3 +253,71 @@ fn ctrl_c_says_how_to_resume() {
     assert!(args.flags.resume, "{command}");
     assert_eq!(args.flags.out, out);
 }
+
+/// `ntg train --resume --epochs N` on a finished run of fewer epochs
+/// trains the rest: the same metrics, validation scores and weights as a
+/// run of N epochs from the start. Where that cannot hold (a cosine
+/// decay over the whole run) it is refused, saying why.
+#[test]
+fn resume_with_more_epochs_extends_a_finished_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let train = |out: &std::path::Path, epochs: &str, resume: bool, recipe: &str| {
+        let mut args = vec![
+            "train",
+            "--domain",
+            "blocks",
+            "--recipe",
+            recipe,
+            "--train-tasks",
+            "3",
+            "--demos-per-task",
+            "2",
+            "--validation-tasks",
+            "2",
+            "--epochs",
+            epochs,
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if resume {
+            args.push("--resume");
+        }
+        crate::common::ntg(&args)
+    };
+    let straight = tmp.path().join("straight");
+    let extended = tmp.path().join("extended");
+    let (code, _, err) = train(&straight, "4", false, "paper");
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = train(&extended, "2", false, "paper");
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = train(&extended, "4", true, "paper");
+    assert_eq!(code, 0, "{err}");
+    let (a, b) = (
+        RunDir::open(&straight).unwrap(),
+        RunDir::open(&extended).unwrap(),
+    );
+    assert_eq!(metrics_without_time(&a), metrics_without_time(&b));
+    assert_eq!(
+        std::fs::read_to_string(a.validation_path()).unwrap(),
+        std::fs::read_to_string(b.validation_path()).unwrap()
+    );
+    assert!(weights(a.checkpoint_dir()) == weights(b.checkpoint_dir()));
+    assert!(weights(a.best_dir()) == weights(b.best_dir()));
+
+    // Fewer epochs, and a cosine decay (the recommended recipe's), are
+    // refused, naming the reason; the run is left as it was.
+    let (code, _, err) = train(&extended, "3", true, "paper");
+    assert_eq!(code, 1);
+    assert!(err.contains("only more epochs extend it"), "{err}");
+    let cosine = tmp.path().join("cosine");
+    let (code, _, err) = train(&cosine, "1", false, "recommended");
+    assert_eq!(code, 0, "{err}");
+    let config = std::fs::read_to_string(cosine.join("config.json")).unwrap();
+    let (code, _, err) = train(&cosine, "2", true, "recommended");
+    assert_eq!(code, 1);
+    assert!(err.contains("cosine decay"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(cosine.join("config.json")).unwrap(),
+        config
+    );
+}
