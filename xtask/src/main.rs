@@ -12,6 +12,9 @@
 //! - `soak [--kills N]`: SIGKILLs a small training run N times, resumes it
 //!   to the end and checks it ends exactly as an uninterrupted run
 //!   (see `soak.rs`).
+//! - `slurm-check`: the smoke profile as Slurm job arrays on a one-node
+//!   cluster it starts on localhost, one task requeued mid-run, compared
+//!   with a local run (see `slurm_check.rs`).
 //! - `bench [--threads N] [--quick] [--repeats R] [--out FILE]`: runs the
 //!   burn benchmarks and the PyTorch twin (`crates/ntg-model/benches/pytorch/twin.py`,
 //!   with `NTG_PYTHON`, default `python3`) in one go, N threads on both sides
@@ -34,6 +37,7 @@ use anyhow::{Context, bail};
 use clap::{Parser, Subcommand, ValueEnum};
 
 mod bench;
+mod slurm_check;
 mod soak;
 
 #[derive(Debug, Parser)]
@@ -93,6 +97,26 @@ enum Task {
         /// Working folder (replaced).
         #[arg(long, default_value = "target/soak")]
         work: PathBuf,
+        /// Soak a job array task instead: `ntg reproduce --profile quick
+        /// --array-index I` (the quick profile's NTG on 50 state tasks),
+        /// stopped with SIGTERM and SIGKILL in turn; about 10 kills at most.
+        #[arg(long)]
+        array: bool,
+    },
+    /// Run the smoke profile through a real Slurm: install it (apt), start
+    /// a one-node cluster on localhost, submit `ntg cluster slurm`'s script,
+    /// requeue a task mid-run, and check the report equals a local run's.
+    SlurmCheck {
+        /// Use this ntg binary (a relative path is taken from the workspace
+        /// root) instead of building the release one.
+        #[arg(long)]
+        ntg: Option<PathBuf>,
+        /// Working folder (replaced).
+        #[arg(long, default_value = "target/slurm-check")]
+        work: PathBuf,
+        /// Seconds to wait for the jobs.
+        #[arg(long, default_value_t = 900)]
+        timeout: u64,
     },
     /// Time burn (flex) against the PyTorch twin, same batches and thread
     /// count, and print one table of medians and ratios.
@@ -227,6 +251,14 @@ fn main() -> std::process::ExitCode {
                 )
             })
         }
+        Task::SlurmCheck { ntg, work, timeout } => slurm_check::check(
+            &workspace_root(),
+            &slurm_check::SlurmCheck {
+                ntg,
+                work,
+                timeout: std::time::Duration::from_secs(timeout),
+            },
+        ),
         Task::Soak {
             kills,
             seed,
@@ -235,6 +267,7 @@ fn main() -> std::process::ExitCode {
             release,
             ntg,
             work,
+            array,
         } => {
             if !(min_delay.is_finite()
                 && max_delay.is_finite()
@@ -255,6 +288,7 @@ fn main() -> std::process::ExitCode {
                     max_delay: std::time::Duration::from_secs_f64(max_delay),
                     release,
                     ntg: ntg.map(|path| root.join(path)),
+                    array,
                 },
             )
         }

@@ -1,6 +1,9 @@
 //! `cargo xtask soak`: kill a small training run with SIGKILL again and
 //! again, resume it to the end, and check that it ends exactly where an
-//! uninterrupted run with the same seed ends.
+//! uninterrupted run with the same seed ends. With `--array`, the run is a
+//! job array task (`ntg reproduce --profile quick --array-index I`), stopped
+//! with SIGTERM and SIGKILL in turn as Slurm stops a preempted task, and
+//! its test evaluation is compared too.
 //!
 //! Both runs are `ntg train --domain blocks` at a tiny scale (state input,
 //! validation on, so `best/` is exercised too). The soaked run is started,
@@ -33,6 +36,77 @@ pub struct Soak {
     pub release: bool,
     /// Soak this `ntg` binary instead of building one.
     pub ntg: Option<PathBuf>,
+    /// Soak a job array task instead (`ntg reproduce --profile quick
+    /// --array-index I` of the quick profile's run [`ARRAY_RUN`]), killed
+    /// with SIGTERM and SIGKILL in turn, as Slurm stops a preempted task.
+    pub array: bool,
+}
+
+/// The run an array-task soak trains: the quick profile's NTG on 50 state
+/// tasks (13 epochs, about 15 s in a release build on this project's
+/// machine), long enough for about 10 kills of at most 0.9 s.
+pub const ARRAY_RUN: &str = "ntp_exp-state-50";
+
+/// What the soak starts: `ntg train` into a run folder, or an array task
+/// into a runs folder (its run folder `RUNS/quick/ARRAY_RUN`).
+#[derive(Clone)]
+enum Target {
+    Train { epochs: usize },
+    ArrayTask { index: usize },
+}
+
+impl Target {
+    /// The arguments of one start into `out` (`resume`: a training run
+    /// that has started before).
+    fn args(&self, out: &Path, resume: bool) -> Vec<String> {
+        match self {
+            Target::Train { epochs } => {
+                let mut args = train_args(out, *epochs);
+                if resume {
+                    args.push("--resume".into());
+                }
+                args
+            }
+            Target::ArrayTask { index } => [
+                "reproduce",
+                "--profile",
+                "quick",
+                "--jobs",
+                "1",
+                "--runs",
+                &out.display().to_string(),
+                "--out",
+                &out.join("report").display().to_string(),
+                "--array-index",
+                &index.to_string(),
+            ]
+            .map(String::from)
+            .to_vec(),
+        }
+    }
+
+    /// The run folder the start trains in.
+    fn run_dir(&self, out: &Path) -> PathBuf {
+        match self {
+            Target::Train { .. } => out.to_path_buf(),
+            Target::ArrayTask { .. } => out.join("quick").join(ARRAY_RUN),
+        }
+    }
+}
+
+/// The index of [`ARRAY_RUN`] in `ntg reproduce --profile quick --list`.
+fn array_index(ntg: &Path) -> anyhow::Result<usize> {
+    let out = Command::new(ntg)
+        .args(["reproduce", "--profile", "quick", "--list", "--json"])
+        .output()
+        .context("could not start ntg")?;
+    if !out.status.success() {
+        bail!("ntg reproduce --list failed ({})", out.status);
+    }
+    let list: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    list.as_array()
+        .and_then(|runs| runs.iter().position(|r| r["name"] == ARRAY_RUN))
+        .with_context(|| format!("{ARRAY_RUN} is not in the quick profile's list"))
 }
 
 /// A small seeded generator (xorshift64*) for the kill delays: xtask stays
@@ -77,7 +151,7 @@ fn train_args(out: &Path, epochs: usize) -> Vec<String> {
     .collect()
 }
 
-fn build_ntg(root: &Path, release: bool) -> anyhow::Result<PathBuf> {
+pub fn build_ntg(root: &Path, release: bool) -> anyhow::Result<PathBuf> {
     let mut args = vec!["build", "--quiet", "-p", "ntg-trainer", "--bin", "ntg"];
     if release {
         args.push("--release");
@@ -208,13 +282,22 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
         std::fs::remove_dir_all(work).with_context(|| format!("removing {}", work.display()))?;
     }
     std::fs::create_dir_all(work).with_context(|| format!("creating {}", work.display()))?;
-    let straight = work.join("straight");
-    let soaked = work.join("soaked");
-    let epochs = epochs_outlasting_kills(&ntg, work, soak)?;
+    let straight_out = work.join("straight");
+    let soaked_out = work.join("soaked");
+    let target = if soak.array {
+        Target::ArrayTask {
+            index: array_index(&ntg)?,
+        }
+    } else {
+        Target::Train {
+            epochs: epochs_outlasting_kills(&ntg, work, soak)?,
+        }
+    };
+    let (straight, soaked) = (target.run_dir(&straight_out), target.run_dir(&soaked_out));
 
     let started = Instant::now();
     let status = Command::new(&ntg)
-        .args(train_args(&straight, epochs))
+        .args(target.args(&straight_out, false))
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .status()
@@ -227,11 +310,9 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
     let mut delays = Delays(soak.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1);
     let mut killed = 0usize;
     let started = Instant::now();
+    let mut terminated = 0usize;
     for k in 0..soak.kills {
-        let mut args = train_args(&soaked, epochs);
-        if soaked.join("config.json").is_file() {
-            args.push("--resume".into());
-        }
+        let args = target.args(&soaked_out, soaked.join("config.json").is_file());
         let mut child = Command::new(&ntg)
             .args(&args)
             .stdout(Stdio::null())
@@ -251,6 +332,19 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
             std::thread::sleep(Duration::from_millis(5));
         };
         match exited {
+            // An array task is stopped as Slurm stops one: SIGTERM (ntg
+            // exits at once, status 130), every second time SIGKILL.
+            None if soak.array && k % 2 == 0 => {
+                let sent = Command::new("kill")
+                    .args(["-TERM", &child.id().to_string()])
+                    .status()?;
+                let status = child.wait()?;
+                if !sent.success() || !(status.code() == Some(130) || status.code().is_none()) {
+                    bail!("SIGTERM {k}: ntg ended with {status}, not 130");
+                }
+                killed += 1;
+                terminated += 1;
+            }
             None => {
                 child.kill().context("killing ntg")?;
                 child.wait()?;
@@ -272,10 +366,7 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
             }
         }
     }
-    let mut args = train_args(&soaked, epochs);
-    if soaked.join("config.json").is_file() {
-        args.push("--resume".into());
-    }
+    let args = target.args(&soaked_out, soaked.join("config.json").is_file());
     let output = Command::new(&ntg)
         .args(&args)
         .output()
@@ -305,9 +396,29 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
             problems.push(format!("{file} differs from the uninterrupted run's"));
         }
     }
-    for file in ["metrics.jsonl", "validation.jsonl"] {
-        if without_clock_fields(&straight.join(file))? != without_clock_fields(&soaked.join(file))?
-        {
+    let mut logs = vec!["metrics.jsonl".to_owned(), "validation.jsonl".to_owned()];
+    if soak.array {
+        // The test evaluation (every episode's outcome), as `eval/*.json`.
+        for entry in std::fs::read_dir(straight.join("eval"))? {
+            let name = entry?.file_name().to_string_lossy().into_owned();
+            logs.push(format!("eval/{name}"));
+        }
+    }
+    for file in &logs {
+        let read = |dir: &Path| -> anyhow::Result<Vec<serde_json::Value>> {
+            if file.starts_with("eval/") {
+                let text = std::fs::read_to_string(dir.join(file))
+                    .with_context(|| format!("reading {}", dir.join(file).display()))?;
+                let mut value: serde_json::Value = serde_json::from_str(&text)?;
+                if let Some(fields) = value.as_object_mut() {
+                    fields.retain(|k, _| !k.contains("seconds"));
+                }
+                Ok(vec![value])
+            } else {
+                without_clock_fields(&dir.join(file))
+            }
+        };
+        if read(&straight)? != read(&soaked)? {
             problems.push(format!(
                 "{file} differs (times aside) from the uninterrupted run's"
             ));
@@ -343,7 +454,14 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
         problems.push("the two run folders hold different files".into());
     }
 
-    println!("soak: {killed} kills during a {epochs}-epoch run, then resumed to the end");
+    match &target {
+        Target::Train { epochs } => {
+            println!("soak: {killed} kills during a {epochs}-epoch run, then resumed to the end")
+        }
+        Target::ArrayTask { index } => println!(
+            "soak: {killed} stops ({terminated} SIGTERM, the others SIGKILL) of array task {index} ({ARRAY_RUN}, profile quick), then run to the end"
+        ),
+    }
     println!(
         "time: uninterrupted run {:.1}s; soak {:.1}s",
         straight_time.as_secs_f64(),
@@ -351,7 +469,12 @@ pub fn run(root: &Path, work: &Path, soak: &Soak) -> anyhow::Result<()> {
     );
     if problems.is_empty() {
         println!(
-            "ok: every resume started cleanly; the final weights, the selected weights and every epoch's metrics equal the uninterrupted run's; no stray files"
+            "ok: every resume started cleanly; the final weights, the selected weights and every epoch's metrics{} equal the uninterrupted run's; no stray files",
+            if soak.array {
+                " and the test evaluation's episodes"
+            } else {
+                ""
+            }
         );
         Ok(())
     } else {

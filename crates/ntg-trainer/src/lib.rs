@@ -14,11 +14,13 @@
 //!   object collection, object sorting) behind ntg-train's `Domain` trait;
 //!   [`jigsaws`]: the JIGSAWS cross-task experiment, scored by NLL;
 //!   [`export`]: a trained run's weights as safetensors for PyTorch
-//!   (`ntg export`, and the model zoo's entries);
+//!   (`ntg export`, and the model zoo's entries); [`lerobot`]: demos and
+//!   rollouts as datasets in LeRobot's layout (`ntg blocks demos`, `ntg
+//!   trace`);
 //! - [`experiment`]: the paper's figures as experiment files
 //!   (`experiments/*.toml`), run and drawn ([`figure`], [`svg`]), and a
 //!   run's training curves ([`curves`], `ntg plot`);
-//!   [`reproduce`] runs them all; [`record`] keeps the paper profile's
+//!   [`reproduce`] runs them all, [`slurm`] as job arrays; [`record`] keeps the paper profile's
 //!   finished runs as small committed records and [`carry`] its unfinished
 //!   ones carried between machines; [`trace`] executes one test task step
 //!   by step;
@@ -39,9 +41,11 @@ pub mod experiment;
 pub mod export;
 pub mod figure;
 pub mod jigsaws;
+pub mod lerobot;
 pub mod method;
 pub mod record;
 pub mod reproduce;
+pub mod slurm;
 pub mod spec;
 pub mod svg;
 pub mod trace;

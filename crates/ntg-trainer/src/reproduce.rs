@@ -46,6 +46,11 @@ pub struct Results {
     /// none).
     #[serde(default)]
     pub structure: Vec<crate::experiment::structure::StructurePoint>,
+    /// A reduced profile: the model zoo's paper-scale models evaluated
+    /// on its test tasks beside their records (the paper profile, results
+    /// written before it, or no zoo: none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub zoo: Vec<crate::experiment::zoo::ZooPoint>,
     /// Fig. "jigsaws": cross-task NLL on Needle Passing (issue 7).
     pub jigsaws: crate::jigsaws::JigsawsResult,
     /// Fig. "thor_all" (b), NTG and the Flat Policy.
@@ -185,8 +190,21 @@ pub fn reproduce(
     if profile != Profile::Paper {
         not_yet.push(seeds_line());
     }
+    // A reduced profile evaluates the paper profile's kept models on its
+    // test tasks (as many as its largest point's); without training, it
+    // keeps what was measured before.
+    let zoo = if profile == Profile::Paper {
+        Vec::new()
+    } else if plan.train {
+        let tasks = points.iter().map(|p| p.success.trials).max().unwrap_or(100);
+        let (zoo_dir, records) = crate::experiment::zoo::default_dirs();
+        crate::experiment::zoo::run(&zoo_dir, &records, plan.runs, tasks)?
+    } else {
+        before.as_ref().map(|b| b.zoo.clone()).unwrap_or_default()
+    };
     let results = Results {
         profile,
+        zoo,
         ntp_exp: points,
         ablation: ablation_points,
         ablation_b,
@@ -210,8 +228,28 @@ pub fn reproduce(
         report(&results, paper, started.elapsed().as_secs_f64()),
     )
     .with_context(|| format!("writing {}", out.join("REPORT.md").display()))?;
+    // The headline table the README shows (the paper profile's), where
+    // there are 1000-task points.
+    if results
+        .ntp_exp
+        .iter()
+        .any(|p| p.train_tasks == HEADLINE_TASKS)
+    {
+        let table = out.join(HEADLINE_TABLE);
+        std::fs::write(
+            &table,
+            ntp_exp::headline_table(&results.ntp_exp, HEADLINE_TASKS),
+        )
+        .with_context(|| format!("writing {}", table.display()))?;
+    }
     Ok(results)
 }
+
+/// The training tasks of the headline table ([`ntp_exp::headline_table`]).
+pub const HEADLINE_TASKS: usize = 1000;
+/// Its file beside `REPORT.md`; README.md shows the paper profile's
+/// between `<!-- results-table -->` markers (a test keeps them equal).
+pub const HEADLINE_TABLE: &str = "results-table.md";
 
 /// Writes the rollout figures of `results` into `out` (fig. jigsaws is
 /// written with its report).
@@ -266,9 +304,10 @@ fn weights_needed(what: &str, run: &Path) -> (String, String) {
 /// core-seconds of training epochs (`train_seconds`:
 /// `RunDir::epoch_compute_seconds`), and over the epochs that recorded
 /// their CPU time (`RunDir::recorded_cpu_seconds`): in how many runs, their
-/// CPU seconds and their wall seconds. A run reused by two figures (a link
-/// to the same folder's results) counts once: runs are told apart by their
-/// seconds.
+/// CPU seconds and their wall seconds. A run reused by two figures (its
+/// folder linked for the other) counts once: runs are told apart by their
+/// configuration and seconds together (seconds alone collide: CPU time is
+/// counted in ticks of 10 ms, and small runs take a few).
 struct TrainingCompute {
     runs: usize,
     core_seconds: f64,
@@ -295,11 +334,18 @@ fn training_compute(results: &Results) -> TrainingCompute {
                 .iter()
                 .map(|l| (l.train_seconds, &l.run)),
         );
-    let mut unique: Vec<(u64, &std::path::PathBuf)> = runs
-        .map(|(seconds, run)| (seconds.to_bits(), run))
+    let mut unique: Vec<(u64, Vec<u8>, &std::path::PathBuf)> = runs
+        .map(|(seconds, run)| {
+            let config = std::fs::read(run.join("config.json")).unwrap_or_default();
+            (seconds.to_bits(), config, run)
+        })
         .collect();
-    unique.sort_unstable_by_key(|&(bits, _)| bits);
-    unique.dedup_by_key(|&mut (bits, _)| bits);
+    unique.sort_by(|a, b| (a.0, &a.1).cmp(&(b.0, &b.1)));
+    unique.dedup_by(|a, b| a.0 == b.0 && a.1 == b.1);
+    let unique: Vec<(u64, &std::path::PathBuf)> = unique
+        .into_iter()
+        .map(|(bits, _, run)| (bits, run))
+        .collect();
     let mut compute = TrainingCompute {
         runs: unique.len(),
         core_seconds: 0.0,
@@ -505,6 +551,7 @@ fn report_of(
     s.push_str(&crate::experiment::structure::report_section(
         &results.structure,
     ));
+    s.push_str(&crate::experiment::zoo::report_section(&results.zoo));
     let _ = writeln!(s, "{}", crate::jigsaws::report_section(&results.jigsaws));
     s.push_str(&thor_all::report_section(&results.thor_all));
     if let Some(paper) = paper {
@@ -601,6 +648,155 @@ fn outcomes(results: &Results) -> Vec<Outcome> {
     all
 }
 
+/// Where `ntg reproduce` writes a profile's figures and report unless told
+/// (`--out`): `docs/figures` for the paper profile, `docs/figures/PROFILE`
+/// for the others.
+pub fn default_out(profile: Profile) -> std::path::PathBuf {
+    let figures = std::path::PathBuf::from("docs/figures");
+    if profile == Profile::Paper {
+        figures
+    } else {
+        figures.join(profile.name())
+    }
+}
+
+/// One run of a profile, as `ntg reproduce --list` prints it and a job
+/// array schedules it ([`run_list`]).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct ListedRun {
+    /// Its place in the list (`--array-index`).
+    pub index: usize,
+    /// Its figure's experiment file (`ntp_exp`, `ablation`, `ablation_b`,
+    /// `thor_all`).
+    pub figure: String,
+    /// The run folder's name (`--only`).
+    pub name: String,
+    /// Its wave: every run of a wave may start once the earlier waves are
+    /// done; a run of a later wave links the finished stages of the runs
+    /// it lists in `after` instead of training them again.
+    pub wave: usize,
+    /// Runs of earlier waves whose finished stages it reuses (frame
+    /// encoder, encoded episodes); without them it trains its own, to the
+    /// same result.
+    pub after: Vec<String>,
+    /// `"video"` (trains on demo videos: more memory, a frame encoder) or
+    /// `"state"`.
+    pub kind: &'static str,
+}
+
+/// Every run of the rollout figures at `profile`, in an order a scheduler
+/// can follow: wave by wave (ntp_exp's and ablation's video baselines
+/// after the runs whose frame encoders they reuse), within a wave in the
+/// order `ntg reproduce` starts them. The report (fig. jigsaws, the
+/// seen-task and structure evaluations, figures) needs every run, and is
+/// written by `ntg reproduce` once they are done.
+pub fn run_list(profile: Profile, experiments: Source<'_>) -> anyhow::Result<Vec<ListedRun>> {
+    let ntp_exp_file = ntp_exp::NtpExpExperiment::load(experiments)?;
+    let ablation_file = ablation::load(experiments)?;
+    let ablation_b_file = ablation::AblationBExperiment::load(experiments)?;
+    let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
+    let kind = |video: bool| if video { "video" } else { "state" };
+    let mut runs: Vec<(String, ntp_exp::ScheduledRun)> = Vec::new();
+    for file in [&ntp_exp_file, &ablation_file] {
+        runs.extend(
+            ntp_exp::schedule(file, profile)
+                .into_iter()
+                .map(|run| (file.name.clone(), run)),
+        );
+    }
+    let alone = |name: String| ntp_exp::ScheduledRun {
+        name,
+        wave: 0,
+        after: Vec::new(),
+        video: false,
+    };
+    for seed in ablation_b_file.seeds(profile) {
+        for &variant in &ablation_b_file.ablations {
+            runs.push((
+                "ablation_b".into(),
+                alone(ablation_b_file.run_name(variant, seed)),
+            ));
+        }
+    }
+    for run in thor_all_file.runs(profile) {
+        runs.push(("thor_all".into(), alone(thor_all_file.run_name(run))));
+    }
+    // A run of exactly another's configuration (fig. ablation's whole
+    // model and fig. ntp_exp's point of the same scale) links that one's
+    // folder once it is finished: it comes after it.
+    let mut configs: Vec<(String, crate::blocks::BlocksRunConfig)> =
+        ntp_exp_file.named_run_configs(profile)?;
+    configs.extend(ablation_file.named_run_configs(profile)?);
+    for (k, (name, config)) in configs.iter().enumerate() {
+        if let Some((twin, _)) = configs[..k].iter().find(|(_, c)| c == config)
+            && let Some((_, run)) = runs.iter_mut().find(|(_, r)| &r.name == name)
+            && !run.after.contains(twin)
+        {
+            run.after.insert(0, twin.clone());
+        }
+    }
+    // Each run's wave is after every wave of the runs it waits for (a
+    // longest path: at most one pass per run, unless they wait in a cycle).
+    for pass in 0.. {
+        anyhow::ensure!(
+            pass <= runs.len(),
+            "the runs of profile {profile:?} wait for each other in a cycle"
+        );
+        let waves: std::collections::BTreeMap<String, usize> =
+            runs.iter().map(|(_, r)| (r.name.clone(), r.wave)).collect();
+        let mut changed = false;
+        for (_, run) in &mut runs {
+            let wave = run
+                .after
+                .iter()
+                .filter_map(|a| waves.get(a))
+                .map(|w| w + 1)
+                .fold(run.wave, usize::max);
+            changed |= wave != run.wave;
+            run.wave = wave;
+        }
+        if !changed {
+            break;
+        }
+    }
+    // Stable: within a wave, the figures' order.
+    runs.sort_by_key(|(_, run)| run.wave);
+    let mut seen = std::collections::BTreeSet::new();
+    for (_, run) in &runs {
+        anyhow::ensure!(
+            seen.insert(run.name.clone()),
+            "two runs of profile {profile:?} share the folder name {}",
+            run.name
+        );
+    }
+    Ok(runs
+        .into_iter()
+        .enumerate()
+        .map(|(index, (figure, run))| ListedRun {
+            index,
+            figure,
+            name: run.name,
+            wave: run.wave,
+            after: run.after,
+            kind: kind(run.video),
+        })
+        .collect())
+}
+
+/// One line of `ntg reproduce --list`: index, name, wave, kind, and the
+/// runs it comes after.
+pub fn list_line(run: &ListedRun) -> String {
+    let mut line = format!(
+        "{:>3}  {}  (wave {}, {}",
+        run.index, run.name, run.wave, run.kind
+    );
+    if !run.after.is_empty() {
+        line.push_str(&format!("; after {}", run.after.join(", ")));
+    }
+    line.push(')');
+    line
+}
+
 /// `ntg reproduce --only NAME...`: trains (or reuses) and evaluates only
 /// the run folders `plan.only` names of the rollout figures (ntp_exp,
 /// ablation (a) and (b), thor_all) at `profile`, and says of each whether
@@ -619,22 +815,10 @@ pub fn reproduce_only(
     let ablation_file = ablation::load(experiments)?;
     let ablation_b_file = ablation::AblationBExperiment::load(experiments)?;
     let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
-    let mut known = ntp_exp_file.run_names(profile);
-    known.extend(ablation_file.run_names(profile));
-    for seed in ablation_b_file.seeds(profile) {
-        known.extend(
-            ablation_b_file
-                .ablations
-                .iter()
-                .map(|&a| ablation_b_file.run_name(a, seed)),
-        );
-    }
-    known.extend(
-        thor_all_file
-            .runs(profile)
-            .into_iter()
-            .map(|run| thor_all_file.run_name(run)),
-    );
+    let known: Vec<String> = run_list(profile, experiments)?
+        .into_iter()
+        .map(|run| run.name)
+        .collect();
     if let Some(unknown) = only.iter().find(|name| !known.contains(name)) {
         anyhow::bail!(
             "--only {unknown}: no run of that name at profile {profile:?}; its runs are {}",
@@ -748,6 +932,123 @@ pub fn reproduce_only(
 mod tests {
     use super::*;
 
+    /// README's results table is the headline table of the committed
+    /// paper-profile results.
+    #[test]
+    fn the_readme_table_is_drawn_from_the_committed_results() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let results: Results = RunDir::read_json(&root.join("docs/figures/results.json")).unwrap();
+        let table = ntp_exp::headline_table(&results.ntp_exp, HEADLINE_TASKS);
+        let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+        let start = readme
+            .find("<!-- results-table -->\n")
+            .expect("the README's start marker")
+            + "<!-- results-table -->\n".len();
+        let end = readme
+            .find("<!-- /results-table -->")
+            .expect("the README's end marker");
+        assert_eq!(
+            &readme[start..end],
+            table,
+            "README.md's results table differs from docs/figures/results.json's (copy docs/figures/{HEADLINE_TABLE})"
+        );
+        let file = std::fs::read_to_string(root.join("docs/figures").join(HEADLINE_TABLE)).unwrap();
+        assert_eq!(file, table);
+        assert!(table.lines().count() > 8, "{table}");
+    }
+
+    /// `--list` (and so the Slurm script) holds every run of the paper
+    /// profile once, and a run comes after every run whose finished stages
+    /// it reuses.
+    #[test]
+    fn the_paper_list_holds_every_run_after_what_it_reuses() {
+        let profile = Profile::Paper;
+        let list = run_list(profile, Source::BuiltIn).unwrap();
+        let mut expected = ntp_exp::NtpExpExperiment::load(Source::BuiltIn)
+            .unwrap()
+            .run_names(profile);
+        expected.extend(ablation::load(Source::BuiltIn).unwrap().run_names(profile));
+        let b = ablation::AblationBExperiment::load(Source::BuiltIn).unwrap();
+        for seed in b.seeds(profile) {
+            expected.extend(b.ablations.iter().map(|&v| b.run_name(v, seed)));
+        }
+        let t = thor_all::ThorAllExperiment::load(Source::BuiltIn).unwrap();
+        expected.extend(t.runs(profile).into_iter().map(|r| t.run_name(r)));
+        let mut names: Vec<String> = list.iter().map(|r| r.name.clone()).collect();
+        names.sort();
+        expected.sort();
+        assert_eq!(names, expected);
+        let wave_of = |name: &str| list.iter().find(|r| r.name == name).map(|r| r.wave);
+        for (i, run) in list.iter().enumerate() {
+            assert_eq!(run.index, i);
+            assert!(
+                i == 0 || list[i - 1].wave <= run.wave,
+                "waves in order at {i}"
+            );
+            for a in &run.after {
+                let w = wave_of(a).unwrap_or_else(|| panic!("{}: after {a}, not listed", run.name));
+                assert!(
+                    w < run.wave,
+                    "{} (wave {}) after {a} (wave {w})",
+                    run.name,
+                    run.wave
+                );
+            }
+        }
+        let after = |name: &str| &list.iter().find(|r| r.name == name).unwrap().after;
+        // A video baseline after NTG's run of its point (whose frame
+        // encoder it may link), the GRU core after the reactive core's run.
+        assert_eq!(after("ntp_exp-vid-ntp-1000"), &["ntp_exp-vid-1000"]);
+        assert_eq!(
+            after("ntp_exp-vid-cam128-ntp-gru-1000"),
+            &["ntp_exp-vid-cam128-1000", "ntp_exp-vid-cam128-ntp-1000"]
+        );
+        // Fig. ablation's whole model links fig. ntp_exp's run of its
+        // configuration; the localizer variant the executed-node run's
+        // stage A.
+        assert_eq!(after("ablation-state-1000"), &["ntp_exp-state-1000"]);
+        assert_eq!(
+            after("ntp_exp-vid-cam128-recommended-localizer-1000"),
+            &["ntp_exp-vid-cam128-recommended-1000"]
+        );
+        assert!(after("ntp_exp-state-1000").is_empty());
+
+        // The script: each run in exactly one array, every array after all
+        // arrays of earlier waves, the report after all.
+        let arrays = crate::slurm::arrays(&list);
+        let mut covered: Vec<usize> = arrays.iter().flat_map(|a| a.indices.clone()).collect();
+        covered.sort();
+        assert_eq!(covered, (0..list.len()).collect::<Vec<_>>());
+        let script = crate::slurm::submit_script(
+            &list,
+            &crate::slurm::ScriptSettings {
+                profile: "paper".into(),
+                ntg: "/opt/ntg".into(),
+                runs: "/shared/runs".into(),
+                out: "/shared/out".into(),
+                experiments: None,
+            },
+        );
+        for (k, a) in arrays.iter().enumerate() {
+            let line = script
+                .lines()
+                .find(|l| l.starts_with(&format!("ids[{k}]=")))
+                .unwrap();
+            assert!(line.contains(&format!("\"{}\"", a.spec())), "{line}");
+            let waits: Vec<String> = arrays
+                .iter()
+                .enumerate()
+                .filter(|(_, b)| b.wave < a.wave)
+                .map(|(j, _)| format!("${{ids[{j}]}}"))
+                .collect();
+            assert!(line.contains(&format!("\"{}\"", waits.join(":"))), "{line}");
+        }
+        let all: Vec<String> = (0..arrays.len())
+            .map(|j| format!("${{ids[{j}]}}"))
+            .collect();
+        assert!(script.contains(&format!("--dependency=\"afterany:{}\"", all.join(":"))));
+    }
+
     /// A run's stage trained in stretches of its own: its threads are
     /// found in its own `sessions.jsonl`, not only the run's.
     /// Every figure drawn from a committed results file tells its series
@@ -854,6 +1155,17 @@ mod tests {
         }
         weights_needed("trace_blocks", Path::new("runs/r"));
         seeds_line();
+        let rate = crate::stats::SuccessRate::new(3, 4);
+        crate::experiment::zoo::report_section(&[crate::experiment::zoo::ZooPoint {
+            name: "r".into(),
+            legend: "NTG (ours)".into(),
+            additions: Vec::new(),
+            input: "State".into(),
+            recorded: rate,
+            recorded_first: rate,
+            success: rate,
+            same_episodes: true,
+        }]);
         ntp_exp::NtpExpExperiment::load(Source::BuiltIn)
             .unwrap()
             .recipe_note(Profile::Paper);

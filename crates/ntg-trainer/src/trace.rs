@@ -6,8 +6,9 @@
 //! action with π, and what the environment reported), `trace.txt` (the same
 //! as a table), `ctg.dot` / `ctg.svg` (the executed graph, rendered
 //! in-process), `demo.txt`, and one PNG per observation under `frames/`
-//! plus `contact-sheet.png` (the frames captioned with each step's action)
-//! and `rollout.gif` (the same frames as an animation).
+//! plus `contact-sheet.png` (the frames captioned with each step's action),
+//! `rollout.gif` (the same frames as an animation) and `lerobot/` (the
+//! rollout as a one-episode dataset in LeRobot's layout, [`crate::lerobot`]).
 //!
 //! The NTP baselines have no graph: their trace ([`trace_baseline`]) shows,
 //! per primitive, the programs running when it was chosen (NTP's call
@@ -155,6 +156,7 @@ pub fn trace_task(
     std::fs::create_dir_all(&frames_dir)
         .with_context(|| format!("creating {}", frames_dir.display()))?;
     let mut frames = Vec::new();
+    let mut rows = Vec::new();
     let mut steps = Vec::new();
     let rollout_seed = ROLLOUT_SEED_BASE + index as u64;
     let (mut observation, _) = env.reset(rollout_seed)?;
@@ -181,9 +183,18 @@ pub fn trace_task(
             &frame,
             &frames_dir.join(format!("step_{:03}.png", steps.len())),
         )?;
+        rows.push(crate::lerobot::Row {
+            frame: frame.clone(),
+            state: Some(observation.state().to_vec()),
+            action: action.index(),
+            success_after: false,
+        });
         frames.push(frame);
         executed.push(action);
         let step = env.step(action)?;
+        if let Some(row) = rows.last_mut() {
+            row.success_after = step.info.success;
+        }
         steps.push(TraceStep {
             step: steps.len(),
             localized: top(&node_p, &vocab, 3),
@@ -208,7 +219,22 @@ pub fn trace_task(
             &frames_dir.join(format!("step_{:03}.png", steps.len())),
         )?;
         frames.push(frame.clone());
+        rows.push(crate::lerobot::Row {
+            frame: frame.clone(),
+            state: Some(observation.state().to_vec()),
+            action: Vocabulary::END.index(),
+            success_after: success,
+        });
     }
+    write_rollout_dataset(
+        out,
+        &vocab,
+        task,
+        rollout_seed,
+        rows,
+        success,
+        "NTG".to_owned(),
+    )?;
     let mut captions: Vec<String> = steps
         .iter()
         .map(|st| format!("{} {}", st.step, st.chosen.name))
@@ -312,6 +338,7 @@ pub fn trace_baseline(
         .with_context(|| format!("creating {}", frames_dir.display()))?;
     let vocab = env_blocks::vocabulary(false, env_blocks::ActionLevel::Primitive);
     let (mut frames, mut steps, mut truncated) = (Vec::new(), Vec::new(), false);
+    let mut rows = Vec::new();
     let model = model.for_inference();
     let record = crate::domain::run_episode_observed(&domain, model.as_ref(), &episode, |d| {
         let mut shown = vec![d.observation];
@@ -319,7 +346,7 @@ pub fn trace_baseline(
             shown.push(&d.step.observation);
             truncated = d.step.truncated;
         }
-        for o in shown {
+        for (k, o) in shown.into_iter().enumerate() {
             let frame = o
                 .frame()
                 .context("the environment returned no frame with rendering on")?;
@@ -328,6 +355,18 @@ pub fn trace_baseline(
                 &frames_dir.join(format!("step_{:03}.png", frames.len())),
             )?;
             frames.push(frame.clone());
+            // The observation decided on, then (after the last decision)
+            // the final one with `<end>`.
+            rows.push(crate::lerobot::Row {
+                frame: frame.clone(),
+                state: Some(o.state().to_vec()),
+                action: if k == 0 {
+                    d.action.index()
+                } else {
+                    Vocabulary::END.index()
+                },
+                success_after: d.step.info.success,
+            });
         }
         steps.push(BaselineStep {
             step: steps.len(),
@@ -338,6 +377,15 @@ pub fn trace_baseline(
         });
         Ok(())
     })?;
+    write_rollout_dataset(
+        out,
+        &vocab,
+        task,
+        episode.rollout_seed,
+        rows,
+        record.success,
+        method.legend().to_owned(),
+    )?;
     let mut captions: Vec<String> = steps
         .iter()
         .map(|st: &BaselineStep| format!("{} {}", st.step, st.chosen))
@@ -480,6 +528,38 @@ const GIF_FRAME_MS: u32 = 700;
 /// last step) as `contact-sheet.png`, each captioned with `captions` (the
 /// step and the action chosen on it), and as the animation `rollout.gif`
 /// (frames scaled 2x, looping).
+/// The rollout as a one-episode dataset in LeRobot's layout
+/// (`OUT/lerobot/`, [`crate::lerobot`]).
+fn write_rollout_dataset(
+    out: &Path,
+    vocab: &Vocabulary,
+    task: &env_blocks::StackTask,
+    rollout_seed: u64,
+    rows: Vec<crate::lerobot::Row>,
+    success: bool,
+    policy: String,
+) -> anyhow::Result<()> {
+    let info = crate::lerobot::DatasetInfo {
+        robot_type: "ntg-rs block stacking".into(),
+        source: format!("{policy}'s rollout of test task {} (ntg trace)", task.id),
+        vocabulary: vocab.names().to_vec(),
+        fps: 1,
+    };
+    let mut writer = crate::lerobot::DatasetWriter::create(&out.join(DATASET_DIR), info)?;
+    writer.add(&crate::lerobot::Episode {
+        task: crate::blocks::stack_words(task),
+        task_id: task.id.clone(),
+        seed: rollout_seed,
+        rows,
+        success,
+    })?;
+    writer.finish()?;
+    Ok(())
+}
+
+/// The folder of a trace that holds its rollout as a LeRobot dataset.
+pub const DATASET_DIR: &str = "lerobot";
+
 fn write_rollout_images(
     out: &Path,
     frames: &[image::RgbImage],

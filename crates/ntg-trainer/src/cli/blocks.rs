@@ -19,6 +19,13 @@ pub enum BlocksCommand {
     /// Record one expert demo of a block-stacking task: JSON, PNG frames and
     /// a contact sheet.
     Demo(DemoArgs),
+    /// Record expert demos of many block-stacking tasks as one LeRobot
+    /// dataset (parquet).
+    ///
+    /// LeRobot's layout: a parquet file an episode (frames as PNG, states,
+    /// actions by id and name), the tasks in meta/tasks.jsonl; pyarrow and
+    /// pandas read it (docs/EXPORT.md).
+    Demos(DemosArgs),
     /// Run the expert once on every task of a set and report its success rate.
     Replay(ReplayArgs),
     /// Object sorting.
@@ -93,6 +100,37 @@ pub struct DemoArgs {
     pub demo: DemoOptions,
 }
 
+/// Arguments of `ntg blocks demos`.
+#[derive(Debug, Args)]
+pub struct DemosArgs {
+    /// The dataset folder to write (must not exist, or be empty).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Replace an earlier dataset in --out (a folder holding
+    /// `meta/info.json`); any other folder is never replaced.
+    #[arg(long)]
+    pub force: bool,
+    /// How many tasks (one demo each).
+    #[arg(long, default_value_t = 10, value_parser = crate::spec::parse::positive)]
+    pub count: usize,
+    /// Index of the first task in the set.
+    #[arg(long, default_value_t = 0)]
+    pub first: usize,
+    /// An NTP-format task file; without it, the standard generated set.
+    #[arg(long, value_name = "FILE")]
+    pub source: Option<PathBuf>,
+    /// Seed of the first demo (the demo of task i uses seed + i).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Turn the stochastic failures off (they are on by default).
+    #[arg(long)]
+    pub no_failures: bool,
+    /// Frame width and height in pixels (a multiple of 8; 64 is the
+    /// standard camera).
+    #[arg(long, default_value_t = env_blocks::Camera::default().size)]
+    pub camera_size: u32,
+}
+
 /// Arguments of `ntg blocks sorting demo`.
 #[derive(Debug, Args)]
 pub struct SortDemoArgs {
@@ -131,6 +169,7 @@ pub fn run(command: BlocksCommand) -> anyhow::Result<()> {
             let task = find_stack_task(&tasks, &args.task)?;
             write_demo(BlocksTask::Stack(task.clone()), &args.demo, &mut out)
         }
+        BlocksCommand::Demos(args) => write_demos(&args, &mut out),
         BlocksCommand::Replay(args) => run_replay(&args, &mut out),
         BlocksCommand::Sorting(SortingCommand::Demo(args)) => {
             let tasks = standard_sort_tasks()?;
@@ -220,6 +259,118 @@ fn run_replay(args: &ReplayArgs, out: &mut impl std::io::Write) -> anyhow::Resul
         }),
     )?;
     writeln!(out)?;
+    Ok(())
+}
+
+/// The rows of a recorded demo: frame and state before each action, then
+/// the final frame with `<end>`.
+fn demo_episode(demo: &RichDemo, task: &str) -> crate::lerobot::Episode {
+    let rows = (0..demo.frames.len())
+        .map(|t| {
+            let step = demo.steps.get(t);
+            crate::lerobot::Row {
+                frame: demo.frames[t].clone(),
+                state: demo.states.get(t).cloned(),
+                action: step.map_or(ctg_graph::Vocabulary::END.index(), |s| s.action_id),
+                success_after: step.map_or(demo.success, |s| s.success),
+            }
+        })
+        .collect();
+    crate::lerobot::Episode {
+        task: task.to_owned(),
+        task_id: demo.task.id().to_owned(),
+        seed: demo.seed,
+        rows,
+        success: demo.success,
+    }
+}
+
+/// Runs `ntg blocks demos`: records the demos (in parallel, in batches)
+/// into a staging folder beside --out, then moves it into place.
+fn write_demos(args: &DemosArgs, out: &mut impl std::io::Write) -> anyhow::Result<()> {
+    use rayon::prelude::*;
+    let marker = crate::lerobot::INFO_FILE;
+    crate::cli::export::check_out(&args.out, args.force, marker, "an earlier dataset")?;
+    let camera = env_blocks::Camera::of_size(args.camera_size);
+    camera
+        .validate()
+        .map_err(|e| anyhow::anyhow!("--camera-size {}: {e}", args.camera_size))?;
+    let tasks = load_tasks(args.source.as_deref())?;
+    let end = args.first.saturating_add(args.count);
+    if end > tasks.len() {
+        bail!(
+            "--first {} --count {} asks for tasks up to index {}, but the set has {} tasks",
+            args.first,
+            args.count,
+            end - 1,
+            tasks.len()
+        );
+    }
+    let mut config = EnvConfig {
+        camera,
+        ..EnvConfig::default()
+    };
+    if args.no_failures {
+        config = config.without_failures();
+    }
+    let vocabulary = env_blocks::vocabulary(false, env_blocks::ActionLevel::Flat);
+    let info = crate::lerobot::DatasetInfo {
+        robot_type: "ntg-rs block stacking".into(),
+        source: format!(
+            "expert demos of tasks {}..{} of {} (seed {} + task offset, failures {})",
+            args.first,
+            end,
+            args.source
+                .as_ref()
+                .map_or("the standard task set".to_owned(), |p| p
+                    .display()
+                    .to_string()),
+            args.seed,
+            if args.no_failures { "off" } else { "on" }
+        ),
+        vocabulary: vocabulary.names().to_vec(),
+        fps: 1,
+    };
+    let staging = crate::cli::export::staging_dir(&args.out)?;
+    let written = (|| -> anyhow::Result<crate::lerobot::Written> {
+        let mut writer = crate::lerobot::DatasetWriter::create(&staging, info)?;
+        let progress = indicatif::ProgressBar::new(args.count as u64).with_message("demos");
+        let indices: Vec<usize> = (args.first..end).collect();
+        for batch in indices.chunks(64) {
+            let episodes = batch
+                .par_iter()
+                .map(|&i| {
+                    let seed = args.seed.wrapping_add((i - args.first) as u64);
+                    record_rich_demo(BlocksTask::Stack(tasks[i].clone()), config, seed)
+                        .map(|demo| demo_episode(&demo, &crate::blocks::stack_words(&tasks[i])))
+                        .with_context(|| format!("recording the demo of task {}", tasks[i].id))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            for episode in &episodes {
+                writer.add(episode)?;
+                progress.inc(1);
+            }
+        }
+        progress.finish_and_clear();
+        writer.finish()
+    })();
+    let written = match written {
+        Ok(w) => w,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&staging);
+            return Err(e);
+        }
+    };
+    crate::cli::export::move_into_place(&staging, &args.out)?;
+    writeln!(
+        out,
+        "wrote {} expert demos ({} frames, {} tasks) to {} in LeRobot's layout ({})",
+        written.episodes,
+        written.frames,
+        written.tasks,
+        args.out.display(),
+        args.out.join(marker).display()
+    )?;
     Ok(())
 }
 

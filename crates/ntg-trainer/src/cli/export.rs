@@ -35,7 +35,7 @@ pub struct ExportArgs {
 /// Runs `ntg export`.
 pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
     let (run, domain) = crate::domain::open_run(&args.run)?;
-    check_out(&args.out, args.force)?;
+    check_out(&args.out, args.force, NAMES_FILE, "an earlier export")?;
     let trained = domain.runs().trained(&run)?;
     let epoch = crate::fit::selected_epoch(&run)?.map(|s| s.epoch + 1);
 
@@ -60,13 +60,7 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
             return Err(e);
         }
     };
-    if args.out.exists() {
-        // check_out allowed it: empty, or an earlier export with --force.
-        std::fs::remove_dir_all(&args.out)
-            .with_context(|| format!("replacing {}", args.out.display()))?;
-    }
-    std::fs::rename(&staging, &args.out)
-        .with_context(|| format!("moving the export into {}", args.out.display()))?;
+    move_into_place(&staging, &args.out)?;
 
     let tensors: usize = files.iter().map(|f| f.tensors.len()).sum();
     let values: usize = files
@@ -90,9 +84,10 @@ pub fn run(args: &ExportArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Refuses an `--out` that holds anything but an earlier export replaced
-/// with `--force`.
-fn check_out(out: &Path, force: bool) -> anyhow::Result<()> {
+/// Refuses an `--out` that holds anything but an earlier output of the
+/// same command (`what`, recognised by its file `marker`) replaced with
+/// `--force`.
+pub(crate) fn check_out(out: &Path, force: bool, marker: &str, what: &str) -> anyhow::Result<()> {
     if out.exists() && !out.is_dir() {
         anyhow::bail!("--out {}: exists and is not a folder", out.display());
     }
@@ -106,22 +101,34 @@ fn check_out(out: &Path, force: bool) -> anyhow::Result<()> {
     if empty {
         return Ok(());
     }
-    let earlier_export = out.join(NAMES_FILE).is_file();
-    match (earlier_export, force) {
+    let earlier = out.join(marker).is_file();
+    match (earlier, force) {
         (true, true) => Ok(()),
         (true, false) => anyhow::bail!(
-            "--out {}: holds an earlier export; pass --force to replace it, or choose another folder",
+            "--out {}: holds {what}; pass --force to replace it, or choose another folder",
             out.display()
         ),
         (false, _) => anyhow::bail!(
-            "--out {}: exists and is not empty (and holds no export that --force could replace); choose another folder",
-            out.display()
+            "--out {}: exists and is not empty (and holds no {} that --force could replace); choose another folder",
+            out.display(),
+            what.trim_start_matches("an earlier ")
         ),
     }
 }
 
-/// A new folder beside `out` to write the export into.
-fn staging_dir(out: &Path) -> anyhow::Result<PathBuf> {
+/// Moves the finished `staging` folder to `out`, replacing what
+/// [`check_out`] allowed there (nothing, an empty folder, or an earlier
+/// output with `--force`).
+pub(crate) fn move_into_place(staging: &Path, out: &Path) -> anyhow::Result<()> {
+    if out.exists() {
+        std::fs::remove_dir_all(out).with_context(|| format!("replacing {}", out.display()))?;
+    }
+    std::fs::rename(staging, out)
+        .with_context(|| format!("moving the output into {}", out.display()))
+}
+
+/// A new folder beside `out` to write the output into.
+pub(crate) fn staging_dir(out: &Path) -> anyhow::Result<PathBuf> {
     let parent = match out.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),

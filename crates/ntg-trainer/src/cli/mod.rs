@@ -12,6 +12,7 @@ use clap::{Parser, Subcommand};
 
 pub mod blocks;
 pub mod carry;
+pub mod cluster;
 pub mod collect;
 pub mod export;
 pub mod graph;
@@ -56,6 +57,9 @@ pub enum Command {
     /// (without their rebuildable caches), to commit them and resume them
     /// on another machine; safe while they train.
     Carry(carry::CarryArgs),
+    /// Run a profile on a cluster: a Slurm submit script of job arrays.
+    #[command(subcommand)]
+    Cluster(cluster::ClusterCommand),
     /// Block stacking and object sorting: task sets and demonstrations.
     #[command(subcommand)]
     Blocks(blocks::BlocksCommand),
@@ -87,6 +91,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Plot(args) => plot::run(&args),
         Command::Reproduce(args) => train::run_reproduce(&args),
         Command::Carry(args) => carry::run(&args),
+        Command::Cluster(cmd) => cluster::run(cmd),
         Command::Blocks(cmd) => blocks::run(cmd),
         Command::Collect(cmd) => collect::run(cmd),
         Command::Jigsaws(cmd) => jigsaws::run(cmd),
@@ -163,8 +168,9 @@ pub fn main() -> ExitCode {
     };
     if let Some(hint) = resume_hint(&cli.command) {
         // Training survives a kill at any moment (checkpoints and records
-        // are replaced whole), so Ctrl-C ends the process at once, saying
-        // how to go on.
+        // are replaced whole), so Ctrl-C, SIGTERM (Slurm's preemption and
+        // time-limit signal) and SIGHUP end the process at once, saying how
+        // to go on: a requeued job array task resumes exactly.
         let installed = ctrlc::set_handler(move || {
             eprintln!("\ninterrupted: {hint}");
             std::process::exit(130);

@@ -85,6 +85,47 @@ pub struct ReproduceArgs {
     /// list the other runs as not trained yet.
     #[arg(long, conflicts_with = "only")]
     pub no_train: bool,
+    /// Print the profile's runs, one per line, in an order a scheduler can
+    /// follow (wave by wave, each with the runs whose finished stages it
+    /// reuses), and exit: the list `--array-index` indexes.
+    #[arg(long, conflicts_with_all = ["only", "no_train"])]
+    pub list: bool,
+    /// With --list: print JSON instead of text.
+    #[arg(long, requires = "list")]
+    pub json: bool,
+    /// Train (or resume, or reuse) and evaluate the I-th run of --list, as
+    /// --only would: one task of a job array. Without I, the index is read
+    /// from SLURM_ARRAY_TASK_ID.
+    #[arg(long, value_name = "I", num_args = 0..=1, conflicts_with_all = ["only", "no_train", "list"])]
+    pub array_index: Option<Option<usize>>,
+}
+
+/// The run `--array-index` names: `index`, or (none given) the one
+/// `SLURM_ARRAY_TASK_ID` names.
+fn array_run(
+    index: Option<usize>,
+    list: &[crate::reproduce::ListedRun],
+) -> anyhow::Result<&crate::reproduce::ListedRun> {
+    let index = match index {
+        Some(i) => i,
+        None => {
+            let value = std::env::var("SLURM_ARRAY_TASK_ID").map_err(|_| {
+                anyhow::anyhow!(
+                    "--array-index without a value reads SLURM_ARRAY_TASK_ID, which is not set (give the index: --array-index I)"
+                )
+            })?;
+            value.trim().parse().map_err(|_| {
+                anyhow::anyhow!("SLURM_ARRAY_TASK_ID={value:?} is not a run index (0, 1, ...)")
+            })?
+        }
+    };
+    list.get(index).ok_or_else(|| {
+        anyhow::anyhow!(
+            "--array-index {index}: the profile has {} runs (indices 0 to {}; see --list)",
+            list.len(),
+            list.len().saturating_sub(1)
+        )
+    })
 }
 
 /// Runs `ntg reproduce`.
@@ -93,31 +134,55 @@ pub fn run_reproduce(args: &ReproduceArgs) -> anyhow::Result<()> {
         .as_str()
         .unwrap_or("profile")
         .to_owned();
-    let runs = args.runs.join(&profile_name);
-    let out = args.out.clone().unwrap_or_else(|| {
-        let figures = PathBuf::from("docs/figures");
-        if args.profile == crate::spec::Profile::Paper {
-            figures
+    let experiments = match &args.experiments {
+        Some(dir) => crate::experiment::Source::Dir(dir),
+        None => crate::experiment::Source::BuiltIn,
+    };
+    if args.list {
+        let list = crate::reproduce::run_list(args.profile, experiments)?;
+        let text = if args.json {
+            serde_json::to_string_pretty(&list)? + "\n"
         } else {
-            figures.join(&profile_name)
-        }
-    });
+            list.iter()
+                .map(|run| crate::reproduce::list_line(run) + "\n")
+                .collect()
+        };
+        // A reader that stops early (`| head`) is not an error.
+        use std::io::Write as _;
+        return match std::io::stdout().lock().write_all(text.as_bytes()) {
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+            other => Ok(other?),
+        };
+    }
+    let mut only = args.only.clone();
+    if let Some(index) = args.array_index {
+        let list = crate::reproduce::run_list(args.profile, experiments)?;
+        let run = array_run(index, &list)?;
+        eprintln!(
+            "array task {}: {} (of {} runs of profile {profile_name})",
+            run.index,
+            run.name,
+            list.len()
+        );
+        only = vec![run.name.clone()];
+    }
+    let runs = args.runs.join(&profile_name);
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| crate::reproduce::default_out(args.profile));
     // The paper profile's runs take hours: each finished one is recorded
     // (committed with the figures), so the profile can be completed over
     // several sittings, from a fresh clone too.
     let records = out.join("records");
     let plan = crate::experiment::Plan {
-        only: (!args.only.is_empty()).then_some(args.only.as_slice()),
+        only: (!only.is_empty()).then_some(only.as_slice()),
         records: (args.profile == crate::spec::Profile::Paper).then_some(records.as_path()),
-        restore: args.only.is_empty(),
+        restore: only.is_empty(),
         train: !args.no_train,
         ..crate::experiment::Plan::train_all(&runs, usize::from(args.jobs))
     };
-    let experiments = match &args.experiments {
-        Some(dir) => crate::experiment::Source::Dir(dir),
-        None => crate::experiment::Source::BuiltIn,
-    };
-    if !args.only.is_empty() {
+    if !only.is_empty() {
         if args.jigsaws_root.is_some() {
             anyhow::bail!(
                 "--only reruns runs of the rollout figures; fig. jigsaws (--jigsaws-root) is not one"

@@ -2061,7 +2061,7 @@ fn evaluate_decisions(run: &RunDir, flags: &EvalFlags) -> anyhow::Result<()> {
     let report = ntp_decisions(model.as_ref(), &config, &tasks, seeds, &device)?;
     let recorded = super::record_eval(
         run,
-        &format!("{prefix}decisions-{}.json", flags.test_tasks),
+        &format!("{prefix}decisions-{}.json", tasks.len()),
         &report,
     );
     print!("{}", report.table());
@@ -2160,7 +2160,7 @@ pub fn evaluate_run(run: &RunDir, flags: &EvalFlags) -> anyhow::Result<(String, 
             );
         }
         let model = load_baseline(run, &config, &device)?;
-        let name = format!("{prefix}{}-{}", config.method.name(), flags.test_tasks);
+        let name = format!("{prefix}{}-{}", config.method.name(), tasks.len());
         let result = evaluate_ntp_tasks(
             model.as_ref(),
             config.obs,
@@ -2172,7 +2172,7 @@ pub fn evaluate_run(run: &RunDir, flags: &EvalFlags) -> anyhow::Result<(String, 
         return Ok((name, result));
     }
     let model = load_trained(run, flags.edge_threshold, &device)?;
-    let mut name = format!("{prefix}{}-{}", flags.variant.name(), flags.test_tasks);
+    let mut name = format!("{prefix}{}-{}", flags.variant.name(), tasks.len());
     if let Some(t) = flags.edge_threshold {
         name.push_str(&format!("-threshold{t}"));
     }
@@ -2191,17 +2191,21 @@ pub fn evaluate_run(run: &RunDir, flags: &EvalFlags) -> anyhow::Result<(String, 
 fn eval_split(
     flags: &EvalFlags,
     config: &BlocksRunConfig,
-) -> anyhow::Result<(&'static str, Vec<StackTask>, Seeds)> {
+) -> anyhow::Result<(String, Vec<StackTask>, Seeds)> {
     let tasks = config.tasks.as_deref();
     let split = task_split(tasks)?;
+    if let Some(file) = &flags.tasks {
+        let (prefix, chosen) = tasks_of_file(file, flags.test_tasks, &split, config)?;
+        return Ok((prefix, chosen, Seeds::TEST));
+    }
     Ok(match flags.split {
         crate::domain::EvalSplit::Test => (
-            "",
+            String::new(),
             test_tasks_of(&split, flags.test_tasks)?.to_vec(),
             Seeds::TEST,
         ),
         crate::domain::EvalSplit::Validation => (
-            "validation-",
+            "validation-".into(),
             validation_tasks_of(tasks, flags.test_tasks)?,
             Seeds::VALIDATION,
         ),
@@ -2214,13 +2218,13 @@ fn eval_split(
                 );
             }
             (
-                "seen-",
+                "seen-".into(),
                 split.train(flags.test_tasks)?.to_vec(),
                 Seeds::SEEN,
             )
         }
         crate::domain::EvalSplit::Structure => (
-            "structure-",
+            "structure-".into(),
             env_blocks::structure_test_tasks(
                 &split.train_pool,
                 flags.test_tasks,
@@ -2229,6 +2233,72 @@ fn eval_split(
             Seeds::STRUCTURE,
         ),
     })
+}
+
+/// `ntg eval --tasks FILE`: the first `count` tasks of the NTP-format
+/// `file` (all if it has fewer), and the prefix of the result's file name
+/// (`tasks-STEM-`). Prints how many of them end in the configuration of one
+/// of the run's training tasks (those are not unseen tasks for it).
+fn tasks_of_file(
+    file: &std::path::Path,
+    count: usize,
+    split: &env_blocks::StandardSplit,
+    config: &BlocksRunConfig,
+) -> anyhow::Result<(String, Vec<StackTask>)> {
+    let mut tasks =
+        env_blocks::read_ntp_tasks(file).with_context(|| format!("--tasks {}", file.display()))?;
+    if tasks.is_empty() {
+        bail!("--tasks {}: the file holds no tasks", file.display());
+    }
+    if tasks.len() < count {
+        println!(
+            "--tasks {}: {} tasks (fewer than --test-tasks {count}): evaluating them all",
+            file.display(),
+            tasks.len()
+        );
+    }
+    tasks.truncate(count);
+    let trained: std::collections::HashSet<Vec<Vec<usize>>> = split
+        .train(config.train_tasks)?
+        .iter()
+        .map(StackTask::configuration_key)
+        .collect();
+    let seen: Vec<&str> = tasks
+        .iter()
+        .filter(|t| trained.contains(&t.configuration_key()))
+        .map(|t| t.id.as_str())
+        .collect();
+    if seen.is_empty() {
+        println!(
+            "--tasks {}: none of its {} tasks is a training task of this run (end configurations compared)",
+            file.display(),
+            tasks.len()
+        );
+    } else {
+        println!(
+            "--tasks {}: {} of its {} tasks end as a training task of this run does, so they are not unseen: {}",
+            file.display(),
+            seen.len(),
+            tasks.len(),
+            seen.join(", ")
+        );
+    }
+    let stem = file
+        .file_stem()
+        .map_or("tasks".into(), |s| s.to_string_lossy().into_owned());
+    Ok((format!("tasks-{stem}-"), tasks))
+}
+
+/// A stacking task in words, for `meta/tasks.jsonl`: `stack B on A, C on
+/// B` (cubes by letter, as everywhere in `ntg`).
+pub fn stack_words(task: &StackTask) -> String {
+    let goals: Vec<String> = task
+        .describe()
+        .split(' ')
+        .filter_map(|g| g.split_once('>'))
+        .map(|(src, target)| format!("{src} on {target}"))
+        .collect();
+    format!("stack {}", goals.join(", "))
 }
 
 /// Writes `result` to the run's `eval/NAME.json` and prints its rates.

@@ -805,6 +805,12 @@ impl DomainRuns for Collect {
             "--decisions checks an NTP baseline's decisions (block stacking); {} is not one",
             run.root().display()
         );
+        if flags.tasks.is_some() {
+            anyhow::bail!(
+                "--tasks reads block-stacking tasks (NTP's format); {} is an object-collection run",
+                run.root().display()
+            );
+        }
         if flags.split != crate::domain::EvalSplit::Test {
             anyhow::bail!(
                 "--split {} is for block-stacking runs; object collection evaluates its test episodes (--split test)",

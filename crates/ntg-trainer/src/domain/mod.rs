@@ -334,6 +334,12 @@ pub struct EvalFlags {
     /// chosen without looking at the test set.
     #[arg(long, value_enum, default_value_t = EvalSplit::Test)]
     pub split: EvalSplit,
+    /// Evaluate on the tasks of this NTP-format task file instead of a
+    /// split (block stacking; the first --test-tasks of them, or all if it
+    /// has fewer): a user's own tasks. Tasks with the end configuration of
+    /// one of the run's training tasks are named as such.
+    #[arg(long, value_name = "FILE", conflicts_with = "split")]
+    pub tasks: Option<PathBuf>,
     /// NTP baselines (block stacking): instead of rolling out, check each
     /// decision the network takes against the expert's trace in each
     /// task's rollout scene (teacher forcing), and print, per step of
@@ -353,6 +359,7 @@ impl EvalFlags {
             variant: Variant::Full,
             edge_threshold: None,
             split,
+            tasks: None,
             decisions: false,
         }
     }

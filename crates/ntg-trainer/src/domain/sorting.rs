@@ -422,6 +422,11 @@ impl DomainRuns for Sorting {
             "--decisions checks an NTP baseline's decisions (block stacking); {} is not one",
             run.root().display()
         );
+        anyhow::ensure!(
+            flags.tasks.is_none(),
+            "--tasks reads block-stacking tasks (NTP's format); {} is an object-sorting run",
+            run.root().display()
+        );
         let model = load_model(run, &crate::spec::device())?;
         let (_, validation, test) = split()?;
         let (tasks, seeds, split_name) = match flags.split {

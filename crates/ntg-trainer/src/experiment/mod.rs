@@ -33,6 +33,7 @@ pub mod qualitative;
 pub mod structure;
 pub mod template;
 pub mod thor_all;
+pub mod zoo;
 
 /// The experiment files compiled in: `(name, contents)`.
 pub const BUILT_IN: [(&str, &str); 5] = [

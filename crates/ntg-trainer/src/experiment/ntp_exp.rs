@@ -685,34 +685,7 @@ pub fn run(
     profile: Profile,
     plan: &Plan<'_>,
 ) -> anyhow::Result<Vec<NtpExpPoint>> {
-    // Each point with its place in the file's order: panel, method,
-    // training tasks.
-    let (mut first, mut second, mut third) = (Vec::new(), Vec::new(), Vec::new());
-    // The points (by NTG's run name) whose first sharing baseline is in
-    // the second wave.
-    let mut shared_points: Vec<String> = Vec::new();
-    for scale in &experiment.profiles.get(profile).panels {
-        for method in experiment.runs_of(scale) {
-            for &n in &scale.train_tasks {
-                if !plan.selected(&experiment.run_name(scale, method, n)) {
-                    continue;
-                }
-                let order = first.len() + second.len() + third.len();
-                let wave = if reuses_stage_a(scale.obs, method.0) {
-                    let point = experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n);
-                    if shared_points.contains(&point) {
-                        &mut third
-                    } else {
-                        shared_points.push(point);
-                        &mut second
-                    }
-                } else {
-                    &mut first
-                };
-                wave.push((order, scale, method, n));
-            }
-        }
-    }
+    let [first, second, third] = waves(experiment, profile, |name| plan.selected(name));
     let mut points = Vec::new();
     for wave in [first, second, third] {
         let wave: Vec<crate::experiment::Job<'_, Option<(usize, NtpExpPoint)>>> = wave
@@ -734,6 +707,116 @@ pub fn run(
     // may be listed first so that it starts first).
     points.sort_by_key(|(order, point)| (point.obs == ObsKind::Vid, *order));
     Ok(points.into_iter().map(|(_, point)| point).collect())
+}
+
+/// One run of a wave: its place in the file's order, panel, method and
+/// training tasks.
+type Scheduled<'a> = (usize, &'a PanelScale, (MethodId, Variant), usize);
+
+/// The figure's runs at `profile` (those `selected`) in the three waves
+/// [`run`] trains them in: every run but the video baselines that may
+/// reuse a frame encoder, then each point's first such baseline, then the
+/// others of its point (so that each encoder and each point's encoded
+/// episodes are made once).
+fn waves<'a>(
+    experiment: &'a NtpExpExperiment,
+    profile: Profile,
+    selected: impl Fn(&str) -> bool,
+) -> [Vec<Scheduled<'a>>; 3] {
+    let (mut first, mut second, mut third) = (Vec::new(), Vec::new(), Vec::new());
+    // The points (by NTG's run name) whose first sharing baseline is in
+    // the second wave.
+    let mut shared_points: Vec<String> = Vec::new();
+    for scale in &experiment.profiles.get(profile).panels {
+        for method in experiment.runs_of(scale) {
+            for &n in &scale.train_tasks {
+                if !selected(&experiment.run_name(scale, method, n)) {
+                    continue;
+                }
+                let order = first.len() + second.len() + third.len();
+                let wave = if reuses_stage_a(scale.obs, method.0) {
+                    let point = experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n);
+                    if shared_points.contains(&point) {
+                        &mut third
+                    } else {
+                        shared_points.push(point);
+                        &mut second
+                    }
+                } else {
+                    &mut first
+                };
+                wave.push((order, scale, method, n));
+            }
+        }
+    }
+    [first, second, third]
+}
+
+/// A run of the figure as a scheduler sees it ([`schedule`]).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct ScheduledRun {
+    /// The run folder's name.
+    pub name: String,
+    /// Its wave (0, 1 or 2): a run of a later wave may link the finished
+    /// stages of its point's runs of earlier waves.
+    pub wave: usize,
+    /// The runs whose finished stages (frame encoder, encoded episodes) it
+    /// links when they are done, else trains itself: of earlier waves, or
+    /// (NTG's run of the other node source) of its own, which
+    /// [`crate::reproduce::run_list`] moves it after.
+    pub after: Vec<String>,
+    /// Whether it trains on demo videos.
+    pub video: bool,
+}
+
+/// Every run of the figure at `profile`, wave by wave, in the order
+/// [`run`] starts them.
+pub fn schedule(experiment: &NtpExpExperiment, profile: Profile) -> Vec<ScheduledRun> {
+    let waves = waves(experiment, profile, |_| true);
+    let names = experiment.run_names(profile);
+    let mut listed: Vec<ScheduledRun> = Vec::new();
+    // The point (NTG's run name) of each listed run.
+    let mut points: Vec<String> = Vec::new();
+    for (wave, runs) in waves.iter().enumerate() {
+        for &(_, scale, method, n) in runs {
+            let name = experiment.run_name(scale, method, n);
+            let point = experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n);
+            let mut after = Vec::new();
+            if wave > 0 {
+                // NTG's run of the point, then the point's runs of earlier
+                // waves, where the figure has them.
+                for (earlier, its_point) in listed.iter().zip(&points) {
+                    let of_point = *its_point == point;
+                    if (earlier.name == point || of_point && earlier.wave > 0)
+                        && earlier.wave < wave
+                        && !after.contains(&earlier.name)
+                    {
+                        after.push(earlier.name.clone());
+                    }
+                }
+            }
+            // NTG's run of the other node source than its recipe's links
+            // the stage A and embeddings of the recipe's run of its point.
+            if scale.obs == ObsKind::Vid
+                && method == (MethodId::Ntg, Variant::Full)
+                && panel_executed_node(scale)
+                    .is_some_and(|e| e != recipe_executed_node(experiment.recipe_of(scale)))
+            {
+                let other = experiment.run_name_of_other_node_source(scale, n);
+                if names.contains(&other) {
+                    after.push(other);
+                }
+            }
+            points.push(point);
+            listed.push(ScheduledRun {
+                name,
+                wave,
+                after,
+                video: scale.obs == ObsKind::Vid,
+            });
+        }
+    }
+    listed
 }
 
 /// Whether `method` on `obs` starts from NTG's frame encoder of its point.
@@ -1595,6 +1678,73 @@ pub(crate) fn scale_cells(p: &NtpExpPoint) -> String {
         p.selected_epoch
             .map_or_else(|| "last".to_owned(), |e| (e + 1).to_string())
     )
+}
+
+/// What the paper's text says of a method's success at 1000 tasks (it
+/// gives its figure only as an image).
+fn paper_at_1000(method: MethodId, obs: ObsKind, recipe: Recipe) -> &'static str {
+    match (method, obs) {
+        _ if recipe != Recipe::Paper => "not in the paper",
+        (MethodId::Ntg, ObsKind::Vid) => "≈ 0.9 (≈ 30 points above NTP (Vid))",
+        (MethodId::Ntg, _) => "≈ 0.9",
+        (MethodId::Ntp, ObsKind::Vid) => "≈ 0.62",
+        (MethodId::Ntp, _) => "≈ NTG (Vid)",
+        _ => "below NTG",
+    }
+}
+
+/// The headline table (README's "Results", `results-table.md`): every
+/// curve of the whole model with a point at `train_tasks`, its success on
+/// unseen tasks there (the mean over seeds with their range, or one seed's
+/// 95% interval) beside what the paper's text says; curves in the order of
+/// their first point in `points`.
+pub fn headline_table(points: &[NtpExpPoint], train_tasks: usize) -> String {
+    let mut curves: Vec<(CurveId, Vec<&NtpExpPoint>)> = Vec::new();
+    for p in points
+        .iter()
+        .filter(|p| p.train_tasks == train_tasks && p.ablation.is_full())
+    {
+        let id = p.curve_id();
+        match curves.iter_mut().find(|(c, _)| *c == id) {
+            Some((_, seeds)) => seeds.push(p),
+            None => curves.push((id, vec![p])),
+        }
+    }
+    let trials = curves
+        .first()
+        .map_or(0, |(_, seeds)| seeds[0].success.trials);
+    let mut s = format!(
+        "| method | input | paper (its text) | ours, success on {trials} unseen tasks | seeds |\n|---|---|---|---|---|\n"
+    );
+    for (id, seeds) in &curves {
+        let ours = match seeds.as_slice() {
+            [one] => format!(
+                "{:.3} ({:.3}–{:.3})",
+                one.success.rate, one.success.ci_low, one.success.ci_high
+            ),
+            many => {
+                let rates: Vec<f64> = many.iter().map(|p| p.success.rate).collect();
+                let (lo, hi) = rates
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &r| {
+                        (lo.min(r), hi.max(r))
+                    });
+                format!(
+                    "{:.3} ({lo:.3}–{hi:.3})",
+                    rates.iter().sum::<f64>() / rates.len() as f64
+                )
+            }
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {ours} | {} |",
+            id.method_name(),
+            id.input(),
+            paper_at_1000(id.method, id.obs, id.recipe),
+            seeds.len()
+        );
+    }
+    s
 }
 
 /// A point's report cells `training time | test tasks | success (95% CI) |

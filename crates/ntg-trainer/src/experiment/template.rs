@@ -52,6 +52,7 @@ templates! {
     STRUCTURE: "structure.md",
     JIGSAWS: "jigsaws.md",
     THOR_ALL: "thor_all.md",
+    ZOO: "zoo.md",
 }
 
 /// The line that opens a part: `<!-- part: NAME -->`.

@@ -411,6 +411,67 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             s(&["export", &run_s, "--out", &p("existing.json")]),
             "not a folder".into(),
         ),
+        // `ntg blocks demos`: tasks beyond the set, a bad camera, an --out
+        // that holds something else (never replaced) or is a file.
+        (
+            s(&[
+                "blocks",
+                "demos",
+                "--first",
+                "1999",
+                "--count",
+                "5",
+                "--out",
+                &p("x"),
+            ]),
+            "--first 1999 --count 5".into(),
+        ),
+        (
+            s(&["blocks", "demos", "--camera-size", "7", "--out", &p("x")]),
+            "--camera-size 7".into(),
+        ),
+        (
+            s(&["blocks", "demos", "--out", &p("nonempty"), "--force"]),
+            "holds no dataset".into(),
+        ),
+        (
+            s(&["blocks", "demos", "--out", &p("existing.json")]),
+            "not a folder".into(),
+        ),
+        // `ntg eval --tasks`: a file that is missing, or not a task file.
+        (
+            s(&["eval", "--run", &run_s, "--tasks", &p("missing.json")]),
+            "--tasks".into(),
+        ),
+        (
+            s(&["eval", "--run", &run_s, "--tasks", &p("malformed.json")]),
+            "malformed.json".into(),
+        ),
+        // The cluster interface: an index beyond the list, a task index
+        // that is not one, a script that exists.
+        (
+            s(&[
+                "reproduce",
+                "--profile",
+                "smoke",
+                "--array-index",
+                "999",
+                "--runs",
+                &p("x"),
+            ]),
+            "--array-index 999".into(),
+        ),
+        (
+            s(&[
+                "cluster",
+                "slurm",
+                "--runs",
+                &p("x"),
+                "--script",
+                &p("existing.json"),
+            ]),
+            "--force".into(),
+        ),
         // `ntg plot`: not a run, an --out that is not a PNG or exists
         // (replaced only with --force).
         (s(&["plot", &p("norun")]), "config.json".into()),

@@ -178,6 +178,11 @@ fn train_eval_trace(method: &str, obs: &str, extra: &[&str]) {
     let animated = image::AnimationDecoder::into_frames(decoder).count();
     let pngs = std::fs::read_dir(out.join("frames")).unwrap().count();
     assert_eq!(animated, pngs, "rollout.gif frames vs frames/*.png");
+    // The rollout as a LeRobot dataset: one row a frame, ending in <end>.
+    let rows =
+        crate::lerobot::read_episode(&out.join("lerobot/data/chunk-000/episode_000000.parquet"));
+    assert_eq!(rows.len(), pngs, "lerobot rows vs frames/*.png");
+    assert_eq!(rows.last().unwrap().action_name, "<end>");
     let trace = json(&out.join("trace.json"));
     let record = &eval["tasks"][1];
     assert_eq!(trace["task"], record["task"]);

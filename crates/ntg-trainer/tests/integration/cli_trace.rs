@@ -64,6 +64,11 @@ fn trace_writes_frames_graph_and_steps_consistent_with_eval() {
     let animated = image::AnimationDecoder::into_frames(decoder).count();
     let pngs = std::fs::read_dir(out.join("frames")).unwrap().count();
     assert_eq!(animated, pngs, "rollout.gif frames vs frames/*.png");
+    // The rollout as a LeRobot dataset: one row a frame, ending in <end>.
+    let rows =
+        crate::lerobot::read_episode(&out.join("lerobot/data/chunk-000/episode_000000.parquet"));
+    assert_eq!(rows.len(), pngs, "lerobot rows vs frames/*.png");
+    assert_eq!(rows.last().unwrap().action_name, "<end>");
     let dot = std::fs::read_to_string(out.join("ctg.dot")).unwrap();
     assert!(dot.starts_with("digraph"), "{dot}");
     let svg = std::fs::read_to_string(out.join("ctg.svg")).unwrap();

@@ -120,3 +120,35 @@ fn ntps_own_task_file_splits_into_the_standard_sizes() {
         100
     );
 }
+
+/// `ntg eval --tasks FILE`: a trained run evaluated on a user's task file,
+/// its training tasks among them named as such.
+#[test]
+fn eval_reads_a_users_task_file_and_names_the_training_tasks_in_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let run = common::train_tiny_run(tmp.path());
+    let split = env_blocks::standard_split().unwrap();
+    // Two of the run's training tasks, renamed, then two test tasks.
+    let mut mine: Vec<StackTask> = split.train_pool[..2]
+        .iter()
+        .chain(&split.test[..2])
+        .enumerate()
+        .map(|(i, t)| StackTask::new(format!("mine_{i}"), t.goals.clone()).unwrap())
+        .collect();
+    mine.truncate(4);
+    let file = tmp.path().join("mine.json");
+    std::fs::write(&file, env_blocks::write_ntp_tasks(&mine)).unwrap();
+    let run_s = run.to_str().unwrap();
+    let (code, out, err) = ntg(&["eval", "--run", run_s, "--tasks", file.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        out.contains("2 of its 4 tasks end as a training task of this run does, so they are not unseen: mine_0, mine_1"),
+        "{out}"
+    );
+    assert!(out.contains("evaluating them all"), "{out}");
+    let result: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(run.join("eval/tasks-mine-full-4.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(result["success"]["trials"], 4, "{result}");
+}
