@@ -1049,8 +1049,6 @@ mod tests {
         assert!(script.contains(&format!("--dependency=\"afterany:{}\"", all.join(":"))));
     }
 
-    /// A run's stage trained in stretches of its own: its threads are
-    /// found in its own `sessions.jsonl`, not only the run's.
     /// Every figure drawn from a committed results file tells its series
     /// apart: no two series of one panel share colour, marker and dash
     /// (writing a figure refuses such a pair).
@@ -1079,6 +1077,8 @@ mod tests {
         }
     }
 
+    /// A run's stage trained in stretches of its own: its threads are
+    /// found in its own `sessions.jsonl`, not only the run's.
     #[test]
     fn compute_threads_names_a_stage_that_ran_on_more_threads_than_its_run() {
         let dir = tempfile::tempdir().unwrap();
