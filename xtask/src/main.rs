@@ -98,7 +98,7 @@ enum Task {
         #[arg(long, default_value = "target/soak")]
         work: PathBuf,
         /// Soak a job array task instead: `ntg reproduce --profile quick
-        /// --array-index I` (the quick profile's NTG on 50 state tasks),
+        /// --array-index I` (the quick profile's NTG on object collection, `thor_all-ntg`),
         /// stopped with SIGTERM and SIGKILL in turn; about 10 kills at most.
         #[arg(long)]
         array: bool,

@@ -461,6 +461,7 @@ where
     // and at most the lines of the epoch after the checkpoint logged.
     recover_dir(&ckpt)?;
     recover_dir(&run.best_dir())?;
+    recover_dir(&run.initial_dir())?;
     let mut start = 0;
     let mut stopped_early = false;
     if progress_path.is_file() {
@@ -472,6 +473,11 @@ where
             .with_context(|| format!("resuming from {}", ckpt.display()))?;
         start = progress.epochs_done;
         stopped_early = progress.stopped_early;
+    }
+    // The weights before any step (same seed, same bits), kept once: what
+    // a series is compared with to show it learned (`RunDir::initial_dir`).
+    if start == 0 && !run.initial_dir().is_dir() {
+        replace_dir(&run.initial_dir(), |dir| model.save_to(dir))?;
     }
     drop_lines_from_epoch(&run.metrics_path(), start)?;
     drop_lines_from_epoch(&run.validation_path(), start)?;
@@ -624,6 +630,7 @@ pub fn finished_model<M: TrainedModel>(
     let ckpt = run.checkpoint_dir();
     recover_dir(&ckpt)?;
     recover_dir(&run.best_dir())?;
+    recover_dir(&run.initial_dir())?;
     let progress_path = ckpt.join("progress.json");
     if !progress_path.is_file() {
         return Ok(None);

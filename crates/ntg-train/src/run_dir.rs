@@ -571,6 +571,14 @@ impl RunDir {
         self.root.join("best")
     }
 
+    /// The weights training started from, saved by [`crate::fit::fit`]
+    /// before a run's first epoch (a video run's with its frozen frame
+    /// encoder): the untrained model a reduced profile scores to show that
+    /// a series learned something. Runs begun before it existed have none.
+    pub fn initial_dir(&self) -> PathBuf {
+        self.root.join("initial")
+    }
+
     /// `validation.jsonl`.
     pub fn validation_path(&self) -> PathBuf {
         self.root.join("validation.jsonl")

@@ -23,10 +23,13 @@ use crate::run_dir::{RunDir, replace_dir};
 /// Whether a run-folder entry named `name` is left out of a carried copy:
 /// caches a resumed run rebuilds (rendered frames `dataset/`, encoded
 /// episodes `ntp_frames*/` and `embeddings*/`, parts of either
-/// `*.parts`), the writer's lock, and the half-written files of an
-/// atomic write (`*.tmp`, `*.next`, `*.old`, `*.partial`).
+/// `*.parts`), the writer's lock, the half-written files of an atomic
+/// write (`*.tmp`, `*.next`, `*.old`, `*.partial`), and the starting
+/// weights `initial/` (read only by the reduced profiles' untrained
+/// scores; a carried paper-profile run does without them).
 pub fn rebuildable(name: &str) -> bool {
     name == "dataset"
+        || name == "initial"
         || name == "train.lock"
         || name.starts_with("ntp_frames")
         || name.starts_with("embeddings")

@@ -1649,6 +1649,51 @@ pub fn evaluate_ntp_tasks(
     evaluate_on(&domain, model, "full", tasks, seeds)
 }
 
+/// The success of `run`'s model at the weights its training started from
+/// (`initial/`, [`RunDir::initial_dir`]) on the first `test_tasks` test
+/// tasks, with the demos, scenes and action level its trained model is
+/// evaluated with: the value a series must beat to show that it learned.
+/// `None` where the run has no `initial/` (begun before it was kept, or
+/// restored from its record).
+pub fn evaluate_untrained(
+    run: &RunDir,
+    config: &BlocksRunConfig,
+    test_tasks: usize,
+    device: &Device,
+) -> anyhow::Result<Option<EvalResult>> {
+    let dir = run.initial_dir();
+    if !dir.is_dir() {
+        return Ok(None);
+    }
+    let context = || format!("loading the untrained model of {}", run.root().display());
+    let split = task_split(config.tasks.as_deref())?;
+    let tasks = test_tasks_of(&split, test_tasks)?;
+    if config.method.is_ntg() {
+        // As the trained model is evaluated (`TrainedBlocks::evaluate`).
+        let model = load_ntg_from(&dir, device).with_context(context)?;
+        model
+            .evaluate_tasks(
+                config.failures,
+                config.camera(),
+                tasks,
+                Seeds::TEST,
+                Variant::Full,
+            )
+            .map(Some)
+    } else {
+        let model = config.method.load(&dir, device).with_context(context)?;
+        evaluate_ntp_tasks(
+            model.as_ref(),
+            config.obs,
+            config.failures,
+            config.camera(),
+            tasks,
+            Seeds::TEST,
+        )
+        .map(Some)
+    }
+}
+
 /// Evaluates an NTP baseline on the first `test_tasks` test tasks of the
 /// task set `tasks` (the tasks and seeds NTG is evaluated on).
 pub fn evaluate_ntp(
@@ -2337,6 +2382,18 @@ pub fn load_baseline(
         .with_context(|| format!("loading the trained model of {}", run.root().display()))
 }
 
+/// The NTG model saved in `dir`: on frames if it holds a frame encoder,
+/// else on state rows.
+fn load_ntg_from(dir: &Path, device: &Device) -> anyhow::Result<TrainedBlocks> {
+    Ok(if crate::method::on_frames::is_video_model(dir) {
+        TrainedBlocks::Video(<VideoNtgModel as crate::fit::TrainedModel>::load_from(
+            dir, device,
+        )?)
+    } else {
+        TrainedBlocks::State(NtgModel::load(dir, device)?)
+    })
+}
+
 /// Loads the trained model of `run` (the epoch selected on validation
 /// tasks if there is one, else the last checkpoint), with its edge
 /// threshold overridden when `edge_threshold` is given (checked to lie in
@@ -2351,14 +2408,7 @@ pub fn load_trained(
         None => run.checkpoint_dir(),
     };
     let context = || format!("loading the trained model of {}", run.root().display());
-    let mut model = if crate::method::on_frames::is_video_model(&dir) {
-        TrainedBlocks::Video(
-            <VideoNtgModel as crate::fit::TrainedModel>::load_from(&dir, device)
-                .with_context(context)?,
-        )
-    } else {
-        TrainedBlocks::State(NtgModel::load(&dir, device).with_context(context)?)
-    };
+    let mut model = load_ntg_from(&dir, device).with_context(context)?;
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
     crate::method::on_frames::check_model_obs(&dir, config.obs, &run.config_path())?;
     if let Some(t) = edge_threshold {

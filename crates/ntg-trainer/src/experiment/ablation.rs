@@ -13,6 +13,7 @@ use std::path::Path;
 
 use std::path::PathBuf;
 
+use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 
 use crate::domain::DomainId;
@@ -252,6 +253,11 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
         &crate::experiment::template::NTP_EXP.text("transcription_title"),
         ntp_exp::transcription_lines(points),
     );
+    ntp_exp::bullet_list(
+        &mut s,
+        &crate::experiment::template::NTP_EXP.text("learning_title"),
+        ntp_exp::learning_lines(points),
+    );
     s
 }
 
@@ -373,6 +379,10 @@ pub struct SortingPoint {
     pub success: SuccessRate,
     /// Mean fraction of objects in their bins at the end.
     pub goal_fraction: f64,
+    /// A reduced profile: the same test scenes with the run's initial
+    /// weights (see [`ntp_exp::NtpExpPoint::untrained`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub untrained: Option<ntp_exp::Untrained>,
     /// Core-seconds of training epochs
     /// ([`crate::run_dir::RunDir::epoch_compute_seconds`]: CPU time where
     /// recorded, else wall time; from the run's metrics, so a reused run
@@ -416,17 +426,30 @@ pub fn run_b(
                     dir.display()
                 );
                 let device = crate::spec::device().autodiff();
+                let (_, _, test) = sorting::split()?;
+                let episodes = sorting::episodes(&test, scale.test_episodes, sorting::TEST_SEEDS);
                 let result = run.cached_eval(&eval_file, || {
                     let model =
                         sorting::train_run(&run, &config, &device, |r| eprintln!("  [{name}] {r}"))?;
-                    let (_, _, test) = sorting::split()?;
-                    sorting::evaluate(
-                        &model,
-                        &config,
-                        &sorting::episodes(&test, scale.test_episodes, sorting::TEST_SEEDS),
-                        Variant::Full,
-                    )
+                    sorting::evaluate(&model, &config, &episodes, Variant::Full)
                 })?;
+                // A reduced profile shows that each variant's training
+                // moved it: the same scenes at its initial weights.
+                let untrained = if profile == Profile::Paper || !run.initial_dir().is_dir() {
+                    None
+                } else {
+                    let u = run.cached_eval(&format!("untrained-{eval_file}"), || {
+                        let model = ntg_model::NtgModel::load(run.initial_dir(), &device)
+                            .with_context(|| {
+                                format!("loading the untrained model of {}", dir.display())
+                            })?;
+                        sorting::evaluate(&model, &config, &episodes, Variant::Full)
+                    })?;
+                    Some(ntp_exp::Untrained {
+                        success: u.success,
+                        goal_fraction: u.goal_fraction,
+                    })
+                };
                 plan.finish(&dir)?;
                 eprintln!(
                     "  [{name}] success on {} part-sorted test scenes: {:.3} ({:.3}-{:.3}); objects sorted {:.3}",
@@ -445,6 +468,7 @@ pub fn run_b(
                     selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
                     success: result.success,
                     goal_fraction: result.goal_fraction,
+                    untrained,
                     train_seconds: run.epoch_compute_seconds()?,
                     run: dir,
                 }))
@@ -528,17 +552,7 @@ pub fn report_section_b(points: &[SortingPoint]) -> String {
         let _ = writeln!(
             s,
             "| {} | {} | {} | {} ({}) | {:.0} s | {} | {:.3} ({:.3}–{:.3}) | {:.3} |",
-            {
-                let name = ntp_exp::curve_name(
-                    crate::method::MethodId::Ntg,
-                    crate::blocks::Recipe::Paper,
-                    p.ablation,
-                );
-                match p.seed {
-                    0 => name,
-                    seed => format!("{name}, seed {seed}"),
-                }
-            },
+            b_row_name(p),
             p.train_tasks,
             p.demos_per_task,
             p.epochs,
@@ -566,7 +580,54 @@ pub fn report_section_b(points: &[SortingPoint]) -> String {
         let _ = writeln!(s, "- {line}");
     }
     let _ = writeln!(s);
+    ntp_exp::bullet_list(
+        &mut s,
+        &ABLATION.text("b_learning_title"),
+        learning_lines_b(points),
+    );
     s
+}
+
+/// One line per panel (b) point whose untrained model was scored: its
+/// success and objects sorted beside the untrained model's.
+fn learning_lines_b(points: &[SortingPoint]) -> Vec<String> {
+    points
+        .iter()
+        .filter_map(|p| {
+            let u = p.untrained.as_ref()?;
+            let verdict = if ntp_exp::above_untrained(&p.success, &u.success) {
+                "above"
+            } else {
+                "**not above**"
+            };
+            Some(ABLATION.fill(
+                "b_learning_line",
+                &[
+                    ("variant", &b_row_name(p)),
+                    ("success", &format!("{:.3}", p.success.rate)),
+                    ("low", &format!("{:.3}", p.success.ci_low)),
+                    ("high", &format!("{:.3}", p.success.ci_high)),
+                    ("untrained", &format!("{:.3}", u.success.rate)),
+                    ("sorted", &format!("{:.3}", p.goal_fraction)),
+                    ("untrained_sorted", &format!("{:.3}", u.goal_fraction)),
+                    ("verdict", &verdict),
+                ],
+            ))
+        })
+        .collect()
+}
+
+/// A panel (b) point's row name: its variant, and its seed if not 0.
+fn b_row_name(p: &SortingPoint) -> String {
+    let name = ntp_exp::curve_name(
+        crate::method::MethodId::Ntg,
+        crate::blocks::Recipe::Paper,
+        p.ablation,
+    );
+    match p.seed {
+        0 => name,
+        seed => format!("{name}, seed {seed}"),
+    }
 }
 
 #[cfg(test)]
@@ -582,27 +643,31 @@ mod tests {
         let panel = &experiment.profiles.get(Profile::Quick).panels[0];
         let runs = experiment.runs_of(panel);
         assert_eq!(runs.len(), 5);
-        // The whole model is fig. ntp_exp's quick state point at 500
-        // tasks (the run is shared), in a folder of its own.
-        let state = &ntp_exp.profiles.get(Profile::Quick).panels[4];
+        // The whole model is fig. ntp_exp's quick state point of the
+        // recommended recipe at 1000 tasks (the run is shared), in a folder
+        // of its own.
+        let state = &ntp_exp.profiles.get(Profile::Quick).panels[1];
         let whole = (crate::method::MethodId::Ntg, Variant::Full);
         assert_eq!(
             experiment
-                .run_config(Profile::Quick, panel, whole, 500)
+                .run_config(Profile::Quick, panel, whole, 1000)
                 .unwrap(),
             ntp_exp
-                .run_config(Profile::Quick, state, whole, 500)
+                .run_config(Profile::Quick, state, whole, 1000)
                 .unwrap()
         );
-        assert_eq!(experiment.run_name(panel, whole, 500), "ablation-state-500");
+        assert_eq!(
+            experiment.run_name(panel, whole, 1000),
+            "ablation-state-recommended-1000"
+        );
         for &(method, ablation) in &runs[1..] {
             let c = experiment
-                .run_config(Profile::Quick, panel, (method, ablation), 500)
+                .run_config(Profile::Quick, panel, (method, ablation), 1000)
                 .unwrap();
             assert_eq!(c.ablation, ablation);
             assert_eq!(
-                experiment.run_name(panel, (method, ablation), 500),
-                format!("ablation-state-{}-500", ablation.name())
+                experiment.run_name(panel, (method, ablation), 1000),
+                format!("ablation-state-{}-recommended-1000", ablation.name())
             );
         }
         // An evaluation setting is not a trained variant.
@@ -611,7 +676,7 @@ mod tests {
                 Profile::Quick,
                 panel,
                 (crate::method::MethodId::Ntg, Variant::ExecutedNode),
-                500,
+                1000,
             )
             .unwrap_err();
         assert!(format!("{err:#}").contains("ablations are NTG"), "{err:#}");
@@ -664,6 +729,7 @@ mod tests {
             executed_node: false,
             success: crate::stats::SuccessRate::from_outcomes((0..1000).map(|i| i < successes)),
             goal_fraction: 0.5,
+            untrained: None,
             train_seconds: 1.0,
             transcription: None,
             seen: None,
@@ -718,6 +784,7 @@ mod tests {
             selected_epoch: None,
             success: SuccessRate::new(successes, 100),
             goal_fraction: 0.5,
+            untrained: None,
             train_seconds: 1.0,
             run: PathBuf::new(),
         };

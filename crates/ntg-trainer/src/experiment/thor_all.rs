@@ -5,7 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, ensure};
+use anyhow::{Context as _, bail, ensure};
 use serde::{Deserialize, Serialize};
 
 use crate::collect::{CollectRunConfig, EVAL_OBJECTS, NPoint, evaluate, train_run};
@@ -144,6 +144,12 @@ pub struct ThorAllLine {
     /// of)`); empty for the others and in results written before it.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub transcribed: Vec<(usize, usize)>,
+    /// A reduced profile: success per N (as `points`) on the same test
+    /// episodes with the run's initial weights, the value each point must
+    /// beat to show learning (see `ntp_exp::NtpExpPoint::untrained`);
+    /// empty at the paper profile and where the run kept none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub untrained: Vec<NPoint>,
 }
 
 /// Per point of `eval`, the episodes whose demo was transcribed exactly,
@@ -320,6 +326,20 @@ pub fn run(
             })?;
             evaluate(model.as_ref(), &config, &EVAL_OBJECTS, scale.test_episodes)
         })?;
+        // A reduced profile shows that the run learned: the same episodes
+        // at its initial weights.
+        let untrained = if profile == Profile::Paper || !run.initial_dir().is_dir() {
+            Vec::new()
+        } else {
+            run.cached_eval(&format!("untrained-{eval_file}"), || {
+                let model = config
+                    .method
+                    .load(&run.initial_dir(), &device)
+                    .with_context(|| format!("loading the untrained model of {}", dir.display()))?;
+                evaluate(model.as_ref(), &config, &EVAL_OBJECTS, scale.test_episodes)
+            })?
+            .points
+        };
         plan.finish(&dir)?;
         for p in &eval.points {
             eprintln!(
@@ -337,6 +357,7 @@ pub fn run(
             train_seconds: run.epoch_compute_seconds()?,
             run: dir,
             transcribed,
+            untrained,
         }))
     };
     let line = &line;
@@ -631,6 +652,37 @@ pub fn report_section(result: &ThorAllResult) -> String {
             let _ = writeln!(s, "- {}: {}", line_name(line), per_n.join(", "));
         }
     }
+    let learning: Vec<String> = result
+        .lines
+        .iter()
+        .filter(|l| !l.untrained.is_empty())
+        .map(|line| {
+            let per_n: Vec<String> = line
+                .points
+                .iter()
+                .zip(&line.untrained)
+                .map(|(p, u)| {
+                    let verdict =
+                        if crate::experiment::ntp_exp::above_untrained(&p.success, &u.success) {
+                            "above"
+                        } else {
+                            "**not above**"
+                        };
+                    format!(
+                        "N = {}: {:.3} against {:.3}, {verdict}",
+                        p.objects, p.success.rate, u.success.rate
+                    )
+                })
+                .collect();
+            format!("- {}: {}", line_name(line), per_n.join("; "))
+        })
+        .collect();
+    if !learning.is_empty() {
+        let _ = writeln!(s, "\n{}\n", THOR_ALL.text("learning_title"));
+        for l in learning {
+            let _ = writeln!(s, "{l}");
+        }
+    }
     let _ = writeln!(s, "\n{}\n", THOR_ALL.text("trend"));
     if let Some(sentence) = comparison_sentence(result) {
         let _ = writeln!(s, "{sentence}\n");
@@ -744,6 +796,7 @@ mod tests {
             train_seconds: 0.0,
             run: PathBuf::new(),
             transcribed: Vec::new(),
+            untrained: Vec::new(),
         }
     }
 
