@@ -121,6 +121,15 @@ pub fn save_safetensors<M: Module>(
             "the module has no parameters to export",
         ));
     }
+    // burn-store writes through a scratch file created 0600; an exported
+    // file is for others to read (a model zoo, a shared folder), as every
+    // other file the project writes.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o644))
+            .map_err(|e| ModelError::file(path, e))?;
+    }
     crate::checkpoint::seal(path)?;
     Ok(seen)
 }

@@ -869,6 +869,13 @@ fn a_model_folder_with_safetensors_weights_loads_the_same_model() {
     let tensors =
         export::save_safetensors(&model, &file, &std::collections::BTreeMap::new()).unwrap();
     assert!(file.with_extension("safetensors.sha256").is_file());
+    // Readable by others, as the project's other files are.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(&file).unwrap().permissions().mode();
+        assert_eq!(mode & 0o777, 0o644, "{mode:o}");
+    }
     // Written once: an existing file is refused.
     assert!(export::save_safetensors(&model, &file, &Default::default()).is_err());
     // PyTorch's layout: a Linear weight transposed, a bare table not.
