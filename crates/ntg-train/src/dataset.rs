@@ -187,6 +187,37 @@ pub struct DemoDataset {
     demos: Vec<DemoEntry>,
 }
 
+/// Bytes a dataset built in `num_parts` parts of about `part_bytes` each
+/// still needs on disk when `missing` parts are not built yet: those
+/// parts, then the whole written beside them by concatenation (the parts
+/// are removed only after it).
+fn space_needed(part_bytes: u64, num_parts: usize, missing: usize) -> u64 {
+    part_bytes * (missing as u64 + num_parts as u64)
+}
+
+/// Refuses to go on building the dataset of `dir` when `needed` bytes are
+/// more than the `available` ones, saying both and what they are made of.
+fn check_space(
+    dir: &Path,
+    needed: u64,
+    available: u64,
+    part_bytes: u64,
+    num_parts: usize,
+) -> anyhow::Result<()> {
+    let gb = |b: u64| b as f64 / 1e9;
+    ensure!(
+        needed <= available,
+        "{}: building this dataset needs about {:.1} GB more disk space, and {:.1} GB are free \
+         ({num_parts} parts of about {:.1} GB, then their concatenation); free some space \
+         or use fewer videos, then run the same command again (finished parts are kept)",
+        dir.display(),
+        gb(needed),
+        gb(available),
+        gb(part_bytes)
+    );
+    Ok(())
+}
+
 impl DemoDataset {
     /// Errors unless the dataset's vocabulary has the `num_nodes` nodes of
     /// the network (`what`: "model", "policy") that is to learn from it.
@@ -521,13 +552,27 @@ impl DemoDataset {
             return Self::load_mapped(dir);
         }
         let num_parts = pairs.len().div_ceil(part_len);
+        let part_dir_of = |k: usize| parts_dir.join(format!("{k:05}"));
         let mut parts = Vec::with_capacity(num_parts);
         for (k, part_pairs) in pairs.chunks(part_len).enumerate() {
-            let part_dir = parts_dir.join(format!("{k:05}"));
+            let part_dir = part_dir_of(k);
             if !part_dir.join("index.json").is_file() {
                 build_part(part_pairs, &format!(" {}/{num_parts}", k + 1))?.save(&part_dir)?;
             }
             let part = Self::load_mapped(&part_dir)?;
+            if k == 0 {
+                // The first part tells the size of the others: refuse now,
+                // with the numbers, rather than fill the disk hours later.
+                let missing = (1..num_parts)
+                    .filter(|&j| !part_dir_of(j).join("index.json").is_file())
+                    .count();
+                let part_bytes = part.obs.bytes().map_or(0, |b| b.len() as u64);
+                let needed = space_needed(part_bytes, num_parts, missing);
+                let available = fs4::available_space(&parts_dir).with_context(|| {
+                    format!("reading the free space of {}", parts_dir.display())
+                })?;
+                check_space(dir, needed, available, part_bytes, num_parts)?;
+            }
             ensure!(
                 part.demos
                     .iter()
@@ -913,6 +958,33 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A dataset in parts needs room for the parts still to build and for
+    /// their concatenation; short of it, the build stops at once, saying
+    /// how much it needs and has.
+    #[test]
+    fn building_in_parts_refuses_when_the_disk_cannot_hold_it() {
+        // 4 parts of 10 bytes, 3 still to build: 30 for them, 40 for the whole.
+        assert_eq!(space_needed(10, 4, 3), 70);
+        assert_eq!(space_needed(10, 4, 0), 40);
+        let err = check_space(
+            Path::new("cache"),
+            70_000_000_000,
+            50_000_000_000,
+            1e10 as u64,
+            4,
+        )
+        .unwrap_err();
+        let message = format!("{err:#}");
+        assert!(
+            message.starts_with("cache: ")
+                && message.contains("70.0 GB more")
+                && message.contains("50.0 GB are free")
+                && message.contains("4 parts of about 10.0 GB"),
+            "{message}"
+        );
+        check_space(Path::new("cache"), 70, 70, 10, 4).unwrap();
+    }
 
     #[test]
     fn progress_in_a_log_is_a_line_every_thirty_seconds_at_most() {
