@@ -1653,33 +1653,26 @@ pub fn evaluate_ntp_tasks(
 /// (`initial/`, [`RunDir::initial_dir`]) on the first `test_tasks` test
 /// tasks, with the demos, scenes and action level its trained model is
 /// evaluated with: the value a series must beat to show that it learned.
-/// `None` where the run has no `initial/` (begun before it was kept, or
-/// restored from its record).
 pub fn evaluate_untrained(
     run: &RunDir,
     config: &BlocksRunConfig,
     test_tasks: usize,
     device: &Device,
-) -> anyhow::Result<Option<EvalResult>> {
+) -> anyhow::Result<EvalResult> {
     let dir = run.initial_dir();
-    if !dir.is_dir() {
-        return Ok(None);
-    }
     let context = || format!("loading the untrained model of {}", run.root().display());
     let split = task_split(config.tasks.as_deref())?;
     let tasks = test_tasks_of(&split, test_tasks)?;
     if config.method.is_ntg() {
         // As the trained model is evaluated (`TrainedBlocks::evaluate`).
         let model = load_ntg_from(&dir, device).with_context(context)?;
-        model
-            .evaluate_tasks(
-                config.failures,
-                config.camera(),
-                tasks,
-                Seeds::TEST,
-                Variant::Full,
-            )
-            .map(Some)
+        model.evaluate_tasks(
+            config.failures,
+            config.camera(),
+            tasks,
+            Seeds::TEST,
+            Variant::Full,
+        )
     } else {
         let model = config.method.load(&dir, device).with_context(context)?;
         evaluate_ntp_tasks(
@@ -1690,7 +1683,6 @@ pub fn evaluate_untrained(
             tasks,
             Seeds::TEST,
         )
-        .map(Some)
     }
 }
 

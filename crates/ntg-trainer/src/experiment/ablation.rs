@@ -449,21 +449,17 @@ pub fn run_b(
                 })?;
                 // A reduced profile shows that each variant's training
                 // moved it: the same scenes at its initial weights.
-                let untrained = if profile == Profile::Paper || !run.initial_dir().is_dir() {
-                    None
-                } else {
-                    let u = run.cached_eval(&format!("untrained-{eval_file}"), || {
-                        let model = ntg_model::NtgModel::load(run.initial_dir(), &device)
-                            .with_context(|| {
-                                format!("loading the untrained model of {}", dir.display())
-                            })?;
-                        sorting::evaluate(&model, &config, &episodes, Variant::Full)
-                    })?;
-                    Some(ntp_exp::Untrained {
-                        success: u.success,
-                        goal_fraction: u.goal_fraction,
-                    })
-                };
+                let untrained = super::untrained_eval(&run, profile, &eval_file, || {
+                    let model = ntg_model::NtgModel::load(run.initial_dir(), &device)
+                        .with_context(|| {
+                            format!("loading the untrained model of {}", dir.display())
+                        })?;
+                    sorting::evaluate(&model, &config, &episodes, Variant::Full)
+                })?
+                .map(|u| ntp_exp::Untrained {
+                    success: u.success,
+                    goal_fraction: u.goal_fraction,
+                });
                 plan.finish(&dir)?;
                 eprintln!(
                     "  [{name}] success on {} part-sorted test scenes: {:.3} ({:.3}-{:.3}); objects sorted {:.3}",
@@ -609,11 +605,7 @@ fn learning_lines_b(points: &[SortingPoint]) -> Vec<String> {
         .iter()
         .filter_map(|p| {
             let u = p.untrained.as_ref()?;
-            let verdict = if ntp_exp::above_untrained(&p.success, &u.success) {
-                "above"
-            } else {
-                "**not above**"
-            };
+            let verdict = super::learning_verdict(&p.success, &u.success);
             Some(ABLATION.fill(
                 "b_learning_line",
                 &[

@@ -604,6 +604,47 @@ struct AddedKey {
     known: String,
 }
 
+/// A reduced profile's score of `run`'s starting weights (`initial/`) on
+/// the test set its trained model is scored on (`evaluate`), cached in
+/// `eval/untrained-EVAL_FILE`: the value each point must beat to show that
+/// it learned. `None` at the paper profile, which does not show it, and
+/// where the run kept no starting weights (begun before they were kept, or
+/// restored from its record).
+pub(crate) fn untrained_eval<T: Serialize + DeserializeOwned>(
+    run: &crate::run_dir::RunDir,
+    profile: Profile,
+    eval_file: &str,
+    evaluate: impl FnOnce() -> anyhow::Result<T>,
+) -> anyhow::Result<Option<T>> {
+    if profile == Profile::Paper || !run.initial_dir().is_dir() {
+        return Ok(None);
+    }
+    run.cached_eval(&format!("untrained-{eval_file}"), evaluate)
+        .map(Some)
+}
+
+/// Whether `trained` is above `untrained`: its 95% interval's lower end
+/// above the untrained rate (a margin of 1e-9 absorbs the rounding of a
+/// lower end that is 0 in exact arithmetic).
+pub(crate) fn above_untrained(
+    trained: &crate::stats::SuccessRate,
+    untrained: &crate::stats::SuccessRate,
+) -> bool {
+    trained.ci_low > untrained.rate + 1e-9
+}
+
+/// The report's word for [`above_untrained`].
+pub(crate) fn learning_verdict(
+    trained: &crate::stats::SuccessRate,
+    untrained: &crate::stats::SuccessRate,
+) -> &'static str {
+    if above_untrained(trained, untrained) {
+        "above"
+    } else {
+        "**not above**"
+    }
+}
+
 /// The start of a figure's report section: `heading` (a Markdown heading
 /// and any text under it) and a blank line. `Err` holds the whole section
 /// when `trained` is false: the heading and a line saying no run of it has

@@ -546,24 +546,6 @@ pub struct Untrained {
     pub goal_fraction: f64,
 }
 
-impl NtpExpPoint {
-    /// Whether training lifted the point above its untrained model: its
-    /// success interval's lower end above the untrained success (`None`
-    /// where the untrained model was not scored).
-    pub fn learned(&self) -> Option<bool> {
-        self.untrained
-            .as_ref()
-            .map(|u| above_untrained(&self.success, &u.success))
-    }
-}
-
-/// Whether `trained` is above `untrained`: its 95% interval's lower end
-/// above the untrained rate (a margin of 1e-9 absorbs the rounding of a
-/// lower end that is 0 in exact arithmetic).
-pub(crate) fn above_untrained(trained: &SuccessRate, untrained: &SuccessRate) -> bool {
-    trained.ci_low > untrained.rate + 1e-9
-}
-
 /// A run's training curve as the report shows it: whether the method was
 /// still improving when its training stopped (issue 16's under-training
 /// check of a baseline far below the paper).
@@ -983,18 +965,13 @@ fn run_point(
     })?;
     // A reduced profile shows that each series learned: the same test
     // tasks scored at the run's initial weights.
-    let untrained = if profile == Profile::Paper {
-        None
-    } else {
-        let untrained: Option<blocks::EvalResult> = run
-            .cached_eval(&format!("untrained-{eval_file}"), || {
-                blocks::evaluate_untrained(&run, &config, scale.test_tasks, &device)
-            })?;
-        untrained.map(|u| Untrained {
-            success: u.success,
-            goal_fraction: u.mean_goal_fraction,
-        })
-    };
+    let untrained = crate::experiment::untrained_eval(&run, profile, &eval_file, || {
+        blocks::evaluate_untrained(&run, &config, scale.test_tasks, &device)
+    })?
+    .map(|u| Untrained {
+        success: u.success,
+        goal_fraction: u.mean_goal_fraction,
+    });
     plan.finish(&dir)?;
     let train_seconds = run.epoch_compute_seconds()?;
     eprintln!(
@@ -1915,11 +1892,7 @@ pub(crate) fn learning_lines(points: &[NtpExpPoint]) -> Vec<String> {
         .iter()
         .filter_map(|p| {
             let untrained = p.untrained.as_ref()?;
-            let verdict = if p.learned()? {
-                "above"
-            } else {
-                "**not above**"
-            };
+            let verdict = crate::experiment::learning_verdict(&p.success, &untrained.success);
             Some(NTP_EXP.fill(
                 "learning_line",
                 &[
@@ -2411,6 +2384,7 @@ mod tests {
     #[test]
     fn above_untrained_needs_the_interval_above_the_untrained_rate() {
         let zero = SuccessRate::new(0, 100);
+        use crate::experiment::above_untrained;
         assert!(!above_untrained(&SuccessRate::new(0, 100), &zero));
         assert!(above_untrained(&SuccessRate::new(5, 100), &zero));
         assert!(!above_untrained(

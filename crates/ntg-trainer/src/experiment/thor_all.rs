@@ -328,18 +328,14 @@ pub fn run(
         })?;
         // A reduced profile shows that the run learned: the same episodes
         // at its initial weights.
-        let untrained = if profile == Profile::Paper || !run.initial_dir().is_dir() {
-            Vec::new()
-        } else {
-            run.cached_eval(&format!("untrained-{eval_file}"), || {
-                let model = config
-                    .method
-                    .load(&run.initial_dir(), &device)
-                    .with_context(|| format!("loading the untrained model of {}", dir.display()))?;
-                evaluate(model.as_ref(), &config, &EVAL_OBJECTS, scale.test_episodes)
-            })?
-            .points
-        };
+        let untrained = super::untrained_eval(&run, profile, &eval_file, || {
+            let model = config
+                .method
+                .load(&run.initial_dir(), &device)
+                .with_context(|| format!("loading the untrained model of {}", dir.display()))?;
+            evaluate(model.as_ref(), &config, &EVAL_OBJECTS, scale.test_episodes)
+        })?
+        .map_or_else(Vec::new, |eval| eval.points);
         plan.finish(&dir)?;
         for p in &eval.points {
             eprintln!(
@@ -662,12 +658,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
                 .iter()
                 .zip(&line.untrained)
                 .map(|(p, u)| {
-                    let verdict =
-                        if crate::experiment::ntp_exp::above_untrained(&p.success, &u.success) {
-                            "above"
-                        } else {
-                            "**not above**"
-                        };
+                    let verdict = super::learning_verdict(&p.success, &u.success);
                     format!(
                         "N = {}: {:.3} against {:.3}, {verdict}",
                         p.objects, p.success.rate, u.success.rate
