@@ -23,6 +23,16 @@
 //!    read back from criterion's `estimates.json` (median) and
 //!    `benchmark.json` (demos per iteration). PyTorch has no counterpart.
 //!
+//! 4. burn, rows 8 and 9: ntg-trainer's criterion bench `stages` (release,
+//!    `RAYON_NUM_THREADS=N`): row 8 is stage A's training step of the
+//!    128×128 frame encoder (16-channel stem, spatial-softmax keypoints,
+//!    batch 64; `stage_a_keypoints_128_stem16/train`) beside its PyTorch
+//!    twin `crates/ntg-trainer/benches/pytorch/stage_a.py --keypoints
+//!    --image-size 128 --stem 16 --threads N`; row 9 is stage B's step
+//!    (block stacking's recommended recipe on frame embeddings, the
+//!    interpreter reading frames pooled by 4) over the state step, both
+//!    burn (`stage_b/embedding_step_pool_4`, `stage_b/state_step`).
+//!
 //! Each side reports a `shape` per row (batch, rows, frames, tokens, ...);
 //! a row whose shapes differ is flagged. The table is printed and written
 //! as JSON (default `target/bench/bench.json`).
@@ -231,6 +241,15 @@ fn pytorch_rows(root: &Path, b: &Bench) -> Twin {
     }
 }
 
+/// `cargo bench --quiet -p PACKAGE --bench BENCH -- --noplot`, for the
+/// caller to add criterion's options and filter to.
+fn criterion_command(package: &str, bench: &str) -> Command {
+    let mut cmd = Command::new(env!("CARGO"));
+    cmd.args(["bench", "--quiet", "-p", package, "--bench", bench])
+        .args(["--", "--noplot"]);
+    cmd
+}
+
 /// Row 6 on burn: env-blocks' criterion bench of expert demos. Returns
 /// `(state-only demos/s, rendered demos/s, pool threads)`.
 fn demo_rows(root: &Path, b: &Bench) -> anyhow::Result<(f64, f64, usize)> {
@@ -239,17 +258,7 @@ fn demo_rows(root: &Path, b: &Bench) -> anyhow::Result<(f64, f64, usize)> {
         "bench: row 6, expert demos per second (env-blocks' criterion bench, {pool}-thread pool)"
     );
     let home = root.join("target/bench/criterion");
-    let mut cmd = Command::new(env!("CARGO"));
-    cmd.args([
-        "bench",
-        "--quiet",
-        "-p",
-        "env-blocks",
-        "--bench",
-        "blocks",
-        "--",
-        "--noplot",
-    ]);
+    let mut cmd = criterion_command("env-blocks", "blocks");
     if b.quick {
         cmd.arg("--quick");
     } else {
@@ -281,6 +290,76 @@ fn demo_rows(root: &Path, b: &Bench) -> anyhow::Result<(f64, f64, usize)> {
     Ok((rate("state_only")?, rate("rendered")?, pool))
 }
 
+/// The criterion benchmarks of ntg-trainer's `stages` bench that rows 8
+/// and 9 read, in this order: stage A's 128-px step, the state step,
+/// stage B's step (pool 4).
+const STAGE_BENCHES: [&str; 3] = [
+    "stage_a_keypoints_128_stem16/train",
+    "stage_b/state_step",
+    "stage_b/embedding_step_pool_4",
+];
+
+/// Rows 8 and 9 on burn: the medians (ms) of [`STAGE_BENCHES`].
+fn stage_rows(root: &Path, b: &Bench) -> anyhow::Result<[f64; 3]> {
+    eprintln!(
+        "bench: rows 8-9, stage A's 128-px encoder step and stage B's step (ntg-trainer's criterion bench `stages`, {} threads)",
+        b.threads
+    );
+    let home = root.join("target/bench/criterion");
+    let mut cmd = criterion_command("ntg-trainer", "stages");
+    if b.quick {
+        cmd.arg("--quick");
+    }
+    cmd.arg(format!("^({})$", STAGE_BENCHES.join("|")))
+        .env("RAYON_NUM_THREADS", b.threads.to_string())
+        .env("CRITERION_HOME", &home);
+    cargo_output(&mut cmd, root, "cargo bench -p ntg-trainer --bench stages")?;
+    let median_ms = |id: &str| -> anyhow::Result<f64> {
+        let path = home.join(id).join("new/estimates.json");
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {}", path.display()))?;
+        let v: Value =
+            serde_json::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+        let ns = v["median"]["point_estimate"]
+            .as_f64()
+            .with_context(|| format!("{}: no median", path.display()))?;
+        Ok(ns * 1e-6)
+    };
+    Ok([
+        median_ms(STAGE_BENCHES[0])?,
+        median_ms(STAGE_BENCHES[1])?,
+        median_ms(STAGE_BENCHES[2])?,
+    ])
+}
+
+/// Row 8 on PyTorch: `stage_a.py`'s median training step (ms) of the
+/// 128-px encoder, or why there is none.
+fn stage_a_twin(root: &Path, b: &Bench, twin: &Twin) -> Result<f64, String> {
+    if let Twin::Missing(why) = twin {
+        return Err(why.clone());
+    }
+    let python = python();
+    eprintln!("bench: PyTorch row 8 (stage_a.py, 128x128 frames, stem 16, keypoints)");
+    let n = b.threads.to_string();
+    let out = Command::new(&python)
+        .arg(root.join("crates/ntg-trainer/benches/pytorch/stage_a.py"))
+        .args(["--keypoints", "--image-size", "128", "--stem", "16"])
+        .args(["--threads", &n, "--repeats", &b.repeats.to_string()])
+        .env("OMP_NUM_THREADS", &n)
+        .env("MKL_NUM_THREADS", &n)
+        .current_dir(root)
+        .stderr(Stdio::inherit())
+        .output()
+        .map_err(|e| format!("could not run {python}: {e}"))?;
+    if !out.status.success() {
+        return Err(format!("stage_a.py failed ({})", out.status));
+    }
+    json_lines(&out.stdout)
+        .iter()
+        .find_map(|v| v["train_ms"].as_f64())
+        .ok_or_else(|| "stage_a.py printed no train_ms".to_owned())
+}
+
 /// `x` with about 3 significant digits.
 fn number(x: f64) -> String {
     if x >= 1000.0 {
@@ -298,6 +377,8 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
     let (burn, [one_thread, two_shards, speedup]) = burn_rows(root, b)?;
     let twin = pytorch_rows(root, b);
     let (state_rate, rendered_rate, pool) = demo_rows(root, b)?;
+    let [stage_a_ms, state_step_ms, stage_b_ms] = stage_rows(root, b)?;
+    let stage_a_torch = stage_a_twin(root, b, &twin);
 
     let (twin_rows, torch, missing) = match &twin {
         Twin::Rows(rows, version) => (rows.as_slice(), Some(version.clone()), None),
@@ -366,6 +447,38 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
         shape_mismatch: false,
     });
 
+    rows.push(Row {
+        number: "8".to_owned(),
+        key: "frame_step_128_stem16".to_owned(),
+        label: "frame encoder training step, 128x128 frames, 16-channel stem, keypoints (stage A, 64 frames)".to_owned(),
+        unit: "ms",
+        burn: Some(stage_a_ms),
+        burn_repeats: None,
+        pytorch: stage_a_torch.as_ref().ok().copied(),
+        pytorch_repeats: stage_a_torch.as_ref().ok().map(|_| b.repeats as u64),
+        shape: Some("64 frames of 3x128x128".to_owned()),
+        shape_mismatch: false,
+    });
+    rows.push(Row {
+        number: "9".to_owned(),
+        key: "stage_b_over_state_step".to_owned(),
+        label: format!(
+            "stage B step over the state step (recommended recipe, 32 demos; frame embeddings pooled by 4, {} ms; state rows, {} ms)",
+            number(stage_b_ms),
+            number(state_step_ms)
+        ),
+        unit: "x",
+        burn: Some(stage_b_ms / state_step_ms),
+        burn_repeats: None,
+        pytorch: None,
+        pytorch_repeats: None,
+        shape: None,
+        shape_mismatch: false,
+    });
+    if let Err(why) = &stage_a_torch {
+        eprintln!("bench: row 8 has no PyTorch median: {why}");
+    }
+
     // The table.
     let cell = |r: &Row, v: Option<f64>| match v {
         Some(x) if r.unit == "ms" => format!("{} ms", number(x)),
@@ -426,7 +539,7 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
     }
     println!(
         "burn: RAYON_NUM_THREADS={}; PyTorch: torch.set_num_threads({}){}. \
-         Rows 1b and 2b have the PyTorch column of rows 1 and 2; rows 6 and 7 have no PyTorch counterpart.",
+         Rows 1b and 2b have the PyTorch column of rows 1 and 2; rows 6, 7 and 9 have no PyTorch counterpart.",
         b.threads,
         b.threads,
         torch

@@ -1,7 +1,7 @@
 //! Object Collection: a partially observed search-and-collect world with
 //! rendered 64×64 frames, the stand-in for the paper's AI2-THOR experiment.
 //!
-//! A [`Task`] is N ∈ [1, 5] target objects of distinct categories out of
+//! A [`Task`] is N ∈ [1, 6] target objects of distinct categories out of
 //! C = 8 ([`Category`]), each with its designated drop-off receptacle among
 //! K = 5 ([`Receptacle`]). Each episode (`reset(seed)` of [`CollectEnv`]) builds a
 //! fresh scene from its seed: M = N + 3 search locations visited in a random

@@ -23,7 +23,7 @@ pub struct Target {
     pub receptacle: Receptacle,
 }
 
-/// An object-collection task: N ∈ [1, 5] targets of distinct categories,
+/// An object-collection task: N ∈ [1, 6] targets of distinct categories,
 /// each with its designated drop-off receptacle (receptacles may repeat).
 ///
 /// A task is a *set* of targets: they are kept sorted by category, so two
@@ -56,7 +56,7 @@ impl From<Task> for TaskRepr {
 }
 
 impl Task {
-    /// A task of these targets (any order). Errors unless there are 1 to 5
+    /// A task of these targets (any order). Errors unless there are 1 to 6
     /// targets with distinct categories.
     pub fn new(mut targets: Vec<Target>) -> Result<Task, CollectError> {
         if !(MIN_OBJECTS..=MAX_OBJECTS).contains(&targets.len()) {
@@ -140,7 +140,7 @@ impl Task {
 
     /// A uniformly random task with `n` targets: `n` distinct categories,
     /// each with a uniformly random receptacle. Errors if `n` is not in
-    /// [1, 5].
+    /// [1, 6].
     pub fn random<R: Rng + ?Sized>(n: usize, rng: &mut R) -> Result<Task, CollectError> {
         check_objects(n)?;
         let mut categories = Category::ALL;
@@ -356,11 +356,11 @@ mod tests {
             ])
             .is_err()
         );
-        let six = Category::ALL[..6]
+        let seven = Category::ALL[..MAX_OBJECTS + 1]
             .iter()
             .map(|&c| t(c, Receptacle::Sink))
             .collect();
-        assert!(Task::new(six).is_err());
+        assert!(Task::new(seven).is_err());
     }
 
     #[test]
@@ -419,7 +419,8 @@ mod tests {
             let task = splitter.sample(2, Some(Split::Train), &mut rng).unwrap();
             assert_eq!(splitter.split_of(&task), Split::Train);
         }
-        assert!(splitter.sample(6, None, &mut rng).is_err());
+        assert!(splitter.sample(MAX_OBJECTS + 1, None, &mut rng).is_err());
+        assert!(splitter.sample(0, None, &mut rng).is_err());
         assert!(TaskSplitter::new(1.5, 0).is_err());
         assert!(TaskSplitter::new(f64::NAN, 0).is_err());
     }

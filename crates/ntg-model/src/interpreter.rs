@@ -53,6 +53,15 @@ pub struct DemoInterpreterConfig {
     /// alignment of a demo's frames and actions, instead of starting
     /// without a preference and having to find it. `None` means 0.
     pub location_step_prior: Option<f32>,
+    /// The largest forward shift of location-aware attention (`Some(k)`,
+    /// k ≥ 2): shifts −1..=k instead of −1..=2, and `location_step_prior`
+    /// then starts *every* forward shift 1..=k at the prior, a window that
+    /// lets the attention move on by up to `k` frames per token. For demo
+    /// videos, whose actions span several frames each (2–9 in object
+    /// collection): reading one token per action, the attention has to
+    /// jump a whole action's frames, which −1..=2 cannot. `None` means
+    /// −1..=2 with the prior on +1 only.
+    pub location_max_shift: Option<usize>,
     /// A decoder without memory (`Some(true)`, needs input feeding): each
     /// step starts from a zero state and sees only the previous token and
     /// the previous attentional state `h̃_{t−1}`, so it cannot count how
@@ -97,6 +106,13 @@ impl DemoInterpreterConfig {
                 "demo interpreter: local annotations replace the (bidirectional) GRU states; choose one"
                     .into(),
             ));
+        }
+        if let Some(k) = self.location_max_shift
+            && !(2..=MAX_LOCATION_SHIFT).contains(&k)
+        {
+            return Err(ModelError::Config(format!(
+                "demo interpreter: location_max_shift must be in 2..={MAX_LOCATION_SHIFT}, got {k}"
+            )));
         }
         if self.frame_pool == Some(0) {
             return Err(ModelError::Config(
@@ -151,15 +167,22 @@ impl DemoInterpreterConfig {
             max_decode_len: self.max_decode_len,
             input_feeding: feeding,
             location: (self.location_attention == Some(true)).then(|| {
-                let weights = extra.vector(LOCATION_SHIFTS.len(), 0.0);
+                let shifts = location_shifts(self.location_max_shift);
+                let weights = extra.vector(shifts.len(), 0.0);
                 match self.location_step_prior {
                     None => weights,
                     Some(prior) => {
-                        let values: Vec<f32> = LOCATION_SHIFTS
+                        // The default window primes shift +1 only; a wider
+                        // one primes every forward shift.
+                        let primed = |j: isize| match self.location_max_shift {
+                            None => j == 1,
+                            Some(_) => j >= 1,
+                        };
+                        let values: Vec<f32> = shifts
                             .iter()
-                            .map(|&j| if j == 1 { prior } else { 0.0 })
+                            .map(|&j| if primed(j) { prior } else { 0.0 })
                             .collect();
-                        Param::from_data(TensorData::new(values, [LOCATION_SHIFTS.len()]), device)
+                        Param::from_data(TensorData::new(values, [shifts.len()]), device)
                     }
                 }
             }),
@@ -220,7 +243,8 @@ pub struct DemoInterpreter {
     pub max_decode_len: usize,
     /// Whether the decoder reads the previous attentional state.
     pub input_feeding: bool,
-    /// Location-aware attention weights `w` over the shifts −1..=2.
+    /// Location-aware attention weights `w` over the shifts −1..=k (k = 2
+    /// unless `location_max_shift` says otherwise; the length gives k).
     pub location: Option<Param<Tensor<1>>>,
     /// Whether each decoder step starts from a zero state.
     pub stateless: bool,
@@ -259,9 +283,20 @@ struct Encoded {
     last: Tensor<2>,
 }
 
-/// The shifts `j` of location-aware attention (see
+/// The shifts `j` of location-aware attention by default (see
 /// [`DemoInterpreterConfig::location_attention`]).
 pub const LOCATION_SHIFTS: [isize; 4] = [-1, 0, 1, 2];
+/// The largest `location_max_shift` a configuration may ask for.
+pub const MAX_LOCATION_SHIFT: usize = 32;
+
+/// The shifts −1..=k of location-aware attention with largest forward
+/// shift `max_shift` (`None`: [`LOCATION_SHIFTS`]).
+pub fn location_shifts(max_shift: Option<usize>) -> Vec<isize> {
+    match max_shift {
+        None => LOCATION_SHIFTS.to_vec(),
+        Some(k) => (-1..=k as isize).collect(),
+    }
+}
 /// The fixed gain `G` of location-aware attention: the learned weights start
 /// at 0 and reach score-sized values in a few hundred Adam steps.
 pub const LOCATION_GAIN: f32 = 10.0;
@@ -433,7 +468,9 @@ impl DemoInterpreter {
         let [b, steps] = alpha.dims();
         let device = alpha.device();
         let mut bias = Tensor::<2>::zeros([b, steps], &device);
-        for (k, &j) in LOCATION_SHIFTS.iter().enumerate() {
+        // The weights' length says which shifts they are: −1..=len−2.
+        let shifts: Vec<isize> = (-1..w.dims()[0] as isize - 1).collect();
+        for (k, &j) in shifts.iter().enumerate() {
             let shift = j.unsigned_abs();
             if shift >= steps {
                 continue;

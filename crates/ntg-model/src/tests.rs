@@ -1596,6 +1596,55 @@ fn location_step_prior_sets_the_initial_shift_plus_one_weight() {
     assert_eq!(others(&plain), others(&primed));
 }
 
+/// A wider location window has a weight per shift −1..=k and starts every
+/// forward shift at the prior (the default window primes +1 only); a
+/// window outside 2..=MAX_LOCATION_SHIFT is refused; the wide interpreter
+/// trains and decodes like the default one.
+#[test]
+fn a_wide_location_window_primes_every_forward_shift() {
+    use crate::interpreter::{MAX_LOCATION_SHIFT, location_shifts};
+    let dev = device();
+    let base = small_config(2)
+        .interpreter
+        .with_input_feeding(Some(true))
+        .with_location_attention(Some(true))
+        .with_location_step_prior(Some(0.3));
+    let wide = base
+        .clone()
+        .with_location_max_shift(Some(10))
+        .init(5, &dev)
+        .unwrap();
+    let weights = to_vec(wide.location.as_ref().unwrap().val()).unwrap();
+    let shifts = location_shifts(Some(10));
+    assert_eq!(shifts, (-1..=10).collect::<Vec<isize>>());
+    let expected: Vec<f32> = shifts
+        .iter()
+        .map(|&j| if j >= 1 { 0.3 } else { 0.0 })
+        .collect();
+    assert_eq!(weights, expected);
+    for bad in [0, 1, MAX_LOCATION_SHIFT + 1] {
+        assert!(
+            base.clone()
+                .with_location_max_shift(Some(bad))
+                .init(5, &dev)
+                .is_err(),
+            "max shift {bad} accepted"
+        );
+    }
+    // Ten frames of a demo of three actions: teacher-forced attention rows
+    // sum to one, and greedy decoding stops within the limit.
+    let rows = random_rows(&mut ChaCha8Rng::seed_from_u64(3), 10, D);
+    let actions = [ActionId::new(2), ActionId::new(3), ActionId::new(2)];
+    let batch = DemoBatch::new(&[(&rows[..], &actions[..])], D, wide.num_nodes, &dev).unwrap();
+    let attention = wide.attention(&batch).unwrap();
+    let [_, len, steps] = attention.dims();
+    assert_eq!((len, steps), (4, 10));
+    for total in to_vec(attention.sum_dim(2)).unwrap() {
+        assert!((total - 1.0).abs() < 1e-5, "attention row sums to {total}");
+    }
+    assert!(wide.decode(&rows).unwrap().len() <= wide.max_decode_len);
+}
+
 /// Every float parameter's gradient, in the module's order.
 struct ParamGrads<'a> {
     grads: &'a burn::tensor::Gradients,

@@ -719,7 +719,10 @@ pub fn run_list(profile: Profile, experiments: Source<'_>) -> anyhow::Result<Vec
         }
     }
     for run in thor_all_file.runs(profile) {
-        runs.push(("thor_all".into(), alone(thor_all_file.run_name(run))));
+        runs.push((
+            "thor_all".into(),
+            alone(thor_all_file.run_name(profile, run)),
+        ));
     }
     // A run of exactly another's configuration (fig. ablation's whole
     // model and fig. ntp_exp's point of the same scale) links that one's
@@ -973,7 +976,7 @@ mod tests {
             expected.extend(b.ablations.iter().map(|&v| b.run_name(v, seed)));
         }
         let t = thor_all::ThorAllExperiment::load(Source::BuiltIn).unwrap();
-        expected.extend(t.runs(profile).into_iter().map(|r| t.run_name(r)));
+        expected.extend(t.runs(profile).into_iter().map(|r| t.run_name(profile, r)));
         let mut names: Vec<String> = list.iter().map(|r| r.name.clone()).collect();
         names.sort();
         expected.sort();
@@ -1189,6 +1192,18 @@ mod tests {
             (thor_all.scale.learn_end, thor_all.scale.memory) = (learn_end, memory);
             thor_all::report_section(&thor_all);
         }
+        // A protocol for longer demos beside an earlier one it keeps.
+        let mut thor_all = paper.thor_all.clone();
+        thor_all.scale.earlier = Some(Box::new(thor_all.scale.clone()));
+        thor_all.scale.interpreter = Some(crate::collect::InterpreterKind::SteppingVideo);
+        thor_all.scale.validation_objects = vec![6];
+        let mut old = thor_all.lines[0].clone();
+        old.earlier = true;
+        thor_all.lines.push(old);
+        thor_all::report_section(&thor_all);
+        // None of the current protocol's runs trained yet.
+        thor_all.lines.retain(|l| l.earlier);
+        thor_all::report_section(&thor_all);
         let mut jigsaws = paper.jigsaws.clone();
         jigsaws.methods.reverse();
         for (m, other) in jigsaws.methods.iter_mut().zip(&paper.jigsaws.methods) {

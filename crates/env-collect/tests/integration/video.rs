@@ -30,7 +30,7 @@ fn video(task: &Task, seed: u64) -> ctg_graph::VideoDemonstration<image::RgbImag
 
 #[test]
 fn keyframes_are_the_one_frame_demos_frames() {
-    for n in 1..=5 {
+    for n in 1..=env_collect::domain::MAX_OBJECTS {
         for seed in [0, 3, 17, 1234] {
             let task = sample_task(n, seed + 100);
             let config = CollectConfig::default();

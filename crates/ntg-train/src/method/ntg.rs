@@ -776,10 +776,14 @@ impl NtgOptions {
                 self.ablation.name()
             );
         }
-        if self.location_step_prior.is_some() && self.interpreter != Some(InterpreterKind::Stepping)
+        if self.location_step_prior.is_some()
+            && !matches!(
+                self.interpreter,
+                Some(InterpreterKind::Stepping | InterpreterKind::SteppingVideo)
+            )
         {
             anyhow::bail!(
-                "--location-step-prior: a location step prior needs NTG with the stepping interpreter (--interpreter stepping; the paper's interpreter has no location-aware attention)"
+                "--location-step-prior: a location step prior needs NTG with a stepping interpreter (--interpreter stepping or stepping-video; the paper's interpreter has no location-aware attention)"
             );
         }
         if let Some(w) = self.location_step_prior
@@ -878,7 +882,18 @@ pub enum InterpreterKind {
     /// looks, not from a count of what was written, so it carries over to
     /// longer demos than any seen in training.
     Stepping,
+    /// The stepping interpreter with a wider location window for demo
+    /// videos: its attention may move on by −1..=[`VIDEO_MAX_SHIFT`]
+    /// frames per token (every forward shift starting at the step prior),
+    /// so it can jump one action's frames per token (an object-collection
+    /// action spans 2–9 frames; −1..=2 stalls on videos).
+    SteppingVideo,
 }
+
+/// The largest forward shift of [`InterpreterKind::SteppingVideo`]'s
+/// location-aware attention: the longest action of an object-collection
+/// demo video (a drop-off: approach 4 + open 2 + drop 3 frames) plus one.
+pub const VIDEO_MAX_SHIFT: usize = 10;
 
 impl InterpreterKind {
     /// Sets the interpreter options of `config` for this kind, with the
@@ -886,8 +901,10 @@ impl InterpreterKind {
     pub fn apply(self, config: &mut ntg_model::DemoInterpreterConfig, step_prior: Option<f32>) {
         let on = match self {
             InterpreterKind::Luong => None,
-            InterpreterKind::Stepping => Some(true),
+            InterpreterKind::Stepping | InterpreterKind::SteppingVideo => Some(true),
         };
+        config.location_max_shift =
+            (self == InterpreterKind::SteppingVideo).then_some(VIDEO_MAX_SHIFT);
         config.bidirectional = None;
         config.input_feeding = on;
         config.location_attention = on;
@@ -898,12 +915,17 @@ impl InterpreterKind {
 }
 
 impl crate::spec::Choice for InterpreterKind {
-    const ALL: &'static [Self] = &[InterpreterKind::Luong, InterpreterKind::Stepping];
+    const ALL: &'static [Self] = &[
+        InterpreterKind::Luong,
+        InterpreterKind::Stepping,
+        InterpreterKind::SteppingVideo,
+    ];
 
     fn name(self) -> &'static str {
         match self {
             InterpreterKind::Luong => "luong",
             InterpreterKind::Stepping => "stepping",
+            InterpreterKind::SteppingVideo => "stepping-video",
         }
     }
 
@@ -912,6 +934,9 @@ impl crate::spec::Choice for InterpreterKind {
             InterpreterKind::Luong => "The paper's: a GRU over the frames and Luong attention",
             InterpreterKind::Stepping => {
                 "Length-independent: local annotations, input feeding, location-aware attention"
+            }
+            InterpreterKind::SteppingVideo => {
+                "Stepping, its attention moving up to 10 frames per token (for demo videos)"
             }
         }
     }

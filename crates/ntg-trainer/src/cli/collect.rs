@@ -76,7 +76,7 @@ impl SplitArg {
 /// Arguments of `ntg collect demo`.
 #[derive(Debug, Args)]
 pub struct DemoArgs {
-    /// Number of target objects N, 1 to 5.
+    /// Number of target objects N, 1 to 6.
     #[arg(long, value_name = "N")]
     pub objects: usize,
     /// Episode seed (where objects are, search order, appearances).
@@ -103,7 +103,7 @@ pub struct DemoArgs {
 /// Arguments of `ntg collect tasks`.
 #[derive(Debug, Args)]
 pub struct TasksArgs {
-    /// Number of target objects N, 1 to 5.
+    /// Number of target objects N, 1 to 6.
     #[arg(long, value_name = "N")]
     pub objects: usize,
     /// How many distinct tasks to list.

@@ -119,7 +119,7 @@ impl InterpreterDefaults for InterpreterKind {
     fn default_step_prior(self) -> Option<f32> {
         match self {
             InterpreterKind::Luong => None,
-            InterpreterKind::Stepping => Some(LOCATION_STEP_PRIOR),
+            InterpreterKind::Stepping | InterpreterKind::SteppingVideo => Some(LOCATION_STEP_PRIOR),
         }
     }
 }
@@ -209,6 +209,14 @@ pub struct CollectRunConfig {
     /// before it: no validation, the last epoch is evaluated.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub validation_tasks_per_n: usize,
+    /// Numbers of objects validated on besides the training ones, each
+    /// with `validation_tasks_per_n` train-side tasks: lengths no test
+    /// episode has (above every N of [`EVAL_OBJECTS`]), so that a setting
+    /// that should carry to demos longer than any trained on is chosen on
+    /// longer demos without looking at test episodes. Empty, as in
+    /// configurations saved before it: the training numbers only.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub validation_objects: Vec<usize>,
 }
 
 fn is_zero(n: &usize) -> bool {
@@ -268,6 +276,7 @@ impl CollectRunConfig {
             },
             video: (obs == ObsKind::Vid).then(CollectVideo::default),
             validation_tasks_per_n: 0,
+            validation_objects: Vec::new(),
         }
     }
 
@@ -297,6 +306,20 @@ impl CollectRunConfig {
         ensure!(
             self.tasks_per_n > 0 && self.demos_per_task > 0,
             "tasks per N and demos per task must be positive"
+        );
+        let longest_test = EVAL_OBJECTS.iter().copied().max().unwrap_or(0);
+        ensure!(
+            self.validation_objects
+                .iter()
+                .all(|&n| n > longest_test && n <= env_collect::domain::MAX_OBJECTS),
+            "--validation-objects {:?}: validation lengths must be ones no test episode has, in {}..={}",
+            self.validation_objects,
+            longest_test + 1,
+            env_collect::domain::MAX_OBJECTS
+        );
+        ensure!(
+            self.validation_objects.is_empty() || self.validation_tasks_per_n > 0,
+            "--validation-objects needs --validation-tasks-per-n above 0"
         );
         ensure!(
             self.demos_per_task >= 2,
@@ -344,14 +367,19 @@ pub fn training_tasks(config: &CollectRunConfig) -> anyhow::Result<Vec<Task>> {
 }
 
 /// Up to `per_n` train-side tasks for each N in the run's training
-/// numbers of objects that the run does not train on (in a seeded order):
-/// held out from training, never from the test side, so that settings are
-/// chosen without looking at test tasks.
+/// numbers of objects, then in its `validation_objects`, that the run does
+/// not train on (in a seeded order): held out from training, never from
+/// the test side, so that settings are chosen without looking at test
+/// tasks.
 pub fn validation_tasks(config: &CollectRunConfig, per_n: usize) -> anyhow::Result<Vec<Task>> {
     let splitter = env_collect::TaskSplitter::default();
     let training = training_tasks(config)?;
     let mut tasks = Vec::new();
-    for &n in &config.train_objects {
+    for &n in config
+        .train_objects
+        .iter()
+        .chain(&config.validation_objects)
+    {
         let mut pool = splitter.tasks_with(n, Some(Split::Train))?;
         pool.shuffle(&mut ChaCha8Rng::seed_from_u64(
             VALIDATION_TASK_SEED + n as u64,
@@ -698,6 +726,11 @@ pub struct CollectFlags {
     /// 0: no validation (the last epoch is scored).
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub validation_tasks_per_n: usize,
+    /// Also validate on tasks with these numbers of objects (lengths no
+    /// test episode has: 6), to choose settings that carry to longer demos
+    /// than any trained on without looking at test episodes.
+    #[arg(long, value_delimiter = ',', num_args = 1.., value_name = "N")]
+    pub validation_objects: Vec<usize>,
 }
 
 impl CollectFlags {
@@ -762,6 +795,7 @@ impl DomainRuns for Collect {
         config.interpreter = c.interpreter(flags.obs);
         config.location_step_prior = c.location_step_prior(flags.obs, flags.method);
         config.validation_tasks_per_n = c.validation_tasks_per_n;
+        config.validation_objects = c.validation_objects.clone();
         config.optim.batch_size = flags.batch_size;
         config.optim.learning_rate = flags.lr.unwrap_or(crate::fit::PAPER_LEARNING_RATE);
         config.optim.cosine_decay = flags.cosine_decay;
@@ -880,6 +914,7 @@ mod tests {
             },
             video: None,
             validation_tasks_per_n: 0,
+            validation_objects: Vec::new(),
         }
     }
 
@@ -932,11 +967,29 @@ mod tests {
         let device = ntg_model::cpu_device().autodiff();
         let config = CollectRunConfig {
             validation_tasks_per_n: 2,
+            validation_objects: Vec::new(),
             ..config(MethodId::Flat, 3)
         };
         // Two per N in 1 and 2, none a training task, none a test task.
         let episodes = validation_episodes(&config).unwrap();
         assert_eq!(episodes.len(), 4);
+        // Validation lengths beyond the training ones add their own group,
+        // from the train side too.
+        let longer = CollectRunConfig {
+            validation_objects: vec![6],
+            ..config.clone()
+        };
+        longer.validate().unwrap();
+        let with_six = validation_episodes(&longer).unwrap();
+        assert_eq!(with_six[..4], episodes[..]);
+        assert_eq!(with_six.len(), 6);
+        for e in &with_six[4..] {
+            assert_eq!((e.group, e.task.num_objects()), (6, 6));
+            assert_eq!(
+                env_collect::TaskSplitter::default().split_of(&e.task),
+                Split::Train
+            );
+        }
         let training = training_tasks(&config).unwrap();
         let splitter = env_collect::TaskSplitter::default();
         for e in &episodes {
@@ -1089,6 +1142,22 @@ mod tests {
         let mut c = config(MethodId::Ntg, 1);
         c.train_objects = vec![6];
         assert!(c.validate().is_err());
+        // Validation lengths are ones no test episode has, and need tasks.
+        for bad in [vec![5], vec![7], vec![6, 2]] {
+            let mut c = config(MethodId::Ntg, 1);
+            c.validation_tasks_per_n = 2;
+            c.validation_objects = bad.clone();
+            let err = c.validate().unwrap_err().to_string();
+            assert!(err.contains("--validation-objects"), "{bad:?}: {err}");
+        }
+        let mut c = config(MethodId::Ntg, 1);
+        c.validation_objects = vec![6];
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("--validation-tasks-per-n")
+        );
         let mut c = config(MethodId::Ntg, 1);
         c.domain = "blocks".into();
         assert!(c.validate().is_err());

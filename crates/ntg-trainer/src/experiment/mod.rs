@@ -1149,7 +1149,7 @@ mod tests {
         let thor_all = thor_all::ThorAllExperiment::load(Source::BuiltIn).unwrap();
         for run in thor_all.runs(paper) {
             let config = thor_all.run_config(paper, run).unwrap();
-            runs.insert(thor_all.run_name(run), as_written(&config).unwrap());
+            runs.insert(thor_all.run_name(paper, run), as_written(&config).unwrap());
         }
         runs
     }

@@ -8,7 +8,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context as _, bail, ensure};
 use serde::{Deserialize, Serialize};
 
-use crate::collect::{CollectRunConfig, EVAL_OBJECTS, NPoint, evaluate, train_run};
+use crate::collect::{
+    CollectRunConfig, EVAL_OBJECTS, InterpreterDefaults, InterpreterKind, NPoint, evaluate,
+    train_run,
+};
 use crate::domain::DomainId;
 use crate::experiment::Profiles;
 use crate::experiment::template::THOR_ALL;
@@ -87,6 +90,25 @@ pub struct ThorAllScale {
     /// `CollectRunConfig::validation_tasks_per_n`). Absent: 0, none.
     #[serde(default, skip_serializing_if = "no_tasks")]
     pub validation_tasks_per_n: usize,
+    /// Numbers of objects validated on besides the training ones
+    /// (`CollectRunConfig::validation_objects`: lengths no test episode
+    /// has), both methods. Absent: none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub validation_objects: Vec<usize>,
+    /// NTG's demo interpreter. Absent: the default for `obs`
+    /// (`InterpreterKind::default_for`), as in results written before it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub interpreter: Option<InterpreterKind>,
+    /// Names this protocol's runs apart from an earlier protocol's: run
+    /// folders `thor_all-TAG-METHOD…`. Absent: `thor_all-METHOD…`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tag: Option<String>,
+    /// The profile's earlier protocol, kept: its runs (their records
+    /// restored, or trained where there are none) are reported in a table
+    /// of their own beside this protocol's, and not drawn. Its own runs'
+    /// folders must differ from this protocol's (a `tag` on one of them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub earlier: Option<Box<ThorAllScale>>,
 }
 
 fn no_tasks(n: &usize) -> bool {
@@ -111,6 +133,8 @@ pub struct ThorAllRun {
     pub seed: u64,
     /// Whether it has the execution memory.
     pub memory: bool,
+    /// A run of the profile's earlier protocol ([`ThorAllScale::earlier`]).
+    pub earlier: bool,
 }
 
 /// One method's line of fig. "thor_all".
@@ -126,6 +150,9 @@ pub struct ThorAllLine {
     /// one (results written before the variant without: yes).
     #[serde(default = "yes", skip_serializing_if = "Clone::clone")]
     pub memory: bool,
+    /// A run of the profile's earlier protocol (reported apart, not drawn).
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub earlier: bool,
     /// Success per N on unseen tasks.
     pub points: Vec<NPoint>,
     /// The epoch (from 0) that scored best on the validation tasks and was
@@ -194,6 +221,36 @@ impl ThorAllExperiment {
     pub fn load(source: crate::experiment::Source<'_>) -> anyhow::Result<Self> {
         let (mut experiment, origin): (Self, String) = crate::experiment::load("thor_all", source)?;
         experiment.origin = origin;
+        for profile in [Profile::Smoke, Profile::Quick, Profile::Paper] {
+            let scale = experiment.profiles.get(profile);
+            for s in std::iter::once(scale).chain(scale.earlier.as_deref()) {
+                if let Some(tag) = &s.tag {
+                    ensure!(
+                        !tag.is_empty()
+                            && tag
+                                .chars()
+                                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit()),
+                        "{}: profile {}: tag {tag:?} must be lowercase letters and digits",
+                        experiment.origin,
+                        profile.name()
+                    );
+                }
+            }
+            if let Some(earlier) = &scale.earlier {
+                ensure!(
+                    earlier.tag != scale.tag,
+                    "{}: profile {}: the earlier protocol needs another tag than the current one (their runs would share folders)",
+                    experiment.origin,
+                    profile.name()
+                );
+                ensure!(
+                    earlier.earlier.is_none(),
+                    "{}: profile {}: an earlier protocol keeps no earlier one of its own",
+                    experiment.origin,
+                    profile.name()
+                );
+            }
+        }
         Ok(experiment)
     }
 
@@ -204,34 +261,61 @@ impl ThorAllExperiment {
         seeds
     }
 
+    /// The scale of `profile`'s current protocol, or of its earlier one.
+    pub fn scale(&self, profile: Profile, earlier: bool) -> anyhow::Result<&ThorAllScale> {
+        let current = self.profiles.get(profile);
+        if !earlier {
+            return Ok(current);
+        }
+        current.earlier.as_deref().with_context(|| {
+            format!(
+                "{}: profile {} has no earlier protocol",
+                self.origin,
+                profile.name()
+            )
+        })
+    }
+
     /// Every run of `profile`: each method for each seed, then, with
-    /// `without_memory`, each method without memory (first seed).
+    /// `without_memory`, each method without memory (first seed); then the
+    /// same for its earlier protocol, if it keeps one.
     pub fn runs(&self, profile: Profile) -> Vec<ThorAllRun> {
-        let scale = self.profiles.get(profile);
-        let mut runs: Vec<ThorAllRun> = self
-            .seeds(profile)
-            .into_iter()
-            .flat_map(|seed| {
-                self.methods.iter().map(move |&method| ThorAllRun {
+        let current = self.profiles.get(profile);
+        let mut runs = Vec::new();
+        for (scale, earlier) in [(Some(current), false), (current.earlier.as_deref(), true)] {
+            let Some(scale) = scale else { continue };
+            let mut seeds = vec![self.seed];
+            seeds.extend_from_slice(&scale.extra_seeds);
+            for seed in seeds {
+                runs.extend(self.methods.iter().map(|&method| ThorAllRun {
                     method,
                     seed,
                     memory: true,
-                })
-            })
-            .collect();
-        if scale.memory && scale.without_memory {
-            runs.extend(self.methods.iter().map(|&method| ThorAllRun {
-                method,
-                seed: self.seed,
-                memory: false,
-            }));
+                    earlier,
+                }));
+            }
+            if scale.memory && scale.without_memory {
+                runs.extend(self.methods.iter().map(|&method| ThorAllRun {
+                    method,
+                    seed: self.seed,
+                    memory: false,
+                    earlier,
+                }));
+            }
         }
         runs
     }
 
-    /// The run folder name of `run`.
-    pub fn run_name(&self, run: ThorAllRun) -> String {
-        let mut base = format!("thor_all-{}", run.method.name());
+    /// The run folder name of `run` at `profile`.
+    pub fn run_name(&self, profile: Profile, run: ThorAllRun) -> String {
+        let tag = self
+            .scale(profile, run.earlier)
+            .ok()
+            .and_then(|s| s.tag.as_deref());
+        let mut base = match tag {
+            Some(tag) => format!("thor_all-{tag}-{}", run.method.name()),
+            None => format!("thor_all-{}", run.method.name()),
+        };
         if !run.memory {
             base.push_str("-no-memory");
         }
@@ -248,13 +332,14 @@ impl ThorAllExperiment {
             method,
             seed,
             memory,
+            earlier,
         } = run;
         ensure!(
             self.domain == DomainId::Collect,
             "{}: thor_all trains on object collection (domain = \"collect\")",
             self.origin
         );
-        let scale = self.profiles.get(profile);
+        let scale = self.scale(profile, earlier)?;
         let epochs = match method {
             MethodId::Ntg => scale.ntg_epochs,
             MethodId::Flat => scale.flat_epochs,
@@ -278,6 +363,13 @@ impl ThorAllExperiment {
         config.optim.batch_size = scale.batch_size;
         config.optim.learning_rate = scale.learning_rate;
         config.validation_tasks_per_n = scale.validation_tasks_per_n;
+        config.validation_objects = scale.validation_objects.clone();
+        if let Some(interpreter) = scale.interpreter
+            && method == MethodId::Ntg
+        {
+            config.interpreter = interpreter;
+            config.location_step_prior = interpreter.default_step_prior();
+        }
         let overrides = self
             .overrides
             .get(method.name())
@@ -299,8 +391,9 @@ pub fn run(
     let scale = experiment.profiles.get(profile).clone();
     let line = |variant: ThorAllRun| -> anyhow::Result<Option<ThorAllLine>> {
         let ThorAllRun { method, seed, .. } = variant;
+        let scale = experiment.scale(profile, variant.earlier)?;
         let config = experiment.run_config(profile, variant)?;
-        let name = experiment.run_name(variant);
+        let name = experiment.run_name(profile, variant);
         let eval_file = format!("collect-{}.json", scale.test_episodes);
         let Some(dir) = plan.prepare(&name, &config, &eval_file)? else {
             return Ok(None);
@@ -348,6 +441,7 @@ pub fn run(
             method,
             seed,
             memory: variant.memory,
+            earlier: variant.earlier,
             points: eval.points,
             selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
             train_seconds: run.epoch_compute_seconds()?,
@@ -361,19 +455,23 @@ pub fn run(
     // that seed start after it and link its encoder and embeddings.
     let (mut first, mut after) = (Vec::new(), Vec::new());
     for run in experiment.runs(profile) {
-        let wave =
-            if scale.obs == ObsKind::Vid && first.iter().any(|r: &ThorAllRun| r.seed == run.seed) {
-                &mut after
-            } else {
-                &mut first
-            };
+        let on_video = experiment.scale(profile, run.earlier)?.obs == ObsKind::Vid;
+        let wave = if on_video
+            && first
+                .iter()
+                .any(|r: &ThorAllRun| (r.seed, r.earlier) == (run.seed, run.earlier))
+        {
+            &mut after
+        } else {
+            &mut first
+        };
         wave.push(run);
     }
     let mut lines = Vec::new();
     for wave in [first, after] {
         let jobs = wave
             .into_iter()
-            .filter(|&run| plan.selected(&experiment.run_name(run)))
+            .filter(|&run| plan.selected(&experiment.run_name(profile, run)))
             .map(|run| {
                 Box::new(move || line(run)) as crate::experiment::Job<'_, Option<ThorAllLine>>
             })
@@ -385,10 +483,9 @@ pub fn run(
         );
     }
     lines.sort_by_key(|l: &ThorAllLine| {
-        experiment
-            .runs(profile)
-            .iter()
-            .position(|r| (r.method, r.seed, r.memory) == (l.method, l.seed, l.memory))
+        experiment.runs(profile).iter().position(|r| {
+            (r.method, r.seed, r.memory, r.earlier) == (l.method, l.seed, l.memory, l.earlier)
+        })
     });
     Ok(ThorAllResult {
         scale,
@@ -414,10 +511,10 @@ fn share_videos(
     use crate::experiment::share_part;
     let same = |theirs: &CollectRunConfig| config.same_videos(theirs);
     for other in experiment.runs(profile) {
-        if other == variant || other.seed != variant.seed {
+        if other == variant || (other.seed, other.earlier) != (variant.seed, variant.earlier) {
             continue;
         }
-        let source = runs.join(experiment.run_name(other));
+        let source = runs.join(experiment.run_name(profile, other));
         let linked = share_part(
             (&source, crate::video::STAGE_A_DIR),
             run,
@@ -443,9 +540,12 @@ fn share_videos(
 /// `stem.png`: one line per method (and memory setting: the variant
 /// without is dashed), the mean over its seeds, with a band from the
 /// lowest seed's interval end to the highest's (one seed: its interval).
+/// The earlier protocol's lines are drawn only while the current one has
+/// none (the title says so), else only reported.
 pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
+    let earlier = !result.lines.iter().any(|l| !l.earlier);
     let mut kinds: Vec<(MethodId, bool)> = Vec::new();
-    for l in &result.lines {
+    for l in result.lines.iter().filter(|l| l.earlier == earlier) {
         if !kinds.contains(&(l.method, l.memory)) {
             kinds.push((l.method, l.memory));
         }
@@ -456,7 +556,7 @@ pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
             let seeds: Vec<&ThorAllLine> = result
                 .lines
                 .iter()
-                .filter(|l| l.method == method && l.memory == memory)
+                .filter(|l| l.earlier == earlier && l.method == method && l.memory == memory)
                 .collect();
             let mut objects: Vec<usize> = seeds
                 .iter()
@@ -500,8 +600,13 @@ pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
         .collect();
     let panel = Panel {
         title: format!(
-            "(b) object collection, {} input",
-            obs_name(result.scale.obs)
+            "(b) object collection, {} input{}",
+            obs_name(result.scale.obs),
+            if earlier && result.scale.earlier.is_some() {
+                " (earlier protocol)"
+            } else {
+                ""
+            }
         ),
         x_label: "number of target objects N".into(),
         y_label: "success on unseen tasks".into(),
@@ -532,7 +637,7 @@ fn protocol(sc: &ThorAllScale) -> String {
 
 /// "seed 0", or "seeds 0, 1, 2": the seeds the figure's lines were trained
 /// with (each line names its own where there are several).
-fn seeds_phrase(lines: &[ThorAllLine]) -> String {
+fn seeds_phrase(lines: &[&ThorAllLine]) -> String {
     let mut seeds: Vec<u64> = lines.iter().map(|l| l.seed).collect();
     seeds.sort_unstable();
     seeds.dedup();
@@ -543,38 +648,95 @@ fn seeds_phrase(lines: &[ThorAllLine]) -> String {
     }
 }
 
-/// The report section of fig. "thor_all" (Markdown).
+/// The report section of fig. "thor_all" (Markdown): the current
+/// protocol's lines, then the earlier protocol's, if the profile keeps one.
 pub fn report_section(result: &ThorAllResult) -> String {
     use std::fmt::Write as _;
     let sc = &result.scale;
+    let of = |earlier: bool| -> Vec<&ThorAllLine> {
+        result
+            .lines
+            .iter()
+            .filter(|l| l.earlier == earlier)
+            .collect()
+    };
+    let (current, earlier) = (of(false), of(true));
     let mut s = match super::open_section(&THOR_ALL.text("head"), !result.lines.is_empty()) {
         Ok(head) => head,
         Err(whole) => return whole,
     };
+    if current.is_empty() {
+        let _ = writeln!(s, "{}\n", THOR_ALL.text("current_not_trained"));
+    } else {
+        protocol_tables(&mut s, sc, &result.train_objects, &current);
+    }
+    let _ = writeln!(s, "\n{}\n", THOR_ALL.text("trend"));
+    if let Some(c) = compare(&current, true) {
+        let _ = writeln!(s, "{}\n", THOR_ALL.fill("measured", &[("comparison", &c)]));
+    }
+    if let Some(without) = compare(&current, false) {
+        let without = THOR_ALL.fill("without_memory", &[("comparison", &without)]);
+        let _ = writeln!(s, "{without}\n");
+    }
+    if let (Some(old), false) = (sc.earlier.as_deref(), earlier.is_empty()) {
+        let _ = writeln!(s, "{}\n", THOR_ALL.text("earlier_title"));
+        protocol_tables(&mut s, old, &result.train_objects, &earlier);
+        if let Some(c) = compare(&earlier, true) {
+            let _ = writeln!(
+                s,
+                "\n{}\n",
+                THOR_ALL.fill("measured", &[("comparison", &c)])
+            );
+        }
+        if let Some(without) = compare(&earlier, false) {
+            let without = THOR_ALL.fill("without_memory", &[("comparison", &without)]);
+            let _ = writeln!(s, "{without}\n");
+        }
+    }
+    s
+}
+
+/// The interpreter phrase of the report's setup for NTG runs of `sc`.
+fn interpreter_phrase(sc: &ThorAllScale) -> String {
+    let interpreter = sc
+        .interpreter
+        .unwrap_or_else(|| InterpreterKind::default_for(sc.obs));
+    THOR_ALL.text(match (sc.obs, interpreter) {
+        (_, InterpreterKind::SteppingVideo) => "interpreter_stepping_video",
+        (ObsKind::State, _) => "interpreter_state",
+        (ObsKind::Vid, _) => "interpreter_vid",
+    })
+}
+
+/// One protocol's setup, selection, results table, transcriptions and
+/// learning check, for its `lines`.
+fn protocol_tables(
+    s: &mut String,
+    sc: &ThorAllScale,
+    train_objects: &[usize],
+    lines: &[&ThorAllLine],
+) {
+    use std::fmt::Write as _;
     let state_input = match sc.obs {
         ObsKind::State => format!(", {}", THOR_ALL.text("state_input")),
         ObsKind::Vid => String::new(),
     };
-    let interpreter = THOR_ALL.text(match sc.obs {
-        ObsKind::State => "interpreter_state",
-        ObsKind::Vid => "interpreter_vid",
-    });
     let setup = THOR_ALL.fill(
         "setup",
         &[
             ("obs", &obs_name(sc.obs)),
             ("state_input", &state_input),
-            ("train_objects", &format!("{:?}", result.train_objects)),
+            ("train_objects", &format!("{train_objects:?}")),
             ("tasks_per_n", &sc.tasks_per_n),
             ("demos", &sc.demos_per_task),
             ("batch", &sc.batch_size),
             ("learning_rate", &sc.learning_rate),
             ("ntg_epochs", &sc.ntg_epochs),
             ("flat_epochs", &sc.flat_epochs),
-            ("seeds", &seeds_phrase(&result.lines)),
+            ("seeds", &seeds_phrase(lines)),
             ("test_episodes", &sc.test_episodes),
             ("protocol", &protocol(sc)),
-            ("interpreter", &interpreter),
+            ("interpreter", &interpreter_phrase(sc)),
         ],
     );
     let _ = writeln!(s, "{setup}\n");
@@ -586,6 +748,20 @@ pub fn report_section(result: &ThorAllResult) -> String {
             "{}\n",
             THOR_ALL.fill("selection", &[("validation_tasks", &tasks)])
         );
+        if !sc.validation_objects.is_empty() {
+            let longer: Vec<String> = sc.validation_objects.iter().map(usize::to_string).collect();
+            let _ = writeln!(
+                s,
+                "{}\n",
+                THOR_ALL.fill(
+                    "selection_longer",
+                    &[
+                        ("validation_tasks", &tasks),
+                        ("objects", &longer.join(", "))
+                    ]
+                )
+            );
+        }
     }
     let _ = write!(s, "| method | training time |");
     if validated {
@@ -601,7 +777,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
         if validated { "---|" } else { "" },
         "---|".repeat(EVAL_OBJECTS.len())
     );
-    for line in &result.lines {
+    for line in lines {
         let _ = write!(s, "| {} | {:.0} s |", line_name(line), line.train_seconds);
         if validated {
             match line.selected_epoch {
@@ -631,11 +807,8 @@ pub fn report_section(result: &ThorAllResult) -> String {
         }
         let _ = writeln!(s);
     }
-    let transcribing: Vec<&ThorAllLine> = result
-        .lines
-        .iter()
-        .filter(|l| !l.transcribed.is_empty())
-        .collect();
+    let transcribing: Vec<&&ThorAllLine> =
+        lines.iter().filter(|l| !l.transcribed.is_empty()).collect();
     if !transcribing.is_empty() {
         let _ = writeln!(s, "\n{}\n", THOR_ALL.text("transcription_title"));
         for line in transcribing {
@@ -648,8 +821,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
             let _ = writeln!(s, "- {}: {}", line_name(line), per_n.join(", "));
         }
     }
-    let learning: Vec<String> = result
-        .lines
+    let learning: Vec<String> = lines
         .iter()
         .filter(|l| !l.untrained.is_empty())
         .map(|line| {
@@ -674,15 +846,6 @@ pub fn report_section(result: &ThorAllResult) -> String {
             let _ = writeln!(s, "{l}");
         }
     }
-    let _ = writeln!(s, "\n{}\n", THOR_ALL.text("trend"));
-    if let Some(sentence) = comparison_sentence(result) {
-        let _ = writeln!(s, "{sentence}\n");
-    }
-    if let Some(without) = compare(result, false) {
-        let without = THOR_ALL.fill("without_memory", &[("comparison", &without)]);
-        let _ = writeln!(s, "{without}\n");
-    }
-    s
 }
 
 /// A line's legend: the method's, with its seed if not 0, and "no memory"
@@ -703,17 +866,19 @@ fn line_name(line: &ThorAllLine) -> String {
 /// of the other (one seed each: disjoint intervals), above in mean success
 /// within overlapping intervals, tied, or below. `None` when a method is
 /// missing.
+/// The current protocol's lines only.
 pub fn comparison_sentence(result: &ThorAllResult) -> Option<String> {
-    compare(result, true).map(|c| THOR_ALL.fill("measured", &[("comparison", &c)]))
+    let current: Vec<&ThorAllLine> = result.lines.iter().filter(|l| !l.earlier).collect();
+    compare(&current, true).map(|c| THOR_ALL.fill("measured", &[("comparison", &c)]))
 }
 
-/// [`comparison_sentence`]'s comparison (without "Measured"), of the lines
+/// [`comparison_sentence`]'s comparison (without "Measured"), of `lines`
 /// with or without the execution memory.
-fn compare(result: &ThorAllResult, memory: bool) -> Option<String> {
+fn compare(lines_of: &[&ThorAllLine], memory: bool) -> Option<String> {
     let lines = |m: MethodId| -> Vec<&ThorAllLine> {
-        result
-            .lines
+        lines_of
             .iter()
+            .copied()
             .filter(|l| l.method == m && l.memory == memory)
             .collect()
     };
@@ -774,6 +939,7 @@ mod tests {
             method,
             seed: 0,
             memory: true,
+            earlier: false,
             points: successes
                 .iter()
                 .enumerate()
@@ -831,35 +997,99 @@ mod tests {
         let experiment = ThorAllExperiment::load(Default::default()).unwrap();
         assert_eq!(experiment.seeds(Profile::Quick), vec![0]);
         assert_eq!(experiment.seeds(Profile::Paper), vec![0, 1, 2]);
-        let run = |method, seed, memory| ThorAllRun {
+        let run = |method, seed, memory, earlier| ThorAllRun {
             method,
             seed,
             memory,
+            earlier,
         };
+        let paper = Profile::Paper;
         assert_eq!(
-            experiment.run_name(run(MethodId::Ntg, 0, true)),
+            experiment.run_name(paper, run(MethodId::Ntg, 0, true, false)),
+            "thor_all-len-ntg"
+        );
+        assert_eq!(
+            experiment.run_name(paper, run(MethodId::Flat, 2, true, false)),
+            "thor_all-len-flat-seed2"
+        );
+        // The earlier protocol keeps its folders, so its records still
+        // belong to its runs.
+        assert_eq!(
+            experiment.run_name(paper, run(MethodId::Ntg, 0, true, true)),
             "thor_all-ntg"
         );
         assert_eq!(
-            experiment.run_name(run(MethodId::Flat, 2, true)),
-            "thor_all-flat-seed2"
+            experiment.run_name(Profile::Quick, run(MethodId::Ntg, 0, true, false)),
+            "thor_all-ntg"
         );
         let c = experiment
-            .run_config(Profile::Paper, run(MethodId::Ntg, 2, true))
+            .run_config(paper, run(MethodId::Ntg, 2, true, false))
             .unwrap();
         assert_eq!((c.model_seed, c.optim.seed), (2, 2));
-        // Both methods once more without the memory, first seed.
-        let runs = experiment.runs(Profile::Paper);
-        assert_eq!(runs.len(), 8);
-        assert_eq!(experiment.run_name(runs[7]), "thor_all-flat-no-memory");
-        let c = experiment.run_config(Profile::Paper, runs[7]).unwrap();
-        assert!(!c.memory && c.learn_end);
-        assert!(
-            experiment
-                .run_config(Profile::Paper, runs[0])
-                .unwrap()
-                .memory
+        // Both methods once more without the memory, first seed; then the
+        // same eight runs of the earlier protocol.
+        let runs = experiment.runs(paper);
+        assert_eq!(runs.len(), 16);
+        assert_eq!(
+            experiment.run_name(paper, runs[7]),
+            "thor_all-len-flat-no-memory"
         );
+        assert_eq!(
+            experiment.run_name(paper, runs[15]),
+            "thor_all-flat-no-memory"
+        );
+        let c = experiment.run_config(paper, runs[7]).unwrap();
+        assert!(!c.memory && c.learn_end);
+        assert!(experiment.run_config(paper, runs[0]).unwrap().memory);
+        // The current protocol: NTG reads videos with the stepping-video
+        // interpreter, and both methods also validate on N = 6.
+        let ntg = experiment.run_config(paper, runs[0]).unwrap();
+        assert_eq!(ntg.interpreter, InterpreterKind::SteppingVideo);
+        assert_eq!(
+            ntg.location_step_prior,
+            Some(crate::collect::LOCATION_STEP_PRIOR)
+        );
+        assert_eq!(ntg.validation_objects, vec![6]);
+        let flat = experiment.run_config(paper, runs[1]).unwrap();
+        assert_eq!(
+            (flat.method, flat.validation_objects.clone()),
+            (MethodId::Flat, vec![6])
+        );
+        assert_eq!(flat.location_step_prior, None);
+        assert!(ntg.same_videos(&flat));
+        // The earlier protocol: the paper's interpreter, training lengths only.
+        let old = experiment.run_config(paper, runs[8]).unwrap();
+        assert_eq!(old.interpreter, InterpreterKind::Luong);
+        assert_eq!(
+            (old.location_step_prior, old.validation_objects.len()),
+            (None, 0)
+        );
+        let stripped = CollectRunConfig {
+            interpreter: InterpreterKind::Luong,
+            location_step_prior: None,
+            validation_objects: Vec::new(),
+            ..ntg.clone()
+        };
+        assert_eq!(
+            old, stripped,
+            "the protocols differ in the interpreter and validation only"
+        );
+    }
+
+    #[test]
+    fn an_earlier_protocol_needs_folders_of_its_own() {
+        let text = crate::experiment::BUILT_IN
+            .iter()
+            .find(|(name, _)| *name == "thor_all")
+            .unwrap()
+            .1
+            .replace("tag = \"len\"\n", "");
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("thor_all.toml"), text).unwrap();
+        let err = ThorAllExperiment::load(crate::experiment::Source::Dir(dir.path()))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("another tag"), "{err}");
     }
 
     #[test]
@@ -933,6 +1163,7 @@ mod tests {
                 // Every epoch scored on 50 held-out training-side tasks
                 // per N, the best one tested.
                 validation_tasks_per_n: 50,
+                validation_objects: Vec::new(),
             };
             assert_eq!(
                 experiment
@@ -941,7 +1172,8 @@ mod tests {
                         ThorAllRun {
                             method,
                             seed: 0,
-                            memory: true
+                            memory: true,
+                            earlier: false,
                         }
                     )
                     .unwrap(),
@@ -955,6 +1187,7 @@ mod tests {
                     method: MethodId::Flat,
                     seed: 0,
                     memory: true,
+                    earlier: false,
                 },
             )
             .unwrap();

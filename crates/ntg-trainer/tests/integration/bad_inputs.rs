@@ -173,6 +173,22 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--domain", "collect", "--location-step-prior", "inf"]),
             "--location-step-prior".into(),
         ),
+        // A validation length that test episodes have (N = 5).
+        (
+            train(&[
+                "--domain",
+                "collect",
+                "--validation-tasks-per-n",
+                "2",
+                "--validation-objects",
+                "5",
+            ]),
+            "--validation-objects".into(),
+        ),
+        (
+            train(&["--domain", "blocks", "--validation-objects", "6"]),
+            "--validation-objects".into(),
+        ),
         (train(&["--encoder-demos", "10"]), "--encoder-demos".into()),
         (
             train(&["--encoder-keypoints"]),
@@ -374,7 +390,7 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
                 "--out",
                 &p("d"),
             ]),
-            "--objects 7: a task has 1 to 5".into(),
+            "--objects 7: a task has 1 to 6".into(),
         ),
         (
             s(&[
