@@ -1192,9 +1192,12 @@ mod tests {
             (thor_all.scale.learn_end, thor_all.scale.memory) = (learn_end, memory);
             thor_all::report_section(&thor_all);
         }
-        // A protocol for longer demos beside an earlier one it keeps.
+        // A protocol for longer demos beside an earlier one it keeps (the
+        // paper's interpreter).
         let mut thor_all = paper.thor_all.clone();
-        thor_all.scale.earlier = Some(Box::new(thor_all.scale.clone()));
+        let mut earlier = thor_all.scale.clone();
+        earlier.interpreter = Some(crate::collect::InterpreterKind::Luong);
+        thor_all.scale.earlier = Some(Box::new(earlier));
         thor_all.scale.interpreter = Some(crate::collect::InterpreterKind::SteppingVideo);
         thor_all.scale.validation_objects = vec![6];
         let mut old = thor_all.lines[0].clone();

@@ -361,8 +361,13 @@ mod tests {
         assert_eq!(prior(&[]), Some(crate::collect::LOCATION_STEP_PRIOR));
         assert_eq!(prior(&["--method", "flat"]), None);
         assert_eq!(prior(&["--interpreter", "luong"]), None);
-        // Demo videos take the paper's interpreter, which has none.
-        assert_eq!(prior(&["--obs", "vid"]), None);
+        // Demo videos take the stepping interpreter with the video
+        // window, primed alike; the paper's interpreter has none.
+        assert_eq!(
+            prior(&["--obs", "vid"]),
+            Some(crate::collect::LOCATION_STEP_PRIOR)
+        );
+        assert_eq!(prior(&["--obs", "vid", "--interpreter", "luong"]), None);
         assert_eq!(
             prior(&["--obs", "vid", "--interpreter", "stepping"]),
             Some(crate::collect::LOCATION_STEP_PRIOR)

@@ -3428,7 +3428,13 @@ mod tests {
             .unwrap()
             .epoch_compute_seconds()
             .unwrap();
-        assert!(stage_seconds > 0.0 && p.train_seconds > stage_seconds);
+        // At least the stage's: NTP's one epoch of two demos may record
+        // no CPU time of its own on a loaded machine.
+        assert!(
+            stage_seconds > 0.0 && p.train_seconds >= stage_seconds,
+            "stage {stage_seconds} s, point {} s",
+            p.train_seconds
+        );
         // The saved model is NTP with its detector; it loads by method.
         let model = MethodId::NtpDetector
             .load(&p.run.join("checkpoint"), &crate::spec::device())

@@ -95,8 +95,9 @@ pub struct ThorAllScale {
     /// has), both methods. Absent: none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub validation_objects: Vec<usize>,
-    /// NTG's demo interpreter. Absent: the default for `obs`
-    /// (`InterpreterKind::default_for`), as in results written before it.
+    /// The demo interpreter of the runs (NTG reads it; the others keep it
+    /// in their configuration as `ntg train` writes it). Absent: the
+    /// default for `obs` (`InterpreterKind::default_for`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub interpreter: Option<InterpreterKind>,
     /// Names this protocol's runs apart from an earlier protocol's: run
@@ -364,11 +365,9 @@ impl ThorAllExperiment {
         config.optim.learning_rate = scale.learning_rate;
         config.validation_tasks_per_n = scale.validation_tasks_per_n;
         config.validation_objects = scale.validation_objects.clone();
-        if let Some(interpreter) = scale.interpreter
-            && method == MethodId::Ntg
-        {
+        if let Some(interpreter) = scale.interpreter {
             config.interpreter = interpreter;
-            config.location_step_prior = interpreter.default_step_prior();
+            config.location_step_prior = crate::collect::default_step_prior(method, interpreter);
         }
         let overrides = self
             .overrides
@@ -666,7 +665,7 @@ pub fn report_section(result: &ThorAllResult) -> String {
         Err(whole) => return whole,
     };
     if current.is_empty() {
-        let _ = writeln!(s, "{}\n", THOR_ALL.text("current_not_trained"));
+        let _ = writeln!(s, "{}", THOR_ALL.text("current_not_trained"));
     } else {
         protocol_tables(&mut s, sc, &result.train_objects, &current);
     }
