@@ -28,7 +28,9 @@
 //!    128×128 frame encoder (16-channel stem, spatial-softmax keypoints,
 //!    batch 64; `stage_a_keypoints_128_stem16/train`) beside its PyTorch
 //!    twin `crates/ntg-trainer/benches/pytorch/stage_a.py --keypoints
-//!    --image-size 128 --stem 16 --threads N`; row 9 is stage B's step
+//!    --image-size 128 --stem 16 --threads N`, row 8b the same step in 2
+//!    data-parallel shards (`…/train_2_shards`, as `ntg train` runs stage
+//!    A); row 9 is stage B's step
 //!    (block stacking's recommended recipe on frame embeddings, the
 //!    interpreter reading frames pooled by 4) over the state step, both
 //!    burn (`stage_b/embedding_step_pool_4`, `stage_b/state_step`).
@@ -293,14 +295,15 @@ fn demo_rows(root: &Path, b: &Bench) -> anyhow::Result<(f64, f64, usize)> {
 /// The criterion benchmarks of ntg-trainer's `stages` bench that rows 8
 /// and 9 read, in this order: stage A's 128-px step, the state step,
 /// stage B's step (pool 4).
-const STAGE_BENCHES: [&str; 3] = [
+const STAGE_BENCHES: [&str; 4] = [
     "stage_a_keypoints_128_stem16/train",
     "stage_b/state_step",
     "stage_b/embedding_step_pool_4",
+    "stage_a_keypoints_128_stem16/train_2_shards",
 ];
 
-/// Rows 8 and 9 on burn: the medians (ms) of [`STAGE_BENCHES`].
-fn stage_rows(root: &Path, b: &Bench) -> anyhow::Result<[f64; 3]> {
+/// Rows 8, 8b and 9 on burn: the medians (ms) of [`STAGE_BENCHES`].
+fn stage_rows(root: &Path, b: &Bench) -> anyhow::Result<[f64; 4]> {
     eprintln!(
         "bench: rows 8-9, stage A's 128-px encoder step and stage B's step (ntg-trainer's criterion bench `stages`, {} threads)",
         b.threads
@@ -329,6 +332,7 @@ fn stage_rows(root: &Path, b: &Bench) -> anyhow::Result<[f64; 3]> {
         median_ms(STAGE_BENCHES[0])?,
         median_ms(STAGE_BENCHES[1])?,
         median_ms(STAGE_BENCHES[2])?,
+        median_ms(STAGE_BENCHES[3])?,
     ])
 }
 
@@ -377,7 +381,7 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
     let (burn, [one_thread, two_shards, speedup]) = burn_rows(root, b)?;
     let twin = pytorch_rows(root, b);
     let (state_rate, rendered_rate, pool) = demo_rows(root, b)?;
-    let [stage_a_ms, state_step_ms, stage_b_ms] = stage_rows(root, b)?;
+    let [stage_a_ms, state_step_ms, stage_b_ms, stage_a_2_shards_ms] = stage_rows(root, b)?;
     let stage_a_torch = stage_a_twin(root, b, &twin);
 
     let (twin_rows, torch, missing) = match &twin {
@@ -453,6 +457,18 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
         label: "frame encoder training step, 128x128 frames, 16-channel stem, keypoints (stage A, 64 frames)".to_owned(),
         unit: "ms",
         burn: Some(stage_a_ms),
+        burn_repeats: None,
+        pytorch: stage_a_torch.as_ref().ok().copied(),
+        pytorch_repeats: stage_a_torch.as_ref().ok().map(|_| b.repeats as u64),
+        shape: Some("64 frames of 3x128x128".to_owned()),
+        shape_mismatch: false,
+    });
+    rows.push(Row {
+        number: "8b".to_owned(),
+        key: "frame_step_128_stem16_2_shards".to_owned(),
+        label: "  the same, 2 data-parallel shards (stage A of ntg train --obs vid)".to_owned(),
+        unit: "ms",
+        burn: Some(stage_a_2_shards_ms),
         burn_repeats: None,
         pytorch: stage_a_torch.as_ref().ok().copied(),
         pytorch_repeats: stage_a_torch.as_ref().ok().map(|_| b.repeats as u64),
@@ -539,7 +555,7 @@ pub fn run(root: &Path, b: &Bench) -> anyhow::Result<()> {
     }
     println!(
         "burn: RAYON_NUM_THREADS={}; PyTorch: torch.set_num_threads({}){}. \
-         Rows 1b and 2b have the PyTorch column of rows 1 and 2; rows 6, 7 and 9 have no PyTorch counterpart.",
+         Rows 1b, 2b and 8b have the PyTorch column of rows 1, 2 and 8; rows 6, 7 and 9 have no PyTorch counterpart.",
         b.threads,
         b.threads,
         torch

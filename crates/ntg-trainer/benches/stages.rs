@@ -12,6 +12,8 @@
 //!   `benches/pytorch/stage_a.py` (its own `requirements.txt`) times the
 //!   same network, losses and batch in PyTorch: run it right after this
 //!   bench on the same quiet machine.
+//!   `stage_a/train_2_shards`: the same step split into 2 data-parallel
+//!   shards, as `ntg train` runs stage A by default.
 //! - `stage_a/encode`: the frozen encoder over 256 frames (stage B's cache
 //!   and every policy step), throughput in frames; `stage_a/record`:
 //!   recording one demo video (the expert's poses rendered), throughput in
@@ -23,6 +25,10 @@
 //!   --keypoints [--image-size 128 --stem 16]` is its PyTorch twin.
 //!
 //! `cargo bench -p ntg-trainer --bench stages`
+
+/// The allocator of the `ntg` binary (see `ntg_trainer::allocator`).
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 use std::hint::black_box;
 use std::time::Duration;
@@ -91,6 +97,7 @@ fn stage_a_bench(c: &mut Criterion, name: &str, stage: &EncoderStage, camera: en
         .measurement_time(Duration::from_secs(10));
     group.throughput(Throughput::Elements(stage.batch_size as u64));
     bench_train_step(&mut group, "train", net.clone(), &step, stage.batch_size);
+    bench_train_step_2_shards(&mut group, net.clone(), &step, stage.batch_size);
     let rows: Vec<Vec<f32>> = (0..256)
         .map(|i| frames.row(i % frames.num_rows()))
         .collect();
@@ -160,7 +167,47 @@ fn bench_train_step<M: TrainedModel, S: TrainStep<M>>(
     });
 }
 
+/// [`bench_train_step`] as `ntg train` runs stage A by default: the batch
+/// split into 2 data-parallel shards, each shard's forward and backward
+/// pass a task of rayon's pool over its own replica, the gradients summed
+/// (`ntg_model::sharded_gradients`), then one Adam update. Named
+/// `train_2_shards`.
+fn bench_train_step_2_shards<M: TrainedModel, S: TrainStep<M> + Sync>(
+    group: &mut BenchmarkGroup<'_, WallTime>,
+    model: M,
+    step: &S,
+    batch: usize,
+) {
+    let batch: Vec<usize> = (0..batch).collect();
+    let (first, second) = batch.split_at(batch.len() / 2);
+    let parts = [first, second];
+    let total = batch.len() as f32;
+    let mut optimizer: ModuleOptimizer = AdamConfig::new().init();
+    let mut slot = Some(model);
+    group.bench_function("train_2_shards", |b| {
+        b.iter(|| {
+            let model = slot.take().expect("model");
+            let (grads, _) = ntg_model::sharded_gradients(&model, 2, |replica, i| {
+                let mut rng = ChaCha8Rng::seed_from_u64(i as u64);
+                let ctx = StepContext {
+                    epoch: 0,
+                    step: 0,
+                    seed: 0,
+                    rng: &mut rng,
+                };
+                let report = step.step(replica, parts[i], ctx)?;
+                let weight = parts[i].len() as f32 / total;
+                Ok::<_, anyhow::Error>((report.loss.mul_scalar(weight), ()))
+            })
+            .expect("sharded step");
+            slot = Some(black_box(optimizer.step(1e-3, model, grads)));
+        })
+    });
+}
+
 fn stages(c: &mut Criterion) {
+    // Freed pages kept for the next tensors, as `ntg` keeps them.
+    ntg_trainer::allocator::keep_freed_memory();
     let tasks = &env_blocks::standard_tasks().expect("tasks")[..TASKS];
     let state = record_demos(
         &BlocksDomain::new(ObsKind::State, true),

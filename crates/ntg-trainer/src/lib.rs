@@ -32,6 +32,7 @@
 //! `xtask`. Experiments are data (configs) run through one code path, not
 //! code copied per figure.
 
+pub mod allocator;
 pub mod block_world;
 pub mod carry;
 pub mod cli;
