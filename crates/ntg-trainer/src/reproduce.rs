@@ -1187,14 +1187,21 @@ mod tests {
         };
         ablation::report_section(&part(Variant::Full).collect::<Vec<_>>(), "");
         ablation::report_section(&part(Variant::NoGcn).collect::<Vec<_>>(), "");
+        // The committed lines, as the current protocol's (whichever
+        // protocol they belong to in the committed results).
+        let mut current = paper.thor_all.clone();
+        current.scale.earlier = None;
+        for line in &mut current.lines {
+            line.earlier = false;
+        }
         for (learn_end, memory) in [(true, false), (false, true)] {
-            let mut thor_all = paper.thor_all.clone();
+            let mut thor_all = current.clone();
             (thor_all.scale.learn_end, thor_all.scale.memory) = (learn_end, memory);
             thor_all::report_section(&thor_all);
         }
         // A protocol for longer demos beside an earlier one it keeps (the
         // paper's interpreter).
-        let mut thor_all = paper.thor_all.clone();
+        let mut thor_all = current.clone();
         let mut earlier = thor_all.scale.clone();
         earlier.interpreter = Some(crate::collect::InterpreterKind::Luong);
         thor_all.scale.earlier = Some(Box::new(earlier));
