@@ -539,23 +539,32 @@ fn share_videos(
 /// `stem.png`: one line per method (and memory setting: the variant
 /// without is dashed), the mean over its seeds, with a band from the
 /// lowest seed's interval end to the highest's (one seed: its interval).
-/// The earlier protocol's lines are drawn only while the current one has
-/// none (the title says so), else only reported.
+/// While the current protocol has no line the earlier one's are drawn (the
+/// title says so); else the current ones, and the earlier protocol's NTG
+/// with memory dotted, for comparison.
 pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
     let earlier = !result.lines.iter().any(|l| !l.earlier);
-    let mut kinds: Vec<(MethodId, bool)> = Vec::new();
+    let mut kinds: Vec<(MethodId, bool, bool)> = Vec::new();
     for l in result.lines.iter().filter(|l| l.earlier == earlier) {
-        if !kinds.contains(&(l.method, l.memory)) {
-            kinds.push((l.method, l.memory));
+        if !kinds.contains(&(l.method, l.memory, l.earlier)) {
+            kinds.push((l.method, l.memory, l.earlier));
         }
+    }
+    if !earlier
+        && result
+            .lines
+            .iter()
+            .any(|l| l.earlier && l.method == MethodId::Ntg && l.memory)
+    {
+        kinds.push((MethodId::Ntg, true, true));
     }
     let series = kinds
         .into_iter()
-        .map(|(method, memory)| {
+        .map(|(method, memory, of_earlier)| {
             let seeds: Vec<&ThorAllLine> = result
                 .lines
                 .iter()
-                .filter(|l| l.earlier == earlier && l.method == method && l.memory == memory)
+                .filter(|l| l.earlier == of_earlier && l.method == method && l.memory == memory)
                 .collect();
             let mut objects: Vec<usize> = seeds
                 .iter()
@@ -589,7 +598,14 @@ pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
             if !memory {
                 name.push_str(", no memory");
             }
-            let dash = if memory { Dash::Solid } else { Dash::Dashed };
+            let dash = if of_earlier && !earlier {
+                name.push_str(", earlier protocol (paper's interpreter)");
+                Dash::Dotted
+            } else if memory {
+                Dash::Solid
+            } else {
+                Dash::Dashed
+            };
             Series {
                 name,
                 points,
