@@ -277,7 +277,7 @@ mod tests {
         let mixed: Vec<Vec<bool>> = (0..10)
             .map(|_| (0..100).map(|_| rng.random_bool(0.5)).collect())
             .collect();
-        let m = clustered_bootstrap(&[mixed.clone()], 2000, 7).unwrap();
+        let m = clustered_bootstrap(std::slice::from_ref(&mixed), 2000, 7).unwrap();
         let width = m.ci_high - m.ci_low;
         assert!(width > 0.03 && width < 0.1, "{m:?}");
         assert!(m.ci_low <= m.rate && m.rate <= m.ci_high);
@@ -289,10 +289,10 @@ mod tests {
     fn clustered_bootstrap_averages_seeds_on_the_same_tasks_and_refuses_uneven_ones() {
         let all = vec![vec![true; 4], vec![true; 6]];
         let none = vec![vec![false; 4], vec![false; 6]];
-        let r = clustered_bootstrap(&[all.clone(), none.clone()], 100, 0).unwrap();
+        let r = clustered_bootstrap(&[all.clone(), none], 100, 0).unwrap();
         assert_eq!((r.rate, r.ci_low, r.ci_high), (0.5, 0.5, 0.5));
         assert_eq!((r.clusters, r.tasks, r.seeds), (2, 10, 2));
-        let one = clustered_bootstrap(&[all.clone()], 100, 0).unwrap();
+        let one = clustered_bootstrap(std::slice::from_ref(&all), 100, 0).unwrap();
         assert_eq!((one.rate, one.ci_low, one.ci_high), (1.0, 1.0, 1.0));
         let uneven = vec![vec![true; 4], vec![true; 5]];
         assert!(
