@@ -7,6 +7,8 @@
 //! - [`render`]: deterministic 64×64 ray-cast frames from a fixed camera;
 //! - [`task`]: NTP's task-file format, statistics, the seeded generator and
 //!   the standard split (`datasets/blocks/`);
+//! - [`structure`]: the structure benchmark: training, validation and test
+//!   structures that share none, and taller towers than any trained on;
 //! - [`sorting`]: object-sorting tasks (4 categories into 4 bins);
 //! - [`env`](mod@env): [`BlocksEnv`], a `ctg_graph::Environment` at the flat level
 //!   (`pick(X)`, `place(Y)`) or NTP's primitive level;
@@ -27,6 +29,7 @@ pub mod ntp;
 pub mod render;
 pub mod sheet;
 pub mod sorting;
+pub mod structure;
 pub mod task;
 pub mod video;
 pub mod world;

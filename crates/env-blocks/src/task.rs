@@ -528,7 +528,7 @@ pub fn goal_tower_joint() -> Vec<((usize, usize), f64)> {
 
 /// The cubes in a random order (a Fisher-Yates shuffle drawn from `rng`):
 /// how task generators assign cubes to the places of a structure.
-fn random_cube_order(rng: &mut ChaCha8Rng) -> Vec<usize> {
+pub(crate) fn random_cube_order(rng: &mut ChaCha8Rng) -> Vec<usize> {
     let mut cubes: Vec<usize> = (0..NUM_OBJECTS).collect();
     for i in 0..cubes.len() {
         let j = rng.random_range(i..cubes.len());
@@ -693,7 +693,7 @@ pub const STRUCTURE_SEED: u64 = 20_190_618;
 /// The goals of a task with towers of `composition[i]` goals each (at
 /// least one), built tower by tower bottom-up on the cubes in `cubes`'s
 /// order (as the standard set orders its goals).
-fn tower_goals(composition: &[usize], cubes: &[usize]) -> Vec<Goal> {
+pub(crate) fn tower_goals(composition: &[usize], cubes: &[usize]) -> Vec<Goal> {
     let mut goals = Vec::new();
     let mut next = 0;
     for &g in composition {
