@@ -34,6 +34,9 @@ pub const STANDARD_MAX_GOALS_PER_TOWER: usize = 3;
 pub const VALIDATION_STRUCTURES: usize = 4;
 /// Test structures (heights seen in training) of the benchmark.
 pub const TEST_STRUCTURES: usize = 6;
+/// Draws in a row without a new end configuration after which a structure
+/// leaves [`StructureBenchmark::tasks`]'s turn.
+pub const DRAWS_PER_TASK: usize = 200;
 
 /// The sets of [`StructureBenchmark`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -141,10 +144,11 @@ impl StructureBenchmark {
         }
     }
 
-    /// `count` tasks of `set` (ids `SET_0`..), task `i` of structure
-    /// `i mod k` of its `k` structures, cubes assigned by a random
-    /// permutation drawn from `seed`; end configurations distinct (a draw
-    /// that repeats one is drawn again).
+    /// `count` tasks of `set` (ids `SET_0`..), its structures taken in
+    /// turn, cubes assigned by a random permutation drawn from `seed`; end
+    /// configurations distinct (a draw that repeats one is drawn again). A
+    /// structure with few configurations (a single two-cube tower has 56)
+    /// leaves the turn once [`DRAWS_PER_TASK`] draws in a row find none new.
     pub fn tasks(
         &self,
         set: StructureSet,
@@ -161,24 +165,35 @@ impl StructureBenchmark {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut configurations = HashSet::new();
         let mut tasks = Vec::with_capacity(count);
-        let mut draws = 0usize;
+        let mut in_turn: Vec<&Vec<usize>> = structures.iter().collect();
+        let mut next = 0;
         while tasks.len() < count {
-            draws += 1;
-            if draws > count.saturating_mul(50) + 1000 {
+            if in_turn.is_empty() {
                 return Err(BlocksError::Generator(format!(
-                    "could not find {count} distinct {} tasks in {draws} draws",
-                    set.name()
+                    "the {} set's structures have only {} distinct end configurations; asked for {count}",
+                    set.name(),
+                    tasks.len()
                 )));
             }
-            let composition = &structures[tasks.len() % structures.len()];
-            let cubes = random_cube_order(&mut rng);
-            let task = StackTask::new(
-                format!("{}_{}", set.name(), tasks.len()),
-                tower_goals(composition, &cubes),
-            )
-            .map_err(BlocksError::Generator)?;
-            if configurations.insert(task.configuration_key()) {
-                tasks.push(task);
+            let composition = in_turn[next % in_turn.len()];
+            let mut found = false;
+            for _ in 0..DRAWS_PER_TASK {
+                let cubes = random_cube_order(&mut rng);
+                let task = StackTask::new(
+                    format!("{}_{}", set.name(), tasks.len()),
+                    tower_goals(composition, &cubes),
+                )
+                .map_err(BlocksError::Generator)?;
+                if configurations.insert(task.configuration_key()) {
+                    tasks.push(task);
+                    found = true;
+                    break;
+                }
+            }
+            if found {
+                next += 1;
+            } else {
+                in_turn.remove(next % in_turn.len());
             }
         }
         Ok(tasks)
@@ -252,6 +267,13 @@ mod tests {
             }
             let structures: HashSet<_> = tasks.iter().map(StackTask::structure_key).collect();
             assert_eq!(structures.len(), b.structures(set).len());
+        }
+        // A thousand of each set, though some structures have few
+        // configurations: those leave the turn, the others fill it.
+        for set in StructureSet::ALL {
+            let many = b.tasks(set, 1000, 5).unwrap();
+            let keys: HashSet<_> = many.iter().map(StackTask::configuration_key).collect();
+            assert_eq!(keys.len(), 1000, "{}", set.name());
         }
         // Every standard task's structure is in one of the three sets of
         // standard heights.

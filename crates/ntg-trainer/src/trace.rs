@@ -99,7 +99,10 @@ fn top(probabilities: &[f32], vocab: &Vocabulary, k: usize) -> Vec<Scored> {
 /// Resolves `task` (a test-set index or a task id such as `stack_1003`) to
 /// its index in the test set of the task set `tasks`
 /// ([`crate::blocks::task_split`]; `None`: the standard one).
-pub fn resolve_test_task(tasks: Option<&Path>, task: &str) -> anyhow::Result<usize> {
+pub fn resolve_test_task(
+    tasks: crate::blocks::TaskSource<'_>,
+    task: &str,
+) -> anyhow::Result<usize> {
     let split = crate::blocks::task_split(tasks)?;
     if let Ok(i) = task.parse::<usize>() {
         if i < split.test.len() {
@@ -127,7 +130,7 @@ pub fn resolve_test_task(tasks: Option<&Path>, task: &str) -> anyhow::Result<usi
 /// (created; it must not exist or be empty, so nothing is overwritten).
 pub fn trace_task(
     model: &NtgModel,
-    tasks: Option<&Path>,
+    tasks: crate::blocks::TaskSource<'_>,
     obs: ObsKind,
     failures: bool,
     index: usize,
@@ -316,7 +319,7 @@ pub fn trace_baseline(
 ) -> anyhow::Result<BaselineTrace> {
     let (method, obs, failures) = (config.method, config.obs, config.failures);
     prepare_out(out)?;
-    let split = crate::blocks::task_split(config.tasks.as_deref())?;
+    let split = crate::blocks::task_split(config.task_source())?;
     let task = split
         .test
         .get(index)

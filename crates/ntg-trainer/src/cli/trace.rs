@@ -48,7 +48,7 @@ pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
             );
         }
         let model = crate::blocks::load_baseline(&run, &config, &device)?;
-        let index = crate::trace::resolve_test_task(config.tasks.as_deref(), &args.task)?;
+        let index = crate::trace::resolve_test_task(config.task_source(), &args.task)?;
         let trace = crate::trace::trace_baseline(model.as_ref(), &config, index, &args.out)?;
         print!("{}", crate::trace::baseline_table(&trace));
         println!("trace written to {}", args.out.display());
@@ -62,7 +62,7 @@ pub fn run(args: &TraceArgs) -> anyhow::Result<()> {
             run.root().display()
         );
     };
-    let tasks = config.tasks.as_deref();
+    let tasks = config.task_source();
     let index = crate::trace::resolve_test_task(tasks, &args.task)?;
     let trace =
         crate::trace::trace_task(&model, tasks, config.obs, config.failures, index, &args.out)?;

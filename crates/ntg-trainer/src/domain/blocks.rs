@@ -148,11 +148,35 @@ pub struct BlocksRunConfig {
     /// `None`: the generated stand-in set (`datasets/blocks/stack_2000.json`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tasks: Option<PathBuf>,
+    /// The structure benchmark's task set (`--task-set structure`, not
+    /// with `tasks`): training tasks of its training structures,
+    /// validation tasks of its validation structures, test tasks of its
+    /// test structures ([`TaskSource::Structure`]). Absent: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub structure_benchmark: bool,
     /// Optimisation.
     pub optim: OptimConfig,
 }
 
 impl BlocksRunConfig {
+    /// Where the run's tasks come from.
+    pub fn task_source(&self) -> TaskSource<'_> {
+        match (&self.tasks, self.structure_benchmark) {
+            (_, true) => TaskSource::Structure,
+            (Some(file), false) => TaskSource::File(file),
+            (None, false) => TaskSource::Standard,
+        }
+    }
+
+    /// The run's task set in words, for messages.
+    pub fn task_source_name(&self) -> String {
+        match self.task_source() {
+            TaskSource::Standard => "standard task set".into(),
+            TaskSource::File(path) => format!("task file {}", path.display()),
+            TaskSource::Structure => "structure benchmark".into(),
+        }
+    }
+
     /// The camera the run's frames are rendered with: its video settings'
     /// (the standard 64×64 camera on state runs, which render none).
     pub fn camera(&self) -> env_blocks::Camera {
@@ -164,23 +188,120 @@ impl BlocksRunConfig {
     }
 }
 
-/// The task split of a run whose task set is `file` (see
-/// [`BlocksRunConfig::tasks`]): the standard stand-in split, or the file's
-/// tasks split by the same rule: its first [`env_blocks::TRAIN_POOL`] tasks
-/// are the training pool (`n` training tasks are its first `n`), the rest
-/// the test tasks. Read once per process.
-pub fn task_split(file: Option<&Path>) -> anyhow::Result<Arc<env_blocks::StandardSplit>> {
+/// `ntg train --domain blocks --task-set`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum TaskSetKind {
+    /// The generated stand-in for NTP's task set, split by the standard rule.
+    Standard,
+    /// The structure benchmark (`env_blocks::structure`).
+    Structure,
+}
+
+/// Where a block-stacking run's training, validation and test tasks come
+/// from ([`BlocksRunConfig::task_source`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TaskSource<'a> {
+    /// The generated stand-in for NTP's task set
+    /// (`datasets/blocks/stack_2000.json`), split by the standard rule.
+    Standard,
+    /// An NTP task file (`--tasks FILE`), split by the standard rule.
+    File(&'a Path),
+    /// The structure benchmark (`--task-set structure`,
+    /// `env_blocks::structure`): training, validation and test tasks of
+    /// disjoint structures, and taller towers (`ntg eval --split taller`).
+    Structure,
+}
+
+/// Seeds of the structure benchmark's task draws: training pool, test,
+/// validation, taller (each set drawn once from its own).
+const STRUCTURE_TASK_SEEDS: [u64; 4] = [61_000, 61_001, 61_002, 61_003];
+
+/// Tasks of the structure benchmark's training pool and of its test set.
+pub const STRUCTURE_TASKS: usize = env_blocks::TRAIN_POOL;
+
+/// The structure benchmark of the committed seed.
+pub fn structure_benchmark() -> env_blocks::structure::StructureBenchmark {
+    env_blocks::structure::StructureBenchmark::new(env_blocks::structure::STRUCTURE_BENCHMARK_SEED)
+}
+
+/// `count` tasks of the structure benchmark's taller set (a tower of five
+/// cubes or more, taller than any training structure's).
+pub fn taller_tasks(count: usize) -> anyhow::Result<Vec<StackTask>> {
+    Ok(structure_benchmark().tasks(
+        env_blocks::structure::StructureSet::Taller,
+        count,
+        STRUCTURE_TASK_SEEDS[3],
+    )?)
+}
+
+/// The first `count` tasks of the structure benchmark's `set` as a run on
+/// it sees them: its training pool's, its test tasks, its validation
+/// tasks, or its taller towers.
+pub fn task_set_tasks(
+    set: env_blocks::structure::StructureSet,
+    count: usize,
+) -> anyhow::Result<Vec<StackTask>> {
+    use env_blocks::structure::StructureSet;
+    let split = task_split(TaskSource::Structure)?;
+    let first = |tasks: &[StackTask]| -> anyhow::Result<Vec<StackTask>> {
+        tasks
+            .get(..count)
+            .map(<[StackTask]>::to_vec)
+            .with_context(|| {
+                format!(
+                    "asked for {count} tasks of the {} set; it has {}",
+                    set.name(),
+                    tasks.len()
+                )
+            })
+    };
+    match set {
+        StructureSet::Train => first(&split.train_pool),
+        StructureSet::Test => first(&split.test),
+        StructureSet::Validation => validation_tasks_of(TaskSource::Structure, count),
+        StructureSet::Taller => taller_tasks(count),
+    }
+}
+
+/// The task split of `source`: the standard stand-in split, or a file's
+/// tasks split by the same rule (its first [`env_blocks::TRAIN_POOL`]
+/// tasks are the training pool, `n` training tasks its first `n`, the rest
+/// the test tasks), or the structure benchmark's training pool and test
+/// set ([`STRUCTURE_TASKS`] each). Read once per process.
+pub fn task_split(source: TaskSource<'_>) -> anyhow::Result<Arc<env_blocks::StandardSplit>> {
     use std::collections::BTreeMap;
     use std::sync::Mutex;
-    static SPLITS: Mutex<BTreeMap<Option<PathBuf>, Arc<env_blocks::StandardSplit>>> =
+    /// A task file (or none), and whether the structure benchmark.
+    type Key = (Option<PathBuf>, bool);
+    static SPLITS: Mutex<BTreeMap<Key, Arc<env_blocks::StandardSplit>>> =
         Mutex::new(BTreeMap::new());
-    let key = file.map(Path::to_path_buf);
+    let key = match source {
+        TaskSource::Standard => (None, false),
+        TaskSource::File(path) => (Some(path.to_path_buf()), false),
+        TaskSource::Structure => (None, true),
+    };
     if let Some(split) = SPLITS.lock().unwrap_or_else(|e| e.into_inner()).get(&key) {
         return Ok(split.clone());
     }
-    let split = match file {
-        None => env_blocks::standard_split()?,
-        Some(path) => {
+    let split = match source {
+        TaskSource::Standard => env_blocks::standard_split()?,
+        TaskSource::Structure => {
+            use env_blocks::structure::StructureSet;
+            let benchmark = structure_benchmark();
+            env_blocks::StandardSplit {
+                train_pool: benchmark.tasks(
+                    StructureSet::Train,
+                    STRUCTURE_TASKS,
+                    STRUCTURE_TASK_SEEDS[0],
+                )?,
+                test: benchmark.tasks(
+                    StructureSet::Test,
+                    STRUCTURE_TASKS,
+                    STRUCTURE_TASK_SEEDS[1],
+                )?,
+            }
+        }
+        TaskSource::File(path) => {
             let mut tasks = env_blocks::read_ntp_tasks(path)?;
             if tasks.len() <= env_blocks::TRAIN_POOL {
                 bail!(
@@ -205,14 +326,20 @@ pub fn task_split(file: Option<&Path>) -> anyhow::Result<Arc<env_blocks::Standar
     Ok(split)
 }
 
-/// `count` validation tasks of a run whose task set is `file`: drawn as
+/// `count` validation tasks of `source`: drawn as
 /// `env_blocks::validation_tasks` draws them, outside every end
-/// configuration of that set.
-pub fn validation_tasks_of(file: Option<&Path>, count: usize) -> anyhow::Result<Vec<StackTask>> {
-    Ok(match file {
-        None => env_blocks::validation_tasks(count)?,
-        Some(_) => {
-            let split = task_split(file)?;
+/// configuration of the task set; for the structure benchmark, tasks of
+/// its validation structures (which no training or test task has).
+pub fn validation_tasks_of(source: TaskSource<'_>, count: usize) -> anyhow::Result<Vec<StackTask>> {
+    Ok(match source {
+        TaskSource::Standard => env_blocks::validation_tasks(count)?,
+        TaskSource::Structure => structure_benchmark().tasks(
+            env_blocks::structure::StructureSet::Validation,
+            count,
+            STRUCTURE_TASK_SEEDS[2],
+        )?,
+        TaskSource::File(_) => {
+            let split = task_split(source)?;
             let all: Vec<StackTask> = split
                 .train_pool
                 .iter()
@@ -408,6 +535,7 @@ impl Recipe {
             detector: None,
             ntp_core: NtpCoreKind::Reactive,
             tasks: None,
+            structure_benchmark: false,
             optim: OptimConfig {
                 epochs,
                 batch_size: 32,
@@ -538,6 +666,7 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "soft_edges" => "soft edges".into(),
         "validate_every" => format!("validated every {v} epochs"),
         "tasks" => format!("task set {v}"),
+        "structure_benchmark" => "structure benchmark's task set".into(),
         "optim.learning_rate" => format!("learning rate {v}"),
         "optim.cosine_decay" => "cosine learning-rate decay".into(),
         "optim.gcn_from_other_demo" => "GCN reads another demo".into(),
@@ -643,7 +772,7 @@ impl TrainedBlocks {
     /// task set `tasks` ([`task_split`]).
     pub fn evaluate(
         &self,
-        tasks: Option<&Path>,
+        tasks: TaskSource<'_>,
         failures: bool,
         camera: env_blocks::Camera,
         test_tasks: usize,
@@ -695,7 +824,7 @@ pub fn train_model(
     config.method.method().check(&json)?;
     check_encoder_labels(config)?;
     check_ntp_core(config)?;
-    let split = task_split(config.tasks.as_deref())?;
+    let split = task_split(config.task_source())?;
     let tasks = split.train(config.train_tasks)?;
     let demos = || -> anyhow::Result<Demos> {
         match config.obs {
@@ -862,7 +991,7 @@ pub struct VideoPlan {
 impl VideoPlan {
     /// The plan of `config` (a video run).
     pub fn new(config: &BlocksRunConfig, video: &BlocksVideo) -> anyhow::Result<Self> {
-        let split = task_split(config.tasks.as_deref())?;
+        let split = task_split(config.task_source())?;
         let tasks = split.train(config.train_tasks)?.to_vec();
         let groups = match video.demos_per_renaming {
             0 => 1,
@@ -872,7 +1001,7 @@ impl VideoPlan {
             tasks,
             groups,
             demos_per_renaming: video.demos_per_renaming,
-            held_out: HeldOutConfigurations::new(config.tasks.as_deref())?,
+            held_out: HeldOutConfigurations::new(config.task_source())?,
         })
     }
 
@@ -922,7 +1051,7 @@ fn with_video_run<R>(
             seed,
         )
     };
-    let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
+    let validation = validation_tasks_of(config.task_source(), config.validation_tasks)?;
     let record_validation = |i: usize, seed: u64| {
         record_video(
             validation[i].clone(),
@@ -973,7 +1102,7 @@ type OwnedFilter = Arc<dyn Fn(usize, &[usize]) -> bool + Send + Sync>;
 impl BlocksPrimitive {
     /// The primitive level of the run `config`.
     pub fn new(config: &BlocksRunConfig) -> anyhow::Result<Self> {
-        let split = task_split(config.tasks.as_deref())?;
+        let split = task_split(config.task_source())?;
         let tasks = Arc::new(split.train(config.train_tasks)?.to_vec());
         let accept = HeldOutConfigurations::for_run(config)?.map(|held_out| {
             let tasks = tasks.clone();
@@ -981,7 +1110,7 @@ impl BlocksPrimitive {
                 !held_out.contains_renamed(&tasks[task], perm)
             }) as OwnedFilter
         });
-        let validation = validation_tasks_of(config.tasks.as_deref(), config.validation_tasks)?;
+        let validation = validation_tasks_of(config.task_source(), config.validation_tasks)?;
         Ok(BlocksPrimitive {
             validation: Arc::new(validation),
             config: config.clone(),
@@ -1265,7 +1394,7 @@ pub fn train_ntp_detector(
     use crate::method::detector::{DetectorDataset, DetectorFrames, train_detector};
     settings.validate()?;
     let env = env_config(ObsKind::Vid, config.failures).with_camera(config.camera());
-    let validation = validation_tasks_of(config.tasks.as_deref(), 2 * settings.validation_tasks)?;
+    let validation = validation_tasks_of(config.task_source(), 2 * settings.validation_tasks)?;
     let (select, report) = validation.split_at(settings.validation_tasks);
     let frames = || {
         Ok(DetectorFrames {
@@ -1304,7 +1433,7 @@ impl HeldOutConfigurations {
     /// cubes and excludes held-out renamings.
     pub fn for_run(config: &BlocksRunConfig) -> anyhow::Result<Option<Self>> {
         if config.permute_objects && config.exclude_held_out_renamings {
-            Ok(Some(HeldOutConfigurations::new(config.tasks.as_deref())?))
+            Ok(Some(HeldOutConfigurations::new(config.task_source())?))
         } else {
             Ok(None)
         }
@@ -1312,7 +1441,7 @@ impl HeldOutConfigurations {
 
     /// The held-out configurations of the split of the task set `tasks`
     /// ([`task_split`]; `None`: the standard one).
-    pub fn new(tasks: Option<&Path>) -> anyhow::Result<Self> {
+    pub fn new(tasks: TaskSource<'_>) -> anyhow::Result<Self> {
         let split = task_split(tasks)?;
         let validation = validation_tasks_of(tasks, HELD_OUT_VALIDATION_TASKS)?;
         let keys = split
@@ -1584,7 +1713,7 @@ pub fn evaluate(
     test_tasks: usize,
     variant: Variant,
 ) -> anyhow::Result<EvalResult> {
-    let split = task_split(None)?;
+    let split = task_split(TaskSource::Standard)?;
     evaluate_tasks(
         model,
         obs,
@@ -1661,7 +1790,7 @@ pub fn evaluate_untrained(
 ) -> anyhow::Result<EvalResult> {
     let dir = run.initial_dir();
     let context = || format!("loading the untrained model of {}", run.root().display());
-    let split = task_split(config.tasks.as_deref())?;
+    let split = task_split(config.task_source())?;
     let tasks = test_tasks_of(&split, test_tasks)?;
     if config.method.is_ntg() {
         // As the trained model is evaluated (`TrainedBlocks::evaluate`).
@@ -1690,7 +1819,7 @@ pub fn evaluate_untrained(
 /// task set `tasks` (the tasks and seeds NTG is evaluated on).
 pub fn evaluate_ntp(
     model: &dyn crate::method::TrainedPolicy,
-    tasks: Option<&Path>,
+    tasks: TaskSource<'_>,
     obs: ObsKind,
     failures: bool,
     camera: env_blocks::Camera,
@@ -1747,8 +1876,15 @@ pub struct BlocksFlags {
     /// `stack_2000.json`) instead of the generated stand-in set: its first
     /// 1000 tasks are the training pool, the rest the test tasks (the
     /// standard rule); validation tasks are drawn outside all of them.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", conflicts_with = "task_set")]
     pub tasks: Option<PathBuf>,
+    /// The task set: `standard` (the generated stand-in for NTP's, split
+    /// by the standard rule) or `structure` (the structure benchmark:
+    /// training, validation and test tasks of structures that share none;
+    /// `ntg eval --split taller` scores towers taller than any trained on)
+    /// [default: standard].
+    #[arg(long, value_enum, value_name = "SET")]
+    pub task_set: Option<TaskSetKind>,
     /// Train the edge classifier on GCN embeddings of another demo of the
     /// same task than the one it imitates.
     #[arg(long)]
@@ -1896,6 +2032,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         ablation: flags.ablation,
         ntp_core: own.ntp_core.unwrap_or(base.ntp_core),
         tasks: own.tasks.clone(),
+        structure_benchmark: own.task_set == Some(TaskSetKind::Structure),
         optim: OptimConfig {
             batch_size: flags.batch_size,
             learning_rate: flags.lr.unwrap_or(base.optim.learning_rate),
@@ -2015,7 +2152,7 @@ impl DomainRuns for Blocks {
             .method
             .method()
             .check(&serde_json::to_value(&config)?)?;
-        task_split(config.tasks.as_deref())
+        task_split(config.task_source())
             .with_context(|| "--tasks")?
             .train(config.train_tasks)
             .with_context(|| format!("--train-tasks {}", config.train_tasks))?;
@@ -2229,7 +2366,7 @@ fn eval_split(
     flags: &EvalFlags,
     config: &BlocksRunConfig,
 ) -> anyhow::Result<(String, Vec<StackTask>, Seeds)> {
-    let tasks = config.tasks.as_deref();
+    let tasks = config.task_source();
     let split = task_split(tasks)?;
     if let Some(file) = &flags.tasks {
         let (prefix, chosen) = tasks_of_file(file, flags.test_tasks, &split, config)?;
@@ -2258,6 +2395,23 @@ fn eval_split(
                 "seen-".into(),
                 split.train(flags.test_tasks)?.to_vec(),
                 Seeds::SEEN,
+            )
+        }
+        crate::domain::EvalSplit::Structure if config.structure_benchmark => bail!(
+            "--split structure is the standard task set's split by structure (the earlier protocol); {} trains on the structure benchmark, whose new structures are --split test (heights seen in training) and --split taller",
+            config.task_source_name()
+        ),
+        crate::domain::EvalSplit::Taller => {
+            if !config.structure_benchmark {
+                bail!(
+                    "--split taller scores the structure benchmark's towers taller than any trained on; this run trains on the {} (--task-set structure trains on the benchmark)",
+                    config.task_source_name()
+                );
+            }
+            (
+                "taller-".into(),
+                taller_tasks(flags.test_tasks)?,
+                Seeds::STRUCTURE,
             )
         }
         crate::domain::EvalSplit::Structure => (
@@ -2420,7 +2574,7 @@ mod tests {
     #[test]
     fn held_out_configurations_catch_a_training_task_renamed_into_a_test_task() {
         let split = env_blocks::standard_split().unwrap();
-        let held_out = HeldOutConfigurations::new(None).unwrap();
+        let held_out = HeldOutConfigurations::new(TaskSource::Standard).unwrap();
         let identity: Vec<usize> = (0..env_blocks::world::NUM_OBJECTS).collect();
         // Unrenamed, no training task is held out, and every test task is.
         for task in &split.train_pool {

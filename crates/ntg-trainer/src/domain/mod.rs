@@ -381,6 +381,10 @@ pub enum EvalSplit {
     /// structures with a tower of five or more cubes
     /// (`env_blocks::structure_test_tasks`). Not in the paper.
     Structure,
+    /// Runs on the structure benchmark (`--task-set structure`): tasks
+    /// whose towers are taller than any training structure's. Not in the
+    /// paper.
+    Taller,
 }
 
 impl EvalSplit {
@@ -391,6 +395,7 @@ impl EvalSplit {
             EvalSplit::Validation => "validation",
             EvalSplit::Seen => "seen",
             EvalSplit::Structure => "structure",
+            EvalSplit::Taller => "taller",
         }
     }
 }

@@ -944,7 +944,7 @@ fn run_point(
         if method.is_ntg() {
             let model = blocks::train_run(&run, &config, &device, |r| eprintln!("  [{name}] {r}"))?;
             model.evaluate(
-                config.tasks.as_deref(),
+                config.task_source(),
                 config.failures,
                 config.camera(),
                 scale.test_tasks,
@@ -955,7 +955,7 @@ fn run_point(
                 blocks::train_model(&run, &config, &device, |r| eprintln!("  [{name}] {r}"))?;
             blocks::evaluate_ntp(
                 model.as_ref(),
-                config.tasks.as_deref(),
+                config.task_source(),
                 obs,
                 config.failures,
                 config.camera(),
@@ -1103,7 +1103,7 @@ fn decision_check(points: &mut [NtpExpPoint], i: usize, plan: &Plan<'_>) -> anyh
     let run = RunDir::open(&p.run)?;
     let _writer = run.lock()?;
     let config: BlocksRunConfig = RunDir::read_json(&run.config_path())?;
-    let split = blocks::task_split(config.tasks.as_deref())?;
+    let split = blocks::task_split(config.task_source())?;
     // No more tasks than the point was scored on: cheap where it was.
     let n = DECISION_CHECK_TASKS
         .min(p.success.trials)
@@ -1189,12 +1189,7 @@ pub(crate) fn evaluate_point(
     } else {
         p.method.name()
     };
-    let name = match split {
-        crate::domain::EvalSplit::Test => "test",
-        crate::domain::EvalSplit::Validation => "validation",
-        crate::domain::EvalSplit::Seen => "seen",
-        crate::domain::EvalSplit::Structure => "structure",
-    };
+    let name = split.name();
     let file = format!("{name}-{who}-{n}.json");
     if crate::record::is_restored(&p.run) && !run.eval_dir().join(&file).is_file() {
         eprintln!(
@@ -3479,6 +3474,7 @@ mod tests {
             detector: None,
             ntp_core: crate::blocks::NtpCoreKind::Reactive,
             tasks: None,
+            structure_benchmark: false,
             optim: crate::fit::OptimConfig {
                 epochs,
                 batch_size: 32,

@@ -81,7 +81,7 @@ pub fn blocks_trace(
         }
         let trace = crate::trace::trace_task(
             &model,
-            config.tasks.as_deref(),
+            config.task_source(),
             config.obs,
             config.failures,
             index,

@@ -32,6 +32,7 @@ fn config() -> BlocksRunConfig {
         detector: None,
         ntp_core: Default::default(),
         tasks: None,
+        structure_benchmark: false,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,

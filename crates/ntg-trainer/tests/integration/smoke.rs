@@ -43,6 +43,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         detector: None,
         ntp_core: Default::default(),
         tasks: None,
+        structure_benchmark: false,
         optim: OptimConfig {
             epochs: 25,
             batch_size: 32,

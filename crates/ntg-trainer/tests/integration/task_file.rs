@@ -60,6 +60,10 @@ fn a_run_trains_and_is_evaluated_on_the_task_file_it_names() {
         .collect();
     assert_eq!(names, ["mine_1000", "mine_1001"]);
     assert_eq!(tasks[1000].id, "mine_1000");
+    // Taller towers are the structure benchmark's split, not a task file's.
+    let (code, _, err) = ntg(&["eval", "--run", run.to_str().unwrap(), "--split", "taller"]);
+    assert_ne!(code, 0);
+    assert!(err.contains("--task-set structure"), "{err}");
     // A file the split cannot use is an error that names it, and no run
     // folder is made.
     let short = tmp.path().join("short.json");
@@ -89,10 +93,13 @@ fn validation_tasks_avoid_every_configuration_of_the_task_file() {
     let tmp = tempfile::tempdir().unwrap();
     let file = tmp.path().join("tasks.json");
     let tasks = write_task_file(&file, 1100);
-    let split = ntg_trainer::blocks::task_split(Some(&file)).unwrap();
+    let split =
+        ntg_trainer::blocks::task_split(ntg_trainer::blocks::TaskSource::File(&file)).unwrap();
     assert_eq!((split.train_pool.len(), split.test.len()), (1000, 100));
     assert_eq!(split.test[0], tasks[1000]);
-    let validation = ntg_trainer::blocks::validation_tasks_of(Some(&file), 300).unwrap();
+    let validation =
+        ntg_trainer::blocks::validation_tasks_of(ntg_trainer::blocks::TaskSource::File(&file), 300)
+            .unwrap();
     let seen: std::collections::HashSet<_> =
         tasks.iter().map(StackTask::configuration_key).collect();
     assert!(
@@ -111,10 +118,11 @@ fn ntps_own_task_file_splits_into_the_standard_sizes() {
         eprintln!("skipped: {} is not here", file.display());
         return;
     }
-    let split = ntg_trainer::blocks::task_split(Some(&file)).unwrap();
+    let split =
+        ntg_trainer::blocks::task_split(ntg_trainer::blocks::TaskSource::File(&file)).unwrap();
     assert_eq!((split.train_pool.len(), split.test.len()), (1000, 1000));
     assert_eq!(
-        ntg_trainer::blocks::validation_tasks_of(Some(&file), 100)
+        ntg_trainer::blocks::validation_tasks_of(ntg_trainer::blocks::TaskSource::File(&file), 100)
             .unwrap()
             .len(),
         100
@@ -151,4 +159,103 @@ fn eval_reads_a_users_task_file_and_names_the_training_tasks_in_it() {
     )
     .unwrap();
     assert_eq!(result["success"]["trials"], 4, "{result}");
+}
+
+/// `--task-set structure`: a run trains on the structure benchmark's
+/// training structures, validates on its validation structures, and is
+/// scored on its test structures (`--split test`) and on taller towers
+/// (`--split taller`); the standard set's runs refuse `--split taller`,
+/// and a structure run refuses the earlier protocol's `--split structure`.
+#[test]
+fn a_structure_benchmark_run_is_scored_on_new_and_taller_structures() {
+    use env_blocks::structure::{STRUCTURE_BENCHMARK_SEED, StructureBenchmark, StructureSet};
+    let tmp = tempfile::tempdir().unwrap();
+    let run = tmp.path().join("run");
+    let (code, _, err) = ntg(&[
+        "train",
+        "--domain",
+        "blocks",
+        "--task-set",
+        "structure",
+        "--train-tasks",
+        "3",
+        "--demos-per-task",
+        "1",
+        "--epochs",
+        "1",
+        "--validation-tasks",
+        "2",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let config: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    assert_eq!(config["structure_benchmark"], true);
+    // The tasks of each split are the benchmark's, by id and structure.
+    let benchmark = StructureBenchmark::new(STRUCTURE_BENCHMARK_SEED);
+    for (split, file, set) in [
+        ("test", "full-3.json", StructureSet::Test),
+        ("taller", "taller-full-3.json", StructureSet::Taller),
+        (
+            "validation",
+            "validation-full-3.json",
+            StructureSet::Validation,
+        ),
+    ] {
+        let (code, _, err) = ntg(&[
+            "eval",
+            "--run",
+            run.to_str().unwrap(),
+            "--test-tasks",
+            "3",
+            "--split",
+            split,
+        ]);
+        assert_eq!(code, 0, "--split {split}: {err}");
+        let eval: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(run.join("eval").join(file)).unwrap())
+                .unwrap();
+        let names: Vec<String> = eval["tasks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| t["task"].as_str().unwrap().to_owned())
+            .collect();
+        let expected: Vec<String> = (0..3).map(|i| format!("{}_{i}", set.name())).collect();
+        assert_eq!(names, expected, "--split {split}");
+        let drawn = ntg_trainer::blocks::task_set_tasks(set, 3).unwrap();
+        for (task, name) in drawn.iter().zip(&names) {
+            assert_eq!(&task.id, name);
+            assert_eq!(benchmark.set_of(task), Some(set));
+        }
+    }
+    // The earlier protocol's split of the standard set is refused here.
+    let (code, _, err) = ntg(&[
+        "eval",
+        "--run",
+        run.to_str().unwrap(),
+        "--split",
+        "structure",
+    ]);
+    assert_ne!(code, 0);
+    assert!(err.contains("--split taller"), "{err}");
+    // A task file and the benchmark are refused together.
+    let (code, _, err) = ntg(&[
+        "train",
+        "--domain",
+        "blocks",
+        "--task-set",
+        "structure",
+        "--tasks",
+        "x.json",
+        "--out",
+        tmp.path().join("both").to_str().unwrap(),
+    ]);
+    assert_ne!(code, 0);
+    assert!(
+        err.contains("--task-set") || err.contains("--tasks"),
+        "{err}"
+    );
+    assert!(!tmp.path().join("both").exists());
 }
