@@ -1,0 +1,89 @@
+//! Success of structure-benchmark evaluations per structure, with the
+//! two-level bootstrap interval over structures and tasks
+//! (`ntg_train::stats::clustered_bootstrap`, 10,000 resamples, seed 0).
+//! Each argument is an `ntg eval` result file of a run on `--task-set
+//! structure` (`eval/full-N.json` for the test structures,
+//! `eval/taller-full-N.json` for the taller ones, `eval/validation-…`);
+//! several files of one split (one per seed, on the same tasks) are
+//! averaged.
+//!
+//! ```text
+//! cargo run --release -p ntg-trainer --example structure_intervals -- FILE [FILE ...]
+//! ```
+
+use std::collections::BTreeMap;
+
+use anyhow::{Context, ensure};
+use env_blocks::structure::StructureSet;
+
+fn main() -> anyhow::Result<()> {
+    let files: Vec<String> = std::env::args().skip(1).collect();
+    ensure!(
+        !files.is_empty(),
+        "usage: structure_intervals FILE [FILE ...]"
+    );
+    // outcomes[seed][structure][task], structures in key order.
+    let mut outcomes: Vec<Vec<Vec<bool>>> = Vec::new();
+    let mut names: Vec<String> = Vec::new();
+    for file in &files {
+        let text = std::fs::read_to_string(file).with_context(|| format!("reading {file}"))?;
+        let eval: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("parsing {file}"))?;
+        let records = eval["tasks"]
+            .as_array()
+            .with_context(|| format!("{file}: no \"tasks\" list"))?;
+        let first = records
+            .first()
+            .and_then(|r| r["task"].as_str())
+            .with_context(|| format!("{file}: no task"))?;
+        let set = StructureSet::ALL
+            .into_iter()
+            .find(|s| first.starts_with(&format!("{}_", s.name())))
+            .with_context(|| format!("{file}: {first} is not a structure-benchmark task"))?;
+        let tasks = ntg_trainer::blocks::task_set_tasks(set, records.len())?;
+        let mut by_structure: BTreeMap<Vec<(usize, usize)>, Vec<bool>> = BTreeMap::new();
+        for (record, task) in records.iter().zip(&tasks) {
+            ensure!(
+                record["task"].as_str() == Some(task.id.as_str()),
+                "{file}: task {} where the benchmark has {}",
+                record["task"],
+                task.id
+            );
+            by_structure
+                .entry(task.structure_key())
+                .or_default()
+                .push(record["success"].as_bool().unwrap_or(false));
+        }
+        if names.is_empty() {
+            for (key, _) in &by_structure {
+                let task = tasks.iter().find(|t| &t.structure_key() == key).unwrap();
+                names.push(
+                    task.towers()
+                        .iter()
+                        .map(|t| t.len().to_string())
+                        .collect::<Vec<_>>()
+                        .join("+"),
+                );
+            }
+        }
+        outcomes.push(by_structure.into_values().collect());
+    }
+    let rate = ntg_train::stats::clustered_bootstrap(&outcomes, 10_000, 0)
+        .map_err(anyhow::Error::msg)?;
+    println!(
+        "{} files: success {:.3} (two-level bootstrap 95%: {:.3}-{:.3}) over {} structures, {} tasks",
+        files.len(),
+        rate.rate,
+        rate.ci_low,
+        rate.ci_high,
+        rate.clusters,
+        rate.tasks
+    );
+    for (i, name) in names.iter().enumerate() {
+        let (ok, n) = outcomes.iter().fold((0, 0), |(ok, n), seed| {
+            (ok + seed[i].iter().filter(|&&s| s).count(), n + seed[i].len())
+        });
+        println!("  towers of {name} cubes: {ok}/{n} = {:.3}", ok as f64 / n as f64);
+    }
+    Ok(())
+}
