@@ -55,7 +55,7 @@ fn main() -> anyhow::Result<()> {
                 .push(record["success"].as_bool().unwrap_or(false));
         }
         if names.is_empty() {
-            for (key, _) in &by_structure {
+            for key in by_structure.keys() {
                 let task = tasks.iter().find(|t| &t.structure_key() == key).unwrap();
                 names.push(
                     task.towers()
@@ -68,8 +68,8 @@ fn main() -> anyhow::Result<()> {
         }
         outcomes.push(by_structure.into_values().collect());
     }
-    let rate = ntg_train::stats::clustered_bootstrap(&outcomes, 10_000, 0)
-        .map_err(anyhow::Error::msg)?;
+    let rate =
+        ntg_train::stats::clustered_bootstrap(&outcomes, 10_000, 0).map_err(anyhow::Error::msg)?;
     println!(
         "{} files: success {:.3} (two-level bootstrap 95%: {:.3}-{:.3}) over {} structures, {} tasks",
         files.len(),
@@ -81,9 +81,15 @@ fn main() -> anyhow::Result<()> {
     );
     for (i, name) in names.iter().enumerate() {
         let (ok, n) = outcomes.iter().fold((0, 0), |(ok, n), seed| {
-            (ok + seed[i].iter().filter(|&&s| s).count(), n + seed[i].len())
+            (
+                ok + seed[i].iter().filter(|&&s| s).count(),
+                n + seed[i].len(),
+            )
         });
-        println!("  towers of {name} cubes: {ok}/{n} = {:.3}", ok as f64 / n as f64);
+        println!(
+            "  towers of {name} cubes: {ok}/{n} = {:.3}",
+            ok as f64 / n as f64
+        );
     }
     Ok(())
 }

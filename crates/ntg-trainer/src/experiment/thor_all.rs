@@ -451,15 +451,17 @@ pub fn run(
     };
     let line = &line;
     // On video the first run of each seed trains stage A; the others of
-    // that seed start after it and link its encoder and embeddings.
+    // that seed start after it and link its encoder and embeddings. Where
+    // this invocation does not run that first one (`--only` leaves it
+    // out: finished, or not asked for), nothing here is waited for.
     let (mut first, mut after) = (Vec::new(), Vec::new());
     for run in experiment.runs(profile) {
         let on_video = experiment.scale(profile, run.earlier)?.obs == ObsKind::Vid;
         let wave = if on_video
-            && first
-                .iter()
-                .any(|r: &ThorAllRun| (r.seed, r.earlier) == (run.seed, run.earlier))
-        {
+            && first.iter().any(|r: &ThorAllRun| {
+                (r.seed, r.earlier) == (run.seed, run.earlier)
+                    && plan.selected(&experiment.run_name(profile, *r))
+            }) {
             &mut after
         } else {
             &mut first
