@@ -10,7 +10,9 @@
 //! five cubes or more. [`StructureBenchmark::new`] splits the 23 by a
 //! seeded shuffle into training, validation and test structures (the
 //! training ones holding a four-cube tower, so that the test set's heights
-//! are all seen in training), and keeps the 10 as the taller set.
+//! are all seen in training), and the 10 into 2 more validation structures
+//! and the 8 of the taller test set: model selection sees towers taller
+//! than any trained on, never one of those it is tested on.
 //! [`StructureBenchmark::tasks`] draws any number of tasks of a set, spread
 //! evenly over its structures, cubes assigned by a random permutation:
 //! unlike the standard set, no structure is short of tasks.
@@ -34,6 +36,9 @@ pub const STANDARD_MAX_GOALS_PER_TOWER: usize = 3;
 pub const VALIDATION_STRUCTURES: usize = 4;
 /// Test structures (heights seen in training) of the benchmark.
 pub const TEST_STRUCTURES: usize = 6;
+/// Structures with a taller tower than training's that validate instead
+/// of testing.
+pub const TALLER_VALIDATION_STRUCTURES: usize = 2;
 /// Draws in a row without a new end configuration after which a structure
 /// leaves [`StructureBenchmark::tasks`]'s turn.
 pub const DRAWS_PER_TASK: usize = 200;
@@ -99,21 +104,23 @@ pub struct StructureBenchmark {
     pub seed: u64,
     /// Training structures (compositions, see [`all_compositions`]).
     pub train: Vec<Vec<usize>>,
-    /// Validation structures.
+    /// Validation structures: of standard heights, then taller ones.
     pub validation: Vec<Vec<usize>>,
     /// Test structures, towers no taller than the training ones'.
     pub test: Vec<Vec<usize>>,
-    /// Structures with a tower of five cubes or more.
+    /// Test structures with a tower of five cubes or more.
     pub taller: Vec<Vec<usize>>,
 }
 
 impl StructureBenchmark {
     /// Splits the structures with `seed` (see the module's text).
     pub fn new(seed: u64) -> Self {
-        let (mut standard, taller): (Vec<Vec<usize>>, Vec<Vec<usize>>) = all_compositions()
+        let (mut standard, mut taller): (Vec<Vec<usize>>, Vec<Vec<usize>>) = all_compositions()
             .into_iter()
             .partition(|c| c.iter().all(|&g| g <= STANDARD_MAX_GOALS_PER_TOWER));
-        standard.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        standard.shuffle(&mut rng);
+        taller.shuffle(&mut rng);
         // The first structure with a four-cube tower trains, so every test
         // height is a training height.
         let tallest = standard
@@ -121,7 +128,8 @@ impl StructureBenchmark {
             .position(|c| c.contains(&STANDARD_MAX_GOALS_PER_TOWER))
             .unwrap_or(0);
         let anchor = standard.remove(tallest);
-        let validation: Vec<Vec<usize>> = standard.drain(..VALIDATION_STRUCTURES).collect();
+        let mut validation: Vec<Vec<usize>> = standard.drain(..VALIDATION_STRUCTURES).collect();
+        validation.extend(taller.drain(..TALLER_VALIDATION_STRUCTURES));
         let test: Vec<Vec<usize>> = standard.drain(..TEST_STRUCTURES).collect();
         let mut train = vec![anchor];
         train.extend(standard);
@@ -229,7 +237,12 @@ mod tests {
                 b.test.len(),
                 b.taller.len()
             ),
-            (13, VALIDATION_STRUCTURES, TEST_STRUCTURES, 10)
+            (
+                13,
+                VALIDATION_STRUCTURES + TALLER_VALIDATION_STRUCTURES,
+                TEST_STRUCTURES,
+                10 - TALLER_VALIDATION_STRUCTURES
+            )
         );
         let mut seen = HashSet::new();
         for set in StructureSet::ALL {
@@ -241,12 +254,11 @@ mod tests {
         // Test heights are training heights; the taller set's are not.
         let tallest = |cs: &[Vec<usize>]| cs.iter().flatten().copied().max().unwrap();
         assert!(tallest(&b.test) <= tallest(&b.train));
-        assert!(tallest(&b.validation) <= tallest(&b.train));
-        assert!(
-            b.taller
-                .iter()
-                .all(|c| c.iter().any(|&g| g > tallest(&b.train)))
-        );
+        let (standard, taller) = b.validation.split_at(VALIDATION_STRUCTURES);
+        assert!(tallest(standard) <= tallest(&b.train));
+        let above = |c: &Vec<usize>| c.iter().any(|&g| g > tallest(&b.train));
+        assert!(taller.iter().all(above));
+        assert!(b.taller.iter().all(above));
         // Another seed, another split of the same structures.
         let other = StructureBenchmark::new(1);
         assert_ne!(other.test, b.test);
