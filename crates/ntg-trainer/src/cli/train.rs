@@ -250,6 +250,32 @@ mod tests {
     }
 
     #[test]
+    fn block_stacking_takes_an_interpreter_and_its_step_prior() {
+        use crate::method::ntg::InterpreterKind;
+        let c = config_of(&[]);
+        assert_eq!((c.interpreter, c.location_step_prior), (None, None));
+        let c = config_of(&["--interpreter", "stepping"]);
+        assert_eq!(
+            (c.interpreter, c.location_step_prior),
+            (
+                Some(InterpreterKind::Stepping),
+                Some(crate::collect::LOCATION_STEP_PRIOR)
+            )
+        );
+        let c = config_of(&["--interpreter", "stepping", "--location-step-prior", "0"]);
+        assert_eq!(c.location_step_prior, None);
+        assert!(
+            blocks::additions(&config_of(&[
+                "--recipe",
+                "paper",
+                "--interpreter",
+                "stepping"
+            ]))
+            .contains(&"stepping interpreter".to_owned())
+        );
+    }
+
+    #[test]
     fn the_video_renaming_group_is_the_recipe_s_unless_set() {
         let group = |args: &[&str]| config_of(args).video.unwrap().demos_per_renaming;
         assert_eq!(group(&["--obs", "vid"]), 4);
@@ -351,10 +377,7 @@ mod tests {
                 .iter()
                 .chain(args);
             match Cli::try_parse_from(argv).unwrap().command {
-                Command::Train(train) => train
-                    .own
-                    .collect
-                    .location_step_prior(train.flags.obs, train.flags.method),
+                Command::Train(train) => crate::collect::location_step_prior_of(&train.flags),
                 other => panic!("parsed as {other:?}"),
             }
         };

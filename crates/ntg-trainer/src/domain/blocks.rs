@@ -154,6 +154,14 @@ pub struct BlocksRunConfig {
     /// test structures ([`TaskSource::Structure`]). Absent: false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub structure_benchmark: bool,
+    /// NTG's demo interpreter (`--interpreter`; absent: the paper's Luong
+    /// interpreter, as in every run saved before it). Read by NTG only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub interpreter: Option<crate::method::ntg::InterpreterKind>,
+    /// With a stepping interpreter: the initial weight of its location-aware
+    /// attention's forward shifts (`--location-step-prior`; absent: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub location_step_prior: Option<f32>,
     /// Optimisation.
     pub optim: OptimConfig,
 }
@@ -536,6 +544,8 @@ impl Recipe {
             ntp_core: NtpCoreKind::Reactive,
             tasks: None,
             structure_benchmark: false,
+            interpreter: None,
+            location_step_prior: None,
             optim: OptimConfig {
                 epochs,
                 batch_size: 32,
@@ -667,6 +677,8 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "validate_every" => format!("validated every {v} epochs"),
         "tasks" => format!("task set {v}"),
         "structure_benchmark" => "structure benchmark's task set".into(),
+        "interpreter" => format!("{v} interpreter"),
+        "location_step_prior" => format!("location step prior {v}"),
         "optim.learning_rate" => format!("learning rate {v}"),
         "optim.cosine_decay" => "cosine learning-rate decay".into(),
         "optim.gcn_from_other_demo" => "GCN reads another demo".into(),
@@ -2033,6 +2045,16 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         ntp_core: own.ntp_core.unwrap_or(base.ntp_core),
         tasks: own.tasks.clone(),
         structure_benchmark: own.task_set == Some(TaskSetKind::Structure),
+        interpreter: flags.interpreter,
+        location_step_prior: match (flags.location_step_prior, flags.interpreter) {
+            (Some(0.0), _) => None,
+            (Some(w), _) => Some(w),
+            (None, Some(kind)) => {
+                use crate::collect::InterpreterDefaults as _;
+                kind.default_step_prior()
+            }
+            (None, None) => None,
+        },
         optim: OptimConfig {
             batch_size: flags.batch_size,
             learning_rate: flags.lr.unwrap_or(base.optim.learning_rate),
@@ -2146,6 +2168,14 @@ impl DomainRuns for Blocks {
             bail!(
                 "--method {}: block stacking trains and evaluates ntg, ntp, ntp-flat or ntp-detector",
                 config.method.name()
+            );
+        }
+        if (config.interpreter.is_some() || config.location_step_prior.is_some())
+            && !config.method.method().reads("interpreter")
+        {
+            bail!(
+                "--interpreter and --location-step-prior choose NTG's demo interpreter; {} has none",
+                config.method.legend()
             );
         }
         config

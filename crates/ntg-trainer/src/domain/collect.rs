@@ -713,16 +713,6 @@ pub struct CollectFlags {
     /// NTG's edge classifier reads the task-graph nodes not yet executed).
     #[arg(long)]
     pub memory: bool,
-    /// NTG: which demo interpreter [default: stepping for --obs state,
-    /// stepping-video for --obs vid; luong is the paper's].
-    #[arg(long, value_parser = crate::spec::parse::choice::<InterpreterKind>())]
-    pub interpreter: Option<InterpreterKind>,
-    /// NTG with the stepping interpreter: initial weight of its
-    /// location-aware attention's shift +1, a bias towards reading the next
-    /// frame (0 = no preference) [default: 0.3 for NTG with the stepping
-    /// interpreter].
-    #[arg(long, value_name = "W", value_parser = crate::spec::parse::finite)]
-    pub location_step_prior: Option<f32>,
     /// Validation tasks per number of training objects: held-out
     /// train-side tasks (never test tasks) rolled out after every epoch;
     /// the best epoch is kept in best/ and is the one `ntg eval` scores.
@@ -736,24 +726,24 @@ pub struct CollectFlags {
     pub validation_objects: Vec<usize>,
 }
 
-impl CollectFlags {
-    /// The interpreter of a run on `obs`: the flag, else
-    /// [`InterpreterKind::default_for`] `obs`.
-    pub fn interpreter(&self, obs: ObsKind) -> InterpreterKind {
-        self.interpreter
-            .unwrap_or_else(|| InterpreterKind::default_for(obs))
-    }
+/// The interpreter of an object-collection run: `--interpreter`, else
+/// [`InterpreterKind::default_for`] its `--obs`.
+pub fn interpreter_of(flags: &TrainFlags) -> InterpreterKind {
+    flags
+        .interpreter
+        .unwrap_or_else(|| InterpreterKind::default_for(flags.obs))
+}
 
-    /// The location step prior of a run on `obs`: the flag, else the
-    /// interpreter's default for NTG (none for the Flat Policy). An
-    /// explicit 0 is no prior, as in runs saved before the option existed,
-    /// so those resume with `--location-step-prior 0`.
-    pub fn location_step_prior(&self, obs: ObsKind, method: MethodId) -> Option<f32> {
-        match self.location_step_prior {
-            Some(0.0) => None,
-            Some(w) => Some(w),
-            None => default_step_prior(method, self.interpreter(obs)),
-        }
+/// The location step prior of an object-collection run:
+/// `--location-step-prior`, else the interpreter's default for NTG (none
+/// for the Flat Policy). An explicit 0 is no prior, as in runs saved
+/// before the option existed, so those resume with
+/// `--location-step-prior 0`.
+pub fn location_step_prior_of(flags: &TrainFlags) -> Option<f32> {
+    match flags.location_step_prior {
+        Some(0.0) => None,
+        Some(w) => Some(w),
+        None => default_step_prior(flags.method, interpreter_of(flags)),
     }
 }
 
@@ -795,8 +785,8 @@ impl DomainRuns for Collect {
         config.segments = !c.no_segments;
         config.learn_end = c.learn_end;
         config.memory = c.memory;
-        config.interpreter = c.interpreter(flags.obs);
-        config.location_step_prior = c.location_step_prior(flags.obs, flags.method);
+        config.interpreter = interpreter_of(flags);
+        config.location_step_prior = location_step_prior_of(flags);
         config.validation_tasks_per_n = c.validation_tasks_per_n;
         config.validation_objects = c.validation_objects.clone();
         config.optim.batch_size = flags.batch_size;

@@ -199,6 +199,16 @@ pub struct TrainFlags {
     /// Decay the learning rate along a half cosine to a tenth of --lr.
     #[arg(long)]
     pub cosine_decay: bool,
+    /// NTG: which demo interpreter [default: object collection: stepping
+    /// for --obs state, stepping-video for --obs vid; block stacking:
+    /// luong, the paper's].
+    #[arg(long, value_parser = crate::spec::parse::choice::<crate::method::ntg::InterpreterKind>())]
+    pub interpreter: Option<crate::method::ntg::InterpreterKind>,
+    /// NTG with a stepping interpreter: initial weight of its
+    /// location-aware attention's forward shifts, a bias towards reading
+    /// on (0 = no preference) [default: 0.3 with a stepping interpreter].
+    #[arg(long, value_name = "W", value_parser = crate::spec::parse::finite)]
+    pub location_step_prior: Option<f32>,
     /// Data-parallel training: split each batch into this many shards
     /// trained on their own threads, gradients summed (--obs vid: both
     /// stages). A run's results depend on its shard count (saved

@@ -360,6 +360,11 @@ impl DomainRuns for Sorting {
             bail!("object sorting trains NTG on state input (--method ntg --obs state)");
         }
         flags.check_encoder_flags()?;
+        if flags.interpreter.is_some() || flags.location_step_prior.is_some() {
+            bail!(
+                "--interpreter and --location-step-prior are block stacking's and object collection's; object sorting trains the paper's interpreter"
+            );
+        }
         let own = &own.sorting;
         let config = SortingRunConfig {
             domain: "sorting".into(),

@@ -3475,6 +3475,8 @@ mod tests {
             ntp_core: crate::blocks::NtpCoreKind::Reactive,
             tasks: None,
             structure_benchmark: false,
+            interpreter: None,
+            location_step_prior: None,
             optim: crate::fit::OptimConfig {
                 epochs,
                 batch_size: 32,

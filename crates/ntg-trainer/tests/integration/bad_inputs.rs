@@ -173,6 +173,22 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--domain", "collect", "--location-step-prior", "inf"]),
             "--location-step-prior".into(),
         ),
+        // A demo interpreter for a method or domain that trains none.
+        (
+            train(&[
+                "--domain",
+                "blocks",
+                "--method",
+                "ntp",
+                "--interpreter",
+                "stepping",
+            ]),
+            "--interpreter".into(),
+        ),
+        (
+            train(&["--domain", "sorting", "--interpreter", "stepping"]),
+            "--interpreter".into(),
+        ),
         // A validation length that test episodes have (N = 5).
         (
             train(&[

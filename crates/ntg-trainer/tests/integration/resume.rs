@@ -33,6 +33,8 @@ fn config() -> BlocksRunConfig {
         ntp_core: Default::default(),
         tasks: None,
         structure_benchmark: false,
+        interpreter: None,
+        location_step_prior: None,
         optim: OptimConfig {
             epochs: 3,
             batch_size: 3,
