@@ -484,6 +484,11 @@ pub struct NtpExpPoint {
     /// `video.camera`), shown in the row's input cell; `None` on state.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<u32>,
+    /// Video runs whose stage A trained on another number of demo videos
+    /// than the recipe's (`video.encoder.demos`): that number, a curve of
+    /// its own (results written before it: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stage_a_videos: Option<usize>,
     /// NTP's core network (the run's `ntp_core`): a curve of its own
     /// beside the reactive default's. Reactive for NTG.
     #[serde(default, skip_serializing_if = "NtpCoreKind::is_reactive")]
@@ -996,6 +1001,11 @@ fn run_point(
         permute_objects: config.permute_objects,
         additions: blocks::additions(&config),
         camera: (obs == ObsKind::Vid).then(|| config.camera().size),
+        stage_a_videos: config
+            .video
+            .as_ref()
+            .map(|v| v.encoder.demos)
+            .filter(|&n| n != blocks::BlocksVideo::new(false).encoder.demos),
         ntp_core: config.ntp_core,
         executed_node: method.is_ntg() && config.video.as_ref().is_some_and(|v| v.executed_node),
         success: result.success,
@@ -1449,7 +1459,7 @@ pub(crate) fn figure_panels(points: &[NtpExpPoint]) -> (Vec<Panel>, Vec<Panel>) 
                     })
                     .collect();
                 Series {
-                    name: curve.method_name(),
+                    name: curve.panel_name(),
                     points,
                     look: Some(look),
                 }
@@ -1605,6 +1615,7 @@ impl NtpExpPoint {
             ablation: self.ablation,
             obs: self.obs,
             camera: self.other_camera(),
+            stage_a_videos: self.stage_a_videos,
             ntp_core: self.ntp_core,
             executed_node: self.executed_node,
         }
@@ -1631,6 +1642,8 @@ pub struct CurveId {
     pub obs: ObsKind,
     /// The frame side where not the standard camera's.
     pub camera: Option<u32>,
+    /// Stage A's demo videos where not the recipe's number.
+    pub stage_a_videos: Option<usize>,
     /// NTP's core network (reactive for NTG).
     pub ntp_core: NtpCoreKind,
     /// NTG on video: the node from the executed actions, not the localizer.
@@ -1646,7 +1659,20 @@ impl CurveId {
         if let Some(side) = self.camera {
             name = format!("{name}, {side}×{side} frames");
         }
+        if let Some(videos) = self.stage_a_videos {
+            name = format!("{name}, stage A on {videos} videos");
+        }
         name
+    }
+
+    /// The curve's name in its panel, which names the input: the method
+    /// and what it was trained with ([`Self::method_name`]), and stage A's
+    /// number of videos where not the recipe's.
+    pub fn panel_name(&self) -> String {
+        match self.stage_a_videos {
+            Some(videos) => format!("{}, stage A on {videos} videos", self.method_name()),
+            None => self.method_name(),
+        }
     }
 
     /// The method and what it was trained with, without the input: the
@@ -1662,12 +1688,17 @@ impl CurveId {
     }
 
     /// The curve's input in words: `State`, `Vid`, or `Vid, 128×128` for
-    /// frames of another camera.
+    /// frames of another camera (`, stage A on 5000 videos` where stage A
+    /// read another number of videos than the recipe's).
     pub fn input(&self) -> String {
-        match self.camera {
+        let mut input = match self.camera {
             Some(side) => format!("{:?}, {side}×{side}", self.obs),
             None => format!("{:?}", self.obs),
+        };
+        if let Some(videos) = self.stage_a_videos {
+            input.push_str(&format!(", stage A on {videos} videos"));
         }
+        input
     }
 }
 
@@ -2208,14 +2239,17 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
     // The inputs: state, and video with each camera its points used (each
     // a protocol of its own: the paper's relations are checked within
     // one); and each baseline's core networks there.
-    let mut inputs: Vec<(ObsKind, Option<u32>)> = vec![(ObsKind::State, None)];
+    // A stage A on another number of videos is a protocol of its own too.
+    type Input = (ObsKind, Option<u32>, Option<usize>);
+    let mut inputs: Vec<Input> = vec![(ObsKind::State, None, None)];
     for p in points.iter().filter(|p| p.obs == ObsKind::Vid) {
-        if !inputs.contains(&(p.obs, p.other_camera())) {
-            inputs.push((p.obs, p.other_camera()));
+        let input = (p.obs, p.other_camera(), p.stage_a_videos);
+        if !inputs.contains(&input) {
+            inputs.push(input);
         }
     }
-    inputs[1..].sort_by_key(|&(_, camera)| camera);
-    let cores_of = |method: MethodId, (obs, camera): (ObsKind, Option<u32>)| -> Vec<Side> {
+    inputs[1..].sort_by_key(|&(_, camera, videos)| (camera, videos));
+    let cores_of = |method: MethodId, (obs, camera, stage_a_videos): Input| -> Vec<Side> {
         [NtpCoreKind::Reactive, NtpCoreKind::Gru]
             .into_iter()
             .map(|core| Side {
@@ -2224,21 +2258,23 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
                 executed_node: false,
                 obs,
                 camera,
+                stage_a_videos,
             })
             .filter(|side| points.iter().any(|p| Side::of(p) == *side))
             .collect()
     };
-    let side = |method: MethodId, (obs, camera): (ObsKind, Option<u32>)| Side {
+    let side = |method: MethodId, (obs, camera, stage_a_videos): Input| Side {
         method,
         core: NtpCoreKind::Reactive,
         executed_node: false,
         obs,
         camera,
+        stage_a_videos,
     };
-    let state = (ObsKind::State, None);
+    let state = (ObsKind::State, None, None);
     let baselines = [MethodId::Ntp, MethodId::NtpFlat, MethodId::NtpDetector];
     let mut lines = Vec::new();
-    for &input in inputs.iter().filter(|(obs, _)| *obs == ObsKind::Vid) {
+    for &input in inputs.iter().filter(|(obs, ..)| *obs == ObsKind::Vid) {
         for ntp_vid in cores_of(MethodId::Ntp, input) {
             let ntp_state = side(MethodId::Ntp, state);
             lines.extend(judge(
@@ -2248,7 +2284,7 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
             ));
         }
     }
-    for &input in inputs.iter().filter(|(obs, _)| *obs == ObsKind::Vid) {
+    for &input in inputs.iter().filter(|(obs, ..)| *obs == ObsKind::Vid) {
         let (ntg_vid, ntp_state) = (side(MethodId::Ntg, input), side(MethodId::Ntp, state));
         lines.extend(judge(
             &format!(
@@ -2332,6 +2368,8 @@ struct Side {
     obs: ObsKind,
     /// The frame side where not the standard camera's.
     camera: Option<u32>,
+    /// Stage A's demo videos where not the recipe's number.
+    stage_a_videos: Option<usize>,
 }
 
 impl Side {
@@ -2342,6 +2380,7 @@ impl Side {
             executed_node: p.executed_node,
             obs: p.obs,
             camera: p.other_camera(),
+            stage_a_videos: p.stage_a_videos,
         }
     }
 
@@ -2355,12 +2394,16 @@ impl Side {
         )
     }
 
-    /// The input: `Vid` or `Vid, 128×128`.
+    /// The input: `Vid` or `Vid, 128×128` (`, stage A on 5000 videos`).
     fn input(&self) -> String {
-        match self.camera {
+        let mut input = match self.camera {
             Some(side) => format!("{:?}, {side}×{side}", self.obs),
             None => format!("{:?}", self.obs),
+        };
+        if let Some(videos) = self.stage_a_videos {
+            input.push_str(&format!(", stage A on {videos} videos"));
         }
+        input
     }
 
     /// `NTP (Vid)`, `NTP, GRU core (Vid, 128×128)`.
@@ -2872,6 +2915,7 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             camera: None,
+            stage_a_videos: None,
             ntp_core: NtpCoreKind::Reactive,
             executed_node: false,
             success: SuccessRate::new(1, 10),
@@ -2915,6 +2959,7 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             camera: None,
+            stage_a_videos: None,
             ntp_core: NtpCoreKind::Reactive,
             executed_node: false,
             success: rate(6, 10),
@@ -2964,6 +3009,7 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             camera: None,
+            stage_a_videos: None,
             ntp_core: NtpCoreKind::Reactive,
             executed_node: false,
             success: SuccessRate::from_outcomes((0..200).map(|i| i < successes)),
@@ -3032,6 +3078,7 @@ mod tests {
             permute_objects: true,
             additions: Vec::new(),
             camera: None,
+            stage_a_videos: None,
             ..point(method, state, 1000, 0, successes)
         };
         let mut both = points.clone();
@@ -3056,15 +3103,18 @@ mod tests {
         protocols.extend([
             NtpExpPoint {
                 camera: Some(128),
+                stage_a_videos: None,
                 ..point(MethodId::Ntp, vid, 100, 0, 60)
             },
             NtpExpPoint {
                 camera: Some(128),
+                stage_a_videos: None,
                 ntp_core: NtpCoreKind::Gru,
                 ..point(MethodId::Ntp, vid, 100, 0, 190)
             },
             NtpExpPoint {
                 camera: Some(128),
+                stage_a_videos: None,
                 ..point(MethodId::Ntg, vid, 100, 0, 150)
             },
         ]);
@@ -3120,6 +3170,7 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             camera: None,
+            stage_a_videos: None,
             ntp_core: NtpCoreKind::Reactive,
             executed_node: false,
             success: SuccessRate::from_outcomes((0..100).map(|i| i < successes)),
@@ -3152,6 +3203,7 @@ mod tests {
         cameras.push(NtpExpPoint {
             obs: ObsKind::Vid,
             camera: Some(128),
+            stage_a_videos: None,
             ..point(1, 90)
         });
         cameras.iter_mut().for_each(|p| {
