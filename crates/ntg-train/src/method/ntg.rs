@@ -895,7 +895,24 @@ pub enum InterpreterKind {
 /// demo video (a drop-off: approach 4 + open 2 + drop 3 frames) plus one.
 pub const VIDEO_MAX_SHIFT: usize = 10;
 
+/// The initial weight of a stepping interpreter's forward location shifts
+/// that new runs start from where their domain chooses none of its own:
+/// the value object collection chose on validation tasks (0.3; see
+/// `ntg_trainer::collect::LOCATION_STEP_PRIOR`).
+pub const DEFAULT_LOCATION_STEP_PRIOR: f32 = 0.3;
+
 impl InterpreterKind {
+    /// [`DEFAULT_LOCATION_STEP_PRIOR`] for the stepping kinds, none for the
+    /// paper's interpreter (it has no location-aware attention).
+    pub fn step_prior(self) -> Option<f32> {
+        match self {
+            InterpreterKind::Luong => None,
+            InterpreterKind::Stepping | InterpreterKind::SteppingVideo => {
+                Some(DEFAULT_LOCATION_STEP_PRIOR)
+            }
+        }
+    }
+
     /// Sets the interpreter options of `config` for this kind, with the
     /// location-aware attention's initial shift +1 weight `step_prior`.
     pub fn apply(self, config: &mut ntg_model::DemoInterpreterConfig, step_prior: Option<f32>) {

@@ -2049,10 +2049,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         location_step_prior: match (flags.location_step_prior, flags.interpreter) {
             (Some(0.0), _) => None,
             (Some(w), _) => Some(w),
-            (None, Some(kind)) => {
-                use crate::collect::InterpreterDefaults as _;
-                kind.default_step_prior()
-            }
+            (None, Some(kind)) => kind.step_prior(),
             (None, None) => None,
         },
         optim: OptimConfig {
