@@ -723,21 +723,9 @@ pub fn structure_test_tasks(
     count: usize,
     seed: u64,
 ) -> Result<Vec<StackTask>, BlocksError> {
-    fn compositions(prefix: &mut Vec<usize>, cubes_left: usize, out: &mut Vec<Vec<usize>>) {
-        if !prefix.is_empty() {
-            out.push(prefix.clone());
-        }
-        for g in 1..cubes_left {
-            prefix.push(g);
-            compositions(prefix, cubes_left - g - 1, out);
-            prefix.pop();
-        }
-    }
     let seen: HashSet<_> = seen.iter().map(StackTask::structure_key).collect();
     let identity: Vec<usize> = (0..NUM_OBJECTS).collect();
-    let mut all = Vec::new();
-    compositions(&mut Vec::new(), NUM_OBJECTS, &mut all);
-    let novel: Vec<Vec<usize>> = all
+    let novel: Vec<Vec<usize>> = crate::structure::all_compositions()
         .into_iter()
         .filter(|c| {
             let task = StackTask {
