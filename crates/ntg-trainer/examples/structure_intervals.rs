@@ -11,10 +11,9 @@
 //! cargo run --release -p ntg-trainer --example structure_intervals -- FILE [FILE ...]
 //! ```
 
-use std::collections::BTreeMap;
-
 use anyhow::{Context, ensure};
 use env_blocks::structure::StructureSet;
+use ntg_trainer::blocks::{EvalResult, outcomes_by_structure};
 
 fn main() -> anyhow::Result<()> {
     let files: Vec<String> = std::env::args().skip(1).collect();
@@ -27,46 +26,22 @@ fn main() -> anyhow::Result<()> {
     let mut names: Vec<String> = Vec::new();
     for file in &files {
         let text = std::fs::read_to_string(file).with_context(|| format!("reading {file}"))?;
-        let eval: serde_json::Value =
+        let eval: EvalResult =
             serde_json::from_str(&text).with_context(|| format!("parsing {file}"))?;
-        let records = eval["tasks"]
-            .as_array()
-            .with_context(|| format!("{file}: no \"tasks\" list"))?;
-        let first = records
+        let first = eval
+            .tasks
             .first()
-            .and_then(|r| r["task"].as_str())
+            .map(|r| r.task.as_str())
             .with_context(|| format!("{file}: no task"))?;
         let set = StructureSet::ALL
             .into_iter()
             .find(|s| first.starts_with(&format!("{}_", s.name())))
             .with_context(|| format!("{file}: {first} is not a structure-benchmark task"))?;
-        let tasks = ntg_trainer::blocks::task_set_tasks(set, records.len())?;
-        let mut by_structure: BTreeMap<Vec<(usize, usize)>, Vec<bool>> = BTreeMap::new();
-        for (record, task) in records.iter().zip(&tasks) {
-            ensure!(
-                record["task"].as_str() == Some(task.id.as_str()),
-                "{file}: task {} where the benchmark has {}",
-                record["task"],
-                task.id
-            );
-            by_structure
-                .entry(task.structure_key())
-                .or_default()
-                .push(record["success"].as_bool().unwrap_or(false));
-        }
+        let grouped = outcomes_by_structure(set, &eval.tasks).with_context(|| file.clone())?;
         if names.is_empty() {
-            for key in by_structure.keys() {
-                let task = tasks.iter().find(|t| &t.structure_key() == key).unwrap();
-                names.push(
-                    task.towers()
-                        .iter()
-                        .map(|t| t.len().to_string())
-                        .collect::<Vec<_>>()
-                        .join("+"),
-                );
-            }
+            names = grouped.iter().map(|(towers, _)| towers.clone()).collect();
         }
-        outcomes.push(by_structure.into_values().collect());
+        outcomes.push(grouped.into_iter().map(|(_, o)| o).collect());
     }
     let rate =
         ntg_train::stats::clustered_bootstrap(&outcomes, 10_000, 0).map_err(anyhow::Error::msg)?;

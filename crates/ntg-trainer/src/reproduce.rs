@@ -14,7 +14,7 @@ use crate::experiment::ntp_exp::{self, NtpExpPoint};
 use crate::experiment::template::REPORT;
 use crate::experiment::thor_all::{self, ThorAllResult};
 use crate::experiment::{Plan, Source};
-use crate::experiment::{ablation, qualitative};
+use crate::experiment::{ablation, qualitative, structure};
 use crate::run_dir::RunDir;
 
 pub use crate::spec::Profile;
@@ -46,6 +46,10 @@ pub struct Results {
     /// none).
     #[serde(default)]
     pub structure: Vec<crate::experiment::structure::StructurePoint>,
+    /// The structure benchmark: runs on its task set, scored on new
+    /// structures and taller towers (results written before it: none).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub structure_benchmark: Vec<crate::experiment::structure::BenchPoint>,
     /// A reduced profile: the model zoo's paper-scale models evaluated
     /// on its test tasks beside their records (the paper profile, results
     /// written before it, or no zoo: none).
@@ -90,6 +94,8 @@ pub fn reproduce(
     ntp_exp_file.run_configs(profile)?;
     let ablation_file = ablation::load(experiments)?;
     ablation_file.run_configs(profile)?;
+    let structure_file = structure::load(experiments)?;
+    structure::check_benchmark(&structure_file, profile)?;
     let ablation_b_file = ablation::AblationBExperiment::load(experiments)?;
     for seed in ablation_b_file.seeds(profile) {
         for &variant in &ablation_b_file.ablations {
@@ -128,8 +134,13 @@ pub fn reproduce(
             let thor_all = thor_all::run(&thor_all_file, profile, plan)?;
             anyhow::Ok((ablation_b, thor_all))
         });
-        let front = ntp_exp::run(&ntp_exp_file, profile, plan)
-            .and_then(|points| Ok((points, ntp_exp::run(&ablation_file, profile, plan)?)));
+        let front = ntp_exp::run(&ntp_exp_file, profile, plan).and_then(|points| {
+            Ok((
+                points,
+                ntp_exp::run(&ablation_file, profile, plan)?,
+                ntp_exp::run(&structure_file, profile, plan)?,
+            ))
+        });
         plan.slots.open();
         if front.is_err() {
             plan.slots.fail();
@@ -139,10 +150,11 @@ pub fn reproduce(
             .unwrap_or_else(|_| Err(anyhow::anyhow!("figs. ablation (b) and thor_all panicked")));
         (front, side)
     });
-    let (mut points, ablation_points) = front?;
+    let (mut points, ablation_points, benchmark_points) = front?;
     let (ablation_b, thor_all) = side?;
     ntp_exp::check_baselines(&mut points, plan, ntp_exp::SEEN_CHECK_TRAIN_TASKS)?;
-    let structure = crate::experiment::structure::run(&points, plan)?;
+    let structure = structure::run(&points, plan)?;
+    let structure_benchmark = structure::run_benchmark(&benchmark_points, plan)?;
     let trace_sorting = match ablation_b.iter().find(|p| p.ablation.is_full()) {
         Some(p) if crate::record::is_restored(&p.run) => {
             let kept = before.as_ref().and_then(|b| b.trace_sorting.clone());
@@ -210,12 +222,17 @@ pub fn reproduce(
         ablation_b,
         trace_sorting,
         structure,
+        structure_benchmark,
         trace_blocks,
         jigsaws,
         thor_all,
         recipe_notes: vec![
             ("ntp_exp".into(), ntp_exp_file.recipe_note(profile)),
             ("ablation".into(), ablation_file.recipe_note(profile)),
+            (
+                structure::BENCHMARK_FILE.into(),
+                structure_file.recipe_note(profile),
+            ),
         ],
         not_yet,
         runs_missing,
@@ -260,6 +277,7 @@ fn write_figures(results: &Results, out: &Path) -> anyhow::Result<()> {
         &results.ablation_b,
         &out.join("ablation"),
     )?;
+    structure::write_benchmark_figure(&results.structure_benchmark, &out.join("structure"))?;
     thor_all::write_figure(&results.thor_all, &out.join("thor_all"))
 }
 
@@ -325,6 +343,7 @@ fn training_compute(results: &Results) -> TrainingCompute {
         .ntp_exp
         .iter()
         .chain(&results.ablation)
+        .chain(results.structure_benchmark.iter().map(|b| &b.point))
         .map(|p| (p.train_seconds, &p.run))
         .chain(results.ablation_b.iter().map(|p| (p.train_seconds, &p.run)))
         .chain(
@@ -548,9 +567,8 @@ fn report_of(
         results.trace_sorting.as_ref(),
         "trace_sorting",
     ));
-    s.push_str(&crate::experiment::structure::report_section(
-        &results.structure,
-    ));
+    s.push_str(&structure::benchmark_section(&results.structure_benchmark));
+    s.push_str(&structure::report_section(&results.structure));
     s.push_str(&crate::experiment::zoo::report_section(&results.zoo));
     let _ = writeln!(s, "{}", crate::jigsaws::report_section(&results.jigsaws));
     s.push_str(&thor_all::report_section(&results.thor_all));
@@ -622,6 +640,26 @@ fn point_outcome(p: &NtpExpPoint) -> Outcome {
     )
 }
 
+/// A structure-benchmark run: its success on the test structures and on
+/// the taller towers.
+fn bench_outcome(b: &structure::BenchPoint) -> Outcome {
+    Outcome::new(
+        &b.point.run,
+        vec![
+            (
+                "new structures: ".into(),
+                b.test.success,
+                Some(b.test.goal_fraction),
+            ),
+            (
+                "taller: ".into(),
+                b.taller.success,
+                Some(b.taller.goal_fraction),
+            ),
+        ],
+    )
+}
+
 fn sorting_outcome(p: &ablation::SortingPoint) -> Outcome {
     Outcome::new(
         &p.run,
@@ -643,6 +681,7 @@ fn thor_all_outcome(line: &thor_all::ThorAllLine) -> Outcome {
 fn outcomes(results: &Results) -> Vec<Outcome> {
     let mut all: Vec<Outcome> = results.ntp_exp.iter().map(point_outcome).collect();
     all.extend(results.ablation.iter().map(point_outcome));
+    all.extend(results.structure_benchmark.iter().map(bench_outcome));
     all.extend(results.ablation_b.iter().map(sorting_outcome));
     all.extend(results.thor_all.lines.iter().map(thor_all_outcome));
     all
@@ -693,11 +732,12 @@ pub struct ListedRun {
 pub fn run_list(profile: Profile, experiments: Source<'_>) -> anyhow::Result<Vec<ListedRun>> {
     let ntp_exp_file = ntp_exp::NtpExpExperiment::load(experiments)?;
     let ablation_file = ablation::load(experiments)?;
+    let structure_file = structure::load(experiments)?;
     let ablation_b_file = ablation::AblationBExperiment::load(experiments)?;
     let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
     let kind = |video: bool| if video { "video" } else { "state" };
     let mut runs: Vec<(String, ntp_exp::ScheduledRun)> = Vec::new();
-    for file in [&ntp_exp_file, &ablation_file] {
+    for file in [&ntp_exp_file, &ablation_file, &structure_file] {
         runs.extend(
             ntp_exp::schedule(file, profile)
                 .into_iter()
@@ -730,6 +770,7 @@ pub fn run_list(profile: Profile, experiments: Source<'_>) -> anyhow::Result<Vec
     let mut configs: Vec<(String, crate::blocks::BlocksRunConfig)> =
         ntp_exp_file.named_run_configs(profile)?;
     configs.extend(ablation_file.named_run_configs(profile)?);
+    configs.extend(structure_file.named_run_configs(profile)?);
     for (k, (name, config)) in configs.iter().enumerate() {
         if let Some((twin, _)) = configs[..k].iter().find(|(_, c)| c == config)
             && let Some((_, run)) = runs.iter_mut().find(|(_, r)| &r.name == name)
@@ -816,6 +857,8 @@ pub fn reproduce_only(
     let only = plan.only.unwrap_or_default();
     let ntp_exp_file = ntp_exp::NtpExpExperiment::load(experiments)?;
     let ablation_file = ablation::load(experiments)?;
+    let structure_file = structure::load(experiments)?;
+    structure::check_benchmark(&structure_file, profile)?;
     let ablation_b_file = ablation::AblationBExperiment::load(experiments)?;
     let thor_all_file = thor_all::ThorAllExperiment::load(experiments)?;
     let known: Vec<String> = run_list(profile, experiments)?
@@ -852,6 +895,14 @@ pub fn reproduce_only(
         ntp_exp::run(&ablation_file, profile, plan)?
             .iter()
             .map(point_outcome),
+    );
+    // The benchmark's runs with their taller towers' evaluation, so that
+    // their records hold both test sets.
+    let benchmark_points = ntp_exp::run(&structure_file, profile, plan)?;
+    measured.extend(
+        structure::run_benchmark(&benchmark_points, plan)?
+            .iter()
+            .map(bench_outcome),
     );
     measured.extend(
         ablation::run_b(&ablation_b_file, profile, plan)?
@@ -971,6 +1022,7 @@ mod tests {
             .unwrap()
             .run_names(profile);
         expected.extend(ablation::load(Source::BuiltIn).unwrap().run_names(profile));
+        expected.extend(structure::load(Source::BuiltIn).unwrap().run_names(profile));
         let b = ablation::AblationBExperiment::load(Source::BuiltIn).unwrap();
         for seed in b.seeds(profile) {
             expected.extend(b.ablations.iter().map(|&v| b.run_name(v, seed)));
@@ -1164,6 +1216,7 @@ mod tests {
         }
         weights_needed("trace_blocks", Path::new("runs/r"));
         seeds_line();
+        structure::benchmark_section(&structure::example_bench_points(&paper.ntp_exp[0]));
         let rate = crate::stats::SuccessRate::new(3, 4);
         crate::experiment::zoo::report_section(&[crate::experiment::zoo::ZooPoint {
             name: "r".into(),
@@ -1255,10 +1308,26 @@ mod tests {
             "ntp_exp.png",
             "ablation.png",
             "thor_all.png",
+            "structure.png",
         ] {
             assert!(out.join(file).is_file(), "{file}");
         }
         assert_eq!(results.ablation.len(), 5);
+        // The structure benchmark: its smoke run, scored on both test sets
+        // (8 tasks each, spread over their structures).
+        assert_eq!(results.structure_benchmark.len(), 1);
+        let bench = &results.structure_benchmark[0];
+        assert_eq!(bench.test.success.trials, 8);
+        assert_eq!(bench.taller.success.trials, 8);
+        assert_eq!(
+            bench
+                .taller
+                .structures
+                .iter()
+                .map(|s| s.outcomes.len())
+                .sum::<usize>(),
+            8
+        );
         assert_eq!(results.ablation_b.len(), 3);
         // The structure split: each curve's largest point (smoke: NTG, NTP
         // and NTP Flat on states at 10 tasks, four methods on video).
@@ -1266,6 +1335,7 @@ mod tests {
         assert!(results.structure.iter().all(|p| p.train_tasks == 10));
         let report = std::fs::read_to_string(out.join("REPORT.md")).unwrap();
         assert!(report.contains("split by structure"));
+        assert!(report.contains("the structure benchmark"));
         // NTP (Detector)'s points carry their detector's held-out score,
         // and only they.
         for p in &results.ntp_exp {

@@ -271,6 +271,44 @@ pub fn task_set_tasks(
     }
 }
 
+/// The outcomes of an evaluation on the structure benchmark's `set`,
+/// grouped by structure: `(towers, successes)` per structure in
+/// structure-key order, `towers` its tower heights (`"2+3"`), `successes`
+/// its tasks' outcomes in the evaluation's order. `records` must be the
+/// first `records.len()` tasks of the set, as a run on the benchmark
+/// scores them ([`task_set_tasks`]); an error names the first that is not.
+pub fn outcomes_by_structure(
+    set: env_blocks::structure::StructureSet,
+    records: &[EpisodeRecord],
+) -> anyhow::Result<Vec<(String, Vec<bool>)>> {
+    use std::collections::BTreeMap;
+    let tasks = task_set_tasks(set, records.len())?;
+    /// A structure's tower heights and its tasks' outcomes.
+    type Outcomes = (String, Vec<bool>);
+    let mut by_key: BTreeMap<Vec<(usize, usize)>, Outcomes> = BTreeMap::new();
+    for (record, task) in records.iter().zip(&tasks) {
+        anyhow::ensure!(
+            record.task == task.id,
+            "task {} where the structure benchmark's {} set has {}",
+            record.task,
+            set.name(),
+            task.id
+        );
+        let towers = task
+            .towers()
+            .iter()
+            .map(|t| t.len().to_string())
+            .collect::<Vec<_>>()
+            .join("+");
+        by_key
+            .entry(task.structure_key())
+            .or_insert_with(|| (towers, Vec::new()))
+            .1
+            .push(record.success);
+    }
+    Ok(by_key.into_values().collect())
+}
+
 /// The task split of `source`: the standard stand-in split, or a file's
 /// tasks split by the same rule (its first [`env_blocks::TRAIN_POOL`]
 /// tasks are the training pool, `n` training tasks its first `n`, the rest

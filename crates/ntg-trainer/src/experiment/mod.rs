@@ -36,9 +36,13 @@ pub mod thor_all;
 pub mod zoo;
 
 /// The experiment files compiled in: `(name, contents)`.
-pub const BUILT_IN: [(&str, &str); 5] = [
+pub const BUILT_IN: [(&str, &str); 6] = [
     ("ntp_exp", include_str!("../../experiments/ntp_exp.toml")),
     ("ablation", include_str!("../../experiments/ablation.toml")),
+    (
+        "structure",
+        include_str!("../../experiments/structure.toml"),
+    ),
     (
         "ablation_b",
         include_str!("../../experiments/ablation_b.toml"),
