@@ -88,11 +88,12 @@ fn cpu_ticks_of_stat(stat: &str) -> Option<u64> {
     Some(ticks(11)? + ticks(12)?)
 }
 
-/// Measures an epoch's CPU time when it is its run's alone.
-struct EpochCpuClock(Option<(u64, usize)>);
+/// Measures an epoch's (or another stretch of a run's) CPU time when it
+/// is its process's only job.
+pub(crate) struct EpochCpuClock(Option<(u64, usize)>);
 
 impl EpochCpuClock {
-    fn start() -> Self {
+    pub(crate) fn start() -> Self {
         let alone = JOBS_RUNNING.load(Ordering::SeqCst) <= 1;
         EpochCpuClock(
             alone
@@ -103,7 +104,7 @@ impl EpochCpuClock {
 
     /// The process's CPU seconds since `start`, or `None` if another job
     /// of this process ran meanwhile (or the time cannot be read).
-    fn seconds(&self) -> Option<f64> {
+    pub(crate) fn seconds(&self) -> Option<f64> {
         let (ticks, started) = self.0?;
         let alone = JOBS_RUNNING.load(Ordering::SeqCst) <= 1
             && JOBS_STARTED.load(Ordering::SeqCst) == started;

@@ -435,6 +435,36 @@ impl RunDir {
         Ok(total)
     }
 
+    /// Per stage of the run: `(stage, epochs, seconds)` of the epochs in
+    /// its `metrics.jsonl` (as [`Self::epoch_compute_seconds`] counts
+    /// them), the run's own first (stage `""`), then each stage folder's
+    /// by name (`stage_a`, `detector_stage`).
+    pub fn stage_compute_seconds(&self) -> anyhow::Result<Vec<(String, usize, f64)>> {
+        #[derive(serde::Deserialize)]
+        struct Line {
+            seconds: f64,
+            cpu_seconds: Option<f64>,
+        }
+        let mut files = self.metrics_files()?;
+        files[1..].sort();
+        let mut stages = Vec::new();
+        for file in files {
+            if !file.is_file() {
+                continue;
+            }
+            let lines = read_jsonl::<Line>(&file)?;
+            let stage = match file.parent() {
+                Some(dir) if dir != self.root => dir
+                    .file_name()
+                    .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+                _ => String::new(),
+            };
+            let seconds = lines.iter().map(|l| l.cpu_seconds.unwrap_or(l.seconds)).sum();
+            stages.push((stage, lines.len(), seconds));
+        }
+        Ok(stages)
+    }
+
     /// The run's `metrics.jsonl` and those of its stages (subfolders).
     fn metrics_files(&self) -> anyhow::Result<Vec<PathBuf>> {
         let mut files = vec![self.metrics_path()];

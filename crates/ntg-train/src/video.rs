@@ -828,6 +828,27 @@ struct StageAConfig {
     seed: u64,
 }
 
+/// The file in a run folder where stage B's encoding notes each part of
+/// its embedding cache as it is built ([`EncodedPart`], one line each; a
+/// part a kill interrupted is encoded and noted again).
+pub const ENCODING_TIMES: &str = "encoding.jsonl";
+
+/// One part of stage B's embedding cache, as built: its videos and frames,
+/// and the wall and CPU seconds encoding them took (CPU: where its
+/// process ran nothing else meanwhile).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EncodedPart {
+    /// Videos encoded.
+    pub videos: usize,
+    /// Frames encoded.
+    pub frames: usize,
+    /// Wall seconds.
+    pub seconds: f64,
+    /// CPU seconds of the process, where it ran nothing else.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cpu_seconds: Option<f64>,
+}
+
 /// Videos encoded per saved part of stage B's embedding cache: a killed
 /// encoding resumes after its last whole part (about 2 minutes each for
 /// block stacking's videos on one core; 25 parts, 84 minutes in all, for
@@ -844,18 +865,33 @@ pub fn embeddings(
     frames: &FrameStageNet,
 ) -> anyhow::Result<DemoDataset> {
     let started = std::time::Instant::now();
+    let times = run.root().join(ENCODING_TIMES);
     let embeddings = DemoDataset::load_or_build_in_parts(
         &run.root().join(EMBEDDINGS_DIR),
         &video.pairs,
         EMBEDDING_PART_VIDEOS,
         |pairs, part| {
-            encode_videos(
+            let (clock, part_started) = (
+                crate::fit::EpochCpuClock::start(),
+                std::time::Instant::now(),
+            );
+            let encoded = encode_videos(
                 video.vocabulary,
                 pairs,
                 video.record,
                 frames,
                 &format!("encoding{part}"),
-            )
+            )?;
+            RunDir::append_jsonl(
+                &times,
+                &EncodedPart {
+                    videos: pairs.len(),
+                    frames: encoded.num_rows(),
+                    seconds: part_started.elapsed().as_secs_f64(),
+                    cpu_seconds: clock.seconds(),
+                },
+            )?;
+            Ok(encoded)
         },
     )?;
     eprintln!(

@@ -1217,6 +1217,25 @@ mod tests {
         weights_needed("trace_blocks", Path::new("runs/r"));
         seeds_line();
         structure::benchmark_section(&structure::example_bench_points(&paper.ntp_exp[0]));
+        // A video run's stage times, with and without its encoding noted.
+        let mut timed = paper.ntp_exp[0].clone();
+        for encoding in [
+            None,
+            Some(ntp_exp::EncodingTime {
+                videos: 10,
+                seconds: 1.0,
+            }),
+        ] {
+            timed.stage_times = Some(ntp_exp::StageTimes {
+                stages: vec![ntp_exp::StageTime {
+                    stage: "stage B".into(),
+                    epochs: 2,
+                    seconds: 3.0,
+                }],
+                encoding,
+            });
+            ntp_exp::report_section(std::slice::from_ref(&timed), "");
+        }
         let rate = crate::stats::SuccessRate::new(3, 4);
         crate::experiment::zoo::report_section(&[crate::experiment::zoo::ZooPoint {
             name: "r".into(),

@@ -738,6 +738,7 @@ mod tests {
             goal_fraction: 0.5,
             untrained: None,
             train_seconds: 1.0,
+            stage_times: None,
             transcription: None,
             seen: None,
             detector: None,

@@ -514,6 +514,10 @@ pub struct NtpExpPoint {
     /// recorded, else wall time; from the run's metrics, so a reused run
     /// reports its original cost).
     pub train_seconds: f64,
+    /// Video runs: the compute of each stage, and of encoding the training
+    /// videos where the run noted it (results written before it: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stage_times: Option<StageTimes>,
     /// NTG: the test demos its interpreter transcribed exactly, and success
     /// on those and on the others (absent where the evaluation did not
     /// keep it: runs restored from records written before it).
@@ -540,6 +544,106 @@ pub struct NtpExpPoint {
     pub curve: Option<TrainingCurve>,
     /// Run folder.
     pub run: PathBuf,
+}
+
+/// Where a video run's training compute went: each stage's epochs (core
+/// seconds: CPU time where recorded, else wall time, as the training time
+/// column), and stage B's encoding of the training videos through the
+/// frozen frame encoder.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageTimes {
+    /// Each stage with epochs: `stage_a` (the frame encoder),
+    /// `detector_stage`, then the method's own training (`stage B`).
+    pub stages: Vec<StageTime>,
+    /// Encoding the training videos, where the run noted it
+    /// (`encoding.jsonl`; runs before it: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub encoding: Option<EncodingTime>,
+}
+
+/// One stage's epochs and their core seconds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageTime {
+    /// Its folder in the run (`stage_a`, `detector_stage`), or `stage B`.
+    pub stage: String,
+    /// Epochs trained.
+    pub epochs: usize,
+    /// Their core seconds.
+    pub seconds: f64,
+}
+
+/// Stage B's encoding of the training videos.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EncodingTime {
+    /// Videos encoded (a part encoded again after a kill counted again).
+    pub videos: usize,
+    /// Core seconds: CPU time where the part's process ran nothing else,
+    /// else wall time.
+    pub seconds: f64,
+}
+
+impl StageTimes {
+    /// The stage times `run`'s files record.
+    pub fn of(run: &RunDir) -> anyhow::Result<StageTimes> {
+        let mut stages: Vec<StageTime> = run
+            .stage_compute_seconds()?
+            .into_iter()
+            .map(|(stage, epochs, seconds)| StageTime {
+                stage: if stage.is_empty() {
+                    "stage B".to_owned()
+                } else {
+                    stage
+                },
+                epochs,
+                seconds,
+            })
+            .collect();
+        // The method's own training last: the order the stages ran in.
+        stages.sort_by_key(|s| s.stage == "stage B");
+        let times = run.root().join(crate::video::ENCODING_TIMES);
+        let encoding = if times.is_file() {
+            let parts: Vec<crate::video::EncodedPart> = crate::run_dir::read_jsonl(&times)?;
+            Some(EncodingTime {
+                videos: parts.iter().map(|p| p.videos).sum(),
+                seconds: parts
+                    .iter()
+                    .map(|p| p.cpu_seconds.unwrap_or(p.seconds))
+                    .sum(),
+            })
+        } else {
+            None
+        };
+        Ok(StageTimes { stages, encoding })
+    }
+
+    /// `stage_a 3 epochs 2710 s; encoding 100000 videos 5040 s; stage B 30
+    /// epochs 4300 s` (Markdown-free).
+    pub fn text(&self) -> String {
+        let mut parts: Vec<String> = Vec::new();
+        for stage in &self.stages {
+            if stage.stage == "stage B" {
+                parts.push(match &self.encoding {
+                    Some(e) => NTP_EXP.fill(
+                        "stage_time_encoding",
+                        &[
+                            ("videos", &e.videos),
+                            ("seconds", &format!("{:.0}", e.seconds)),
+                        ],
+                    ),
+                    None => NTP_EXP.text("stage_time_no_encoding"),
+                });
+            }
+            parts.push(NTP_EXP.fill(
+                "stage_time",
+                &[
+                    ("stage", &stage.stage),
+                    ("epochs", &stage.epochs),
+                    ("seconds", &format!("{:.0}", stage.seconds)),
+                ],
+            ));
+        }
+        parts.join("; ")
+    }
 }
 
 /// A point's score before training ([`NtpExpPoint::untrained`]).
@@ -1012,6 +1116,9 @@ fn run_point(
         goal_fraction: result.mean_goal_fraction,
         untrained,
         train_seconds,
+        stage_times: (obs == ObsKind::Vid)
+            .then(|| StageTimes::of(&run))
+            .transpose()?,
         transcription: TranscriptionSplit::of(&result.tasks),
         seen: seen_success(&run, method)?,
         detector: detector_held_out(&run)?,
@@ -1882,8 +1989,33 @@ pub fn report_section(points: &[NtpExpPoint], recipe_note: &str) -> String {
         &NTP_EXP.text("compute_title"),
         compute_lines(points),
     );
+    bullet_list(
+        &mut s,
+        &NTP_EXP.text("stage_times_title"),
+        stage_time_lines(points),
+    );
     bullet_list(&mut s, &NTP_EXP.text("seeds_title"), seed_spread(points));
     s
+}
+
+/// One line per video run: where its training compute went, stage by
+/// stage ([`StageTimes`]).
+pub(crate) fn stage_time_lines(points: &[NtpExpPoint]) -> Vec<String> {
+    points
+        .iter()
+        .filter_map(|p| {
+            let times = p.stage_times.as_ref()?;
+            Some(NTP_EXP.fill(
+                "stage_times_line",
+                &[
+                    ("run", &row_name(p)),
+                    ("obs", &p.curve_id().input()),
+                    ("tasks", &p.train_tasks),
+                    ("stages", &times.text()),
+                ],
+            ))
+        })
+        .collect()
 }
 
 /// One line per point also evaluated on its own training tasks
@@ -2922,6 +3054,7 @@ mod tests {
             goal_fraction: 0.5,
             untrained: None,
             train_seconds: 1.0,
+            stage_times: None,
             transcription: None,
             seen: None,
             detector: None,
@@ -2940,6 +3073,52 @@ mod tests {
             lines[0].starts_with(
                 "NTP (Vid, 500 tasks; test 0.100): validation success by epoch 2: 0.05"
             )
+        );
+    }
+
+    #[test]
+    fn stage_times_come_from_the_run_files_in_the_order_the_stages_ran() {
+        let dir = tempfile::tempdir().unwrap();
+        let run = RunDir::open_or_create(dir.path(), &serde_json::json!({})).unwrap();
+        let write = |path: &str, text: &str| {
+            let path = dir.path().join(path);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            std::fs::write(path, text).unwrap();
+        };
+        write(
+            "metrics.jsonl",
+            "{\"epoch\":0,\"seconds\":10.0,\"cpu_seconds\":8.0}\n{\"epoch\":1,\"seconds\":12.0}\n",
+        );
+        write("stage_a/metrics.jsonl", "{\"epoch\":0,\"seconds\":100.0}\n");
+        let times = StageTimes::of(&run).unwrap();
+        let stages: Vec<(&str, usize, f64)> = times
+            .stages
+            .iter()
+            .map(|s| (s.stage.as_str(), s.epochs, s.seconds))
+            .collect();
+        assert_eq!(stages, [("stage_a", 1, 100.0), ("stage B", 2, 20.0)]);
+        assert_eq!(times.encoding, None);
+        assert_eq!(
+            times.text(),
+            "stage_a 1 epochs 100 s; encoding not recorded; stage B 2 epochs 20 s"
+        );
+        // Two parts noted, the second without CPU time: its wall time.
+        write(
+            crate::video::ENCODING_TIMES,
+            "{\"videos\":4096,\"frames\":9,\"seconds\":50.0,\"cpu_seconds\":40.0}\n{\"videos\":10,\"frames\":1,\"seconds\":2.0}\n",
+        );
+        let times = StageTimes::of(&run).unwrap();
+        assert_eq!(
+            times.encoding,
+            Some(EncodingTime {
+                videos: 4106,
+                seconds: 42.0
+            })
+        );
+        assert!(
+            times
+                .text()
+                .contains("; encoding 4106 videos 42 s; stage B")
         );
     }
 
@@ -2966,6 +3145,7 @@ mod tests {
             goal_fraction: 0.5,
             untrained: None,
             train_seconds: 1.0,
+            stage_times: None,
             transcription: Some(TranscriptionSplit {
                 exact: rate(8, 10),
                 success_if_exact: rate(6, 8),
@@ -3016,6 +3196,7 @@ mod tests {
             goal_fraction: 0.5,
             untrained: None,
             train_seconds: 1.0,
+            stage_times: None,
             transcription: None,
             seen: None,
             detector: None,
@@ -3177,6 +3358,7 @@ mod tests {
             goal_fraction: 0.5,
             untrained: None,
             train_seconds: 1.0,
+            stage_times: None,
             transcription: None,
             seen: None,
             detector: None,
