@@ -758,10 +758,27 @@ pub fn run_list(profile: Profile, experiments: Source<'_>) -> anyhow::Result<Vec
             ));
         }
     }
-    for run in thor_all_file.runs(profile) {
+    // Fig. thor_all on video: the first run of each seed (and protocol)
+    // trains the frame encoder and encodes the videos; the others of that
+    // seed link them once finished, so they come after it
+    // (`thor_all::run` starts them in that order too).
+    let thor_all_runs = thor_all_file.runs(profile);
+    for (k, &run) in thor_all_runs.iter().enumerate() {
+        let video = thor_all_file.scale(profile, run.earlier)?.obs == crate::spec::ObsKind::Vid;
+        let first = thor_all_runs[..k]
+            .iter()
+            .find(|r| (r.seed, r.earlier) == (run.seed, run.earlier));
         runs.push((
             "thor_all".into(),
-            alone(thor_all_file.run_name(profile, run)),
+            ntp_exp::ScheduledRun {
+                name: thor_all_file.run_name(profile, run),
+                wave: 0,
+                after: match first {
+                    Some(&first) if video => vec![thor_all_file.run_name(profile, first)],
+                    _ => Vec::new(),
+                },
+                video,
+            },
         ));
     }
     // A run of exactly another's configuration (fig. ablation's whole
