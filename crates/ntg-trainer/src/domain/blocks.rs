@@ -713,6 +713,7 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "detach_gcn_from_edges" => "GCN detached from the edge loss".into(),
         "soft_edges" => "soft edges".into(),
         "validate_every" => format!("validated every {v} epochs"),
+        "validation_tasks" => format!("{v} validation tasks"),
         "tasks" => format!("task set {v}"),
         "structure_benchmark" => "structure benchmark's task set".into(),
         "interpreter" => format!("{v} interpreter"),
