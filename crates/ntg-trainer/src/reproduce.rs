@@ -202,6 +202,9 @@ pub fn reproduce(
     if profile != Profile::Paper {
         not_yet.push(seeds_line());
     }
+    if structure_file.run_names(profile).is_empty() {
+        not_yet.push(structure_not_in_profile_line());
+    }
     // A reduced profile evaluates the paper profile's kept models on its
     // test tasks (as many as its largest point's); without training, it
     // keeps what was measured before.
@@ -307,6 +310,14 @@ fn missing_runs_lines(missing: &[String]) -> Vec<(String, String)> {
 /// The `not_yet` line of a profile other than the paper's: its seeds.
 fn seeds_line() -> (String, String) {
     ("seeds".into(), REPORT.text("not_yet_seeds"))
+}
+
+/// The `not_yet` line of a profile whose structure benchmark has no run.
+fn structure_not_in_profile_line() -> (String, String) {
+    (
+        "the structure benchmark".into(),
+        REPORT.text("not_yet_structure_profile"),
+    )
 }
 
 /// A `not_yet` line: `what` needs the weights of `run`, which was restored
@@ -1233,6 +1244,7 @@ mod tests {
         }
         weights_needed("trace_blocks", Path::new("runs/r"));
         seeds_line();
+        structure_not_in_profile_line();
         structure::benchmark_section(&structure::example_bench_points(&paper.ntp_exp[0]));
         // A video run's stage times, with and without its encoding noted.
         let mut timed = paper.ntp_exp[0].clone();
