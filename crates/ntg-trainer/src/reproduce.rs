@@ -1361,20 +1361,24 @@ mod tests {
             assert!(out.join(file).is_file(), "{file}");
         }
         assert_eq!(results.ablation.len(), 5);
-        // The structure benchmark: its smoke run, scored on both test sets
-        // (8 tasks each, spread over their structures).
-        assert_eq!(results.structure_benchmark.len(), 1);
-        let bench = &results.structure_benchmark[0];
-        assert_eq!(bench.test.success.trials, 8);
-        assert_eq!(bench.taller.success.trials, 8);
-        assert_eq!(
-            bench
+        // The structure benchmark: its smoke runs (states, then video),
+        // each scored on both test sets (8 tasks each, spread over their
+        // structures).
+        assert_eq!(results.structure_benchmark.len(), 2);
+        for bench in &results.structure_benchmark {
+            assert_eq!(bench.test.success.trials, 8);
+            assert_eq!(bench.taller.success.trials, 8);
+            let scored: usize = bench
                 .taller
                 .structures
                 .iter()
                 .map(|s| s.outcomes.len())
-                .sum::<usize>(),
-            8
+                .sum();
+            assert_eq!(scored, 8);
+        }
+        assert_eq!(
+            results.structure_benchmark[1].point.obs,
+            crate::spec::ObsKind::Vid
         );
         assert_eq!(results.ablation_b.len(), 3);
         // The structure split: each curve's largest point (smoke: NTG, NTP
