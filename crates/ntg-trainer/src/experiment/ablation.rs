@@ -732,6 +732,7 @@ mod tests {
             additions: Vec::new(),
             camera: None,
             stage_a_videos: None,
+            tag: None,
             ntp_core: crate::method::ntp::NtpCoreKind::Reactive,
             executed_node: false,
             success: crate::stats::SuccessRate::from_outcomes((0..1000).map(|i| i < successes)),

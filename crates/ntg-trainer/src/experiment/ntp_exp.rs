@@ -489,6 +489,10 @@ pub struct NtpExpPoint {
     /// its own (results written before it: none).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stage_a_videos: Option<usize>,
+    /// The panel's tag (`PanelScale::tag`, in the run folder's name), where
+    /// it has one (results written before it: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tag: Option<String>,
     /// NTP's core network (the run's `ntp_core`): a curve of its own
     /// beside the reactive default's. Reactive for NTG.
     #[serde(default, skip_serializing_if = "NtpCoreKind::is_reactive")]
@@ -1110,6 +1114,7 @@ fn run_point(
             .as_ref()
             .map(|v| v.encoder.demos)
             .filter(|&n| n != blocks::BlocksVideo::new(false).encoder.demos),
+        tag: scale.tag.clone(),
         ntp_core: config.ntp_core,
         executed_node: method.is_ntg() && config.video.as_ref().is_some_and(|v| v.executed_node),
         success: result.success,
@@ -3048,6 +3053,7 @@ mod tests {
             additions: Vec::new(),
             camera: None,
             stage_a_videos: None,
+            tag: None,
             ntp_core: NtpCoreKind::Reactive,
             executed_node: false,
             success: SuccessRate::new(1, 10),
@@ -3139,6 +3145,7 @@ mod tests {
             additions: Vec::new(),
             camera: None,
             stage_a_videos: None,
+            tag: None,
             ntp_core: NtpCoreKind::Reactive,
             executed_node: false,
             success: rate(6, 10),
@@ -3190,6 +3197,7 @@ mod tests {
             additions: Vec::new(),
             camera: None,
             stage_a_videos: None,
+            tag: None,
             ntp_core: NtpCoreKind::Reactive,
             executed_node: false,
             success: SuccessRate::from_outcomes((0..200).map(|i| i < successes)),
@@ -3260,6 +3268,7 @@ mod tests {
             additions: Vec::new(),
             camera: None,
             stage_a_videos: None,
+            tag: None,
             ..point(method, state, 1000, 0, successes)
         };
         let mut both = points.clone();
@@ -3285,17 +3294,20 @@ mod tests {
             NtpExpPoint {
                 camera: Some(128),
                 stage_a_videos: None,
+                tag: None,
                 ..point(MethodId::Ntp, vid, 100, 0, 60)
             },
             NtpExpPoint {
                 camera: Some(128),
                 stage_a_videos: None,
+                tag: None,
                 ntp_core: NtpCoreKind::Gru,
                 ..point(MethodId::Ntp, vid, 100, 0, 190)
             },
             NtpExpPoint {
                 camera: Some(128),
                 stage_a_videos: None,
+                tag: None,
                 ..point(MethodId::Ntg, vid, 100, 0, 150)
             },
         ]);
@@ -3352,6 +3364,7 @@ mod tests {
             additions: Vec::new(),
             camera: None,
             stage_a_videos: None,
+            tag: None,
             ntp_core: NtpCoreKind::Reactive,
             executed_node: false,
             success: SuccessRate::from_outcomes((0..100).map(|i| i < successes)),
@@ -3386,6 +3399,7 @@ mod tests {
             obs: ObsKind::Vid,
             camera: Some(128),
             stage_a_videos: None,
+            tag: None,
             ..point(1, 90)
         });
         cameras.iter_mut().for_each(|p| {

@@ -333,9 +333,15 @@ impl BenchRow<'_> {
     }
 
     /// The row's name: the method and recipe with their core and node
-    /// source ([`CurveId::method_name`](crate::experiment::ntp_exp::CurveId::method_name)).
+    /// source ([`CurveId::method_name`](crate::experiment::ntp_exp::CurveId::method_name)),
+    /// and the panel's tag where it has one (two panels of one recipe
+    /// that differ in an override: the additions say how).
     fn name(&self) -> String {
-        self.first().curve_id().method_name()
+        let name = self.first().curve_id().method_name();
+        match &self.first().tag {
+            Some(tag) => format!("{name} ({tag})"),
+            None => name,
+        }
     }
 
     /// What the run adds to the paper's recipe, the task set (every row's)
@@ -557,6 +563,9 @@ fn short_label(p: &NtpExpPoint) -> String {
     if !p.ntp_core.is_reactive() {
         label.push_str(" GRU");
     }
+    if let Some(tag) = &p.tag {
+        label = format!("{label} ({tag})");
+    }
     label
 }
 
@@ -637,6 +646,12 @@ mod tests {
         write_benchmark_figure(&[], &dir.path().join("none")).unwrap();
         assert!(!dir.path().join("none.svg").exists());
         assert!(benchmark_section(&[]).contains("No run of it trained"));
+        // A panel's tag tells two rows of one recipe apart.
+        let mut tagged = points[2].clone();
+        tagged.point.tag = Some("nodetach".into());
+        tagged.point.run = PathBuf::from("runs/structure-state-nodetach-ntp-1000");
+        let section = benchmark_section(&[points[2].clone(), tagged]);
+        assert!(section.contains("| NTP (nodetach) |"), "{section}");
     }
 
     #[test]
