@@ -1135,6 +1135,7 @@ mod tests {
         for figure in [
             ntp_exp::NtpExpExperiment::load(Source::BuiltIn).unwrap(),
             ablation::load(Source::BuiltIn).unwrap(),
+            structure::load(Source::BuiltIn).unwrap(),
         ] {
             for (name, config) in figure.named_run_configs(paper).unwrap() {
                 runs.insert(name, as_written(&config).unwrap());
