@@ -459,7 +459,10 @@ impl RunDir {
                     .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
                 _ => String::new(),
             };
-            let seconds = lines.iter().map(|l| l.cpu_seconds.unwrap_or(l.seconds)).sum();
+            let seconds = lines
+                .iter()
+                .map(|l| l.cpu_seconds.unwrap_or(l.seconds))
+                .sum();
             stages.push((stage, lines.len(), seconds));
         }
         Ok(stages)
