@@ -475,6 +475,9 @@ pub fn benchmark_section(points: &[BenchPoint]) -> String {
         ));
     }
     let _ = writeln!(s);
+    if rows.iter().any(|r| r.first().tag.is_some()) {
+        let _ = writeln!(s, "{}\n", STRUCTURE.text("bench_choice"));
+    }
     crate::experiment::ntp_exp::bullet_list(&mut s, &STRUCTURE.text("bench_heights"), heights);
     s
 }
