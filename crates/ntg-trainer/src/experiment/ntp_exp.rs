@@ -977,11 +977,7 @@ fn run_point(
         );
         crate::run_dir::link_or_copy_tree(&twin, &dir)?;
     }
-    let eval_file = if method.is_ntg() {
-        format!("full-{}.json", scale.test_tasks)
-    } else {
-        format!("{}-{}.json", method.name(), scale.test_tasks)
-    };
+    let eval_file = test_eval_file(method, scale.test_tasks);
     let Some(dir) = plan.prepare(&name, &config, &eval_file)? else {
         return Ok(None);
     };
@@ -1295,6 +1291,18 @@ fn largest_eval<T: serde::de::DeserializeOwned>(
     Ok(best)
 }
 
+/// The file in a run's `eval/` where a point of `method` keeps its score
+/// on `n` test tasks: `full-N.json` for NTG (the whole model), `METHOD-N.json`
+/// for the others; other splits prefix it with theirs (`taller-full-N.json`).
+pub(crate) fn test_eval_file(method: MethodId, n: usize) -> String {
+    let who = if method.is_ntg() {
+        "full"
+    } else {
+        method.name()
+    };
+    format!("{who}-{n}.json")
+}
+
 /// Scores `p`'s run on `n` tasks of `split` (what `ntg eval --split`
 /// computes), cached in `eval/{split}-{full|METHOD}-{n}.json` and added to
 /// the run's record; `None` for a run restored from its record without
@@ -1306,13 +1314,8 @@ pub(crate) fn evaluate_point(
     plan: &Plan<'_>,
 ) -> anyhow::Result<Option<blocks::EvalResult>> {
     let run = RunDir::open(&p.run)?;
-    let who = if p.method.is_ntg() {
-        "full"
-    } else {
-        p.method.name()
-    };
     let name = split.name();
-    let file = format!("{name}-{who}-{n}.json");
+    let file = format!("{name}-{}", test_eval_file(p.method, n));
     if crate::record::is_restored(&p.run) && !run.eval_dir().join(&file).is_file() {
         eprintln!(
             "{name} split [{}]: not in its record, and it has no weights: left out",

@@ -260,14 +260,9 @@ pub fn run_benchmark(points: &[NtpExpPoint], plan: &Plan<'_>) -> anyhow::Result<
     let mut scored = Vec::new();
     for p in points {
         let n = p.success.trials;
-        let who = if p.method.is_ntg() {
-            "full"
-        } else {
-            p.method.name()
-        };
         let test_file = crate::run_dir::RunDir::open(&p.run)?
             .eval_dir()
-            .join(format!("{who}-{n}.json"));
+            .join(crate::experiment::ntp_exp::test_eval_file(p.method, n));
         let test: crate::blocks::EvalResult = crate::run_dir::RunDir::read_json(&test_file)
             .with_context(|| format!("the test structures' evaluation of {}", p.run.display()))?;
         let Some(taller) =
