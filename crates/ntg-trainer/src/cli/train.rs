@@ -311,14 +311,20 @@ mod tests {
             (c.state_hidden_layers, c.pairwise, c.permute_objects),
             (3, true, true)
         );
-        assert_eq!((c.edge_fusion_hidden, c.detach_gcn_from_edges), (256, true));
+        // The GCN learns from the edge loss on states, not on video.
+        assert_eq!(
+            (c.edge_fusion_hidden, c.detach_gcn_from_edges),
+            (256, false)
+        );
         assert!(c.soft_edges && c.exclude_held_out_renamings);
         assert_eq!(c.optim.learning_rate, 3e-3);
         assert!(c.optim.cosine_decay && c.optim.gcn_from_other_demo);
         let c = config_of(&["--edge-fusion-hidden", "0", "--state-hidden-layers", "2"]);
         assert_eq!((c.edge_fusion_hidden, c.state_hidden_layers), (0, 2));
-        // Frames have no per-cube columns to rename.
-        assert!(!config_of(&["--obs", "vid"]).permute_objects);
+        // Frames have no per-cube columns to rename; on video the GCN stays
+        // out of the edge loss.
+        let vid = config_of(&["--obs", "vid"]);
+        assert!(!vid.permute_objects && vid.detach_gcn_from_edges);
     }
 
     #[test]

@@ -730,6 +730,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            recipe_changes: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,

@@ -480,6 +480,11 @@ pub struct NtpExpPoint {
     /// run of the paper's recipe.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub additions: Vec<String>,
+    /// Where the run's recommended recipe differs from the recipe as it is
+    /// now ([`blocks::recipe_changes`]), as its row names it: a run trained
+    /// before the recipe changed. Empty for the paper's recipe.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub recipe_changes: Vec<String>,
     /// Video runs: the side in pixels of the camera's frames (the run's
     /// `video.camera`), shown in the row's input cell; `None` on state.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -1104,6 +1109,7 @@ fn run_point(
         selected_epoch: crate::fit::selected_epoch(&run)?.map(|r| r.epoch),
         permute_objects: config.permute_objects,
         additions: blocks::additions(&config),
+        recipe_changes: blocks::recipe_changes(&config, recipe),
         camera: (obs == ObsKind::Vid).then(|| config.camera().size),
         stage_a_videos: config
             .video
@@ -1554,15 +1560,15 @@ pub(crate) fn figure_panels(points: &[NtpExpPoint]) -> (Vec<Panel>, Vec<Panel>) 
         let of_panel: Vec<CurveId> = curves
             .iter()
             .filter(|c| c.obs == obs && c.camera == camera)
-            .copied()
+            .cloned()
             .collect();
         let dashes = panel_dashes(&of_panel);
         let series = of_panel
             .iter()
             .zip(dashes)
-            .map(|(&curve, dash)| {
+            .map(|(curve, dash)| {
                 let look = method_look(curve.method.legend(), dash);
-                let groups = by_point(points.iter().filter(|p| p.curve_id() == curve));
+                let groups = by_point(points.iter().filter(|p| &p.curve_id() == curve));
                 let points = groups
                     .iter()
                     .map(|g| {
@@ -1733,6 +1739,8 @@ impl NtpExpPoint {
             stage_a_videos: self.stage_a_videos,
             ntp_core: self.ntp_core,
             executed_node: self.executed_node,
+            tag: self.tag.clone(),
+            recipe_changes: self.recipe_changes.clone(),
         }
     }
 }
@@ -1744,8 +1752,9 @@ fn executed_node_suffix(executed_node: bool) -> &'static str {
 
 /// One curve of the figure: the points drawn, and reported, as one line.
 /// The seeds of a point are combined within a curve and never across
-/// curves (a run of another camera or core network is another protocol).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// curves (a run of another camera or core network, or of a panel with
+/// another tag, is another protocol).
+#[derive(Debug, Clone, PartialEq)]
 pub struct CurveId {
     /// The method trained.
     pub method: MethodId,
@@ -1763,6 +1772,12 @@ pub struct CurveId {
     pub ntp_core: NtpCoreKind,
     /// NTG on video: the node from the executed actions, not the localizer.
     pub executed_node: bool,
+    /// The panel's tag (`PanelScale::tag`): two panels of one method and
+    /// recipe are two curves.
+    pub tag: Option<String>,
+    /// Where the run's recommended recipe differs from the recipe as it is
+    /// now (`NtpExpPoint::recipe_changes`), named after the method.
+    pub recipe_changes: Vec<String>,
 }
 
 impl CurveId {
@@ -1794,12 +1809,16 @@ impl CurveId {
     /// method and recipe ([`curve_name`]), its core network where not
     /// reactive and NTG's node source where executed.
     pub fn method_name(&self) -> String {
-        format!(
+        let mut name = format!(
             "{}{}{}",
             curve_name(self.method, self.recipe, self.ablation),
             self.ntp_core.legend_suffix(),
             executed_node_suffix(self.executed_node)
-        )
+        );
+        for change in &self.recipe_changes {
+            name.push_str(&format!(", {change}"));
+        }
+        name
     }
 
     /// The curve's input in words: `State`, `Vid`, or `Vid, 128×128` for
@@ -2294,12 +2313,14 @@ pub(crate) fn transcription_lines(points: &[NtpExpPoint]) -> Vec<String> {
 /// with no point on either side are left out. Where baselines were also
 /// trained with the recommended recipe (issue 17, 4b: cube renaming, the
 /// addition that applies to them), NTG against each of them with that
-/// recipe on both sides follows, judged the same way.
+/// recipe on both sides follows, judged the same way. Runs of the
+/// recommended recipe trained before it changed (`recipe_changes`) are left
+/// out: the relations are between the recipes as they are.
 pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
     let of_recipe = |recipe: Recipe| -> Vec<&NtpExpPoint> {
         points
             .iter()
-            .filter(|p| p.recipe == recipe && p.ablation.is_full())
+            .filter(|p| p.recipe == recipe && p.ablation.is_full() && p.recipe_changes.is_empty())
             .collect()
     };
     let (paper, recommended) = (of_recipe(Recipe::Paper), of_recipe(Recipe::Recommended));
@@ -2696,6 +2717,47 @@ mod tests {
     }
 
     #[test]
+    fn recipe_changes_name_where_a_run_differs_from_the_recipe_as_it_is_now() {
+        // The recipe as it is: nothing to name, on either input.
+        for obs in [ObsKind::State, ObsKind::Vid] {
+            let now = Recipe::Recommended.config(obs, 50, 4, 2, 0);
+            assert_eq!(
+                blocks::recipe_changes(&now, Recipe::Recommended),
+                Vec::<String>::new()
+            );
+        }
+        // A state run trained with the GCN detached (before the recipe's
+        // re-choice on validation structures) says so ...
+        let mut before = Recipe::Recommended.config(ObsKind::State, 50, 4, 2, 0);
+        before.detach_gcn_from_edges = true;
+        assert_eq!(
+            blocks::recipe_changes(&before, Recipe::Recommended),
+            vec!["GCN detached from the edge loss".to_owned()]
+        );
+        // ... a setting turned off is named as such ...
+        before.pairwise = false;
+        assert!(
+            blocks::recipe_changes(&before, Recipe::Recommended)
+                .contains(&"without pairwise cube offsets".to_owned())
+        );
+        // ... NTP has no GCN to detach, and the paper recipe's differences
+        // are additions.
+        let mut ntp = Recipe::Recommended.for_method(
+            Recipe::Recommended.config(ObsKind::State, 50, 4, 2, 0),
+            MethodId::Ntp,
+        );
+        ntp.detach_gcn_from_edges = true;
+        assert_eq!(
+            blocks::recipe_changes(&ntp, Recipe::Recommended),
+            Vec::<String>::new()
+        );
+        assert_eq!(
+            blocks::recipe_changes(&before, Recipe::Paper),
+            Vec::<String>::new()
+        );
+    }
+
+    #[test]
     fn a_panel_tag_keeps_its_runs_apart_and_must_be_a_plain_word() {
         let mut experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
         let mut panel = experiment.profiles.smoke.panels[1].clone();
@@ -3054,6 +3116,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            recipe_changes: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3146,6 +3209,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            recipe_changes: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3198,6 +3262,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            recipe_changes: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3269,6 +3334,7 @@ mod tests {
             recipe: Recipe::Recommended,
             permute_objects: true,
             additions: Vec::new(),
+            recipe_changes: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3365,6 +3431,7 @@ mod tests {
             selected_epoch: None,
             permute_objects: false,
             additions: Vec::new(),
+            recipe_changes: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3413,6 +3480,32 @@ mod tests {
             seed_spread(&cameras),
             vec!["NTG (ours) (Vid, 1000 tasks): success 0.300 on average over seeds 0, 1, 2 (from 0.200 to 0.400)".to_owned()]
         );
+        // A run trained before its recipe changed is a curve of its own,
+        // named by the change, and stays out of the paper's relations; so
+        // is another panel's (its tag) for the seeds.
+        let mut tagged = points.clone();
+        tagged.push(NtpExpPoint {
+            tag: Some("nodetach".into()),
+            ..point(0, 90)
+        });
+        assert_eq!(seed_spread(&tagged), spread);
+        tagged[3].recipe_changes = vec!["GCN detached from the edge loss".into()];
+        assert_eq!(
+            row_name(&tagged[3]),
+            "NTG (ours), GCN detached from the edge loss"
+        );
+        let ntp = NtpExpPoint {
+            method: MethodId::Ntp,
+            ..point(0, 10)
+        };
+        let untagged = [points.clone(), vec![ntp.clone()]].concat();
+        tagged.push(ntp);
+        let relations = trend_checks(&untagged);
+        assert!(
+            relations.iter().any(|l| l.contains("0.300")),
+            "{relations:?}"
+        );
+        assert_eq!(trend_checks(&tagged), relations);
         let report = report_section(&points, "");
         assert!(report.contains("| NTG (ours), seed 1 |"), "{report}");
         assert!(report.contains("**Over seeds.**"), "{report}");
