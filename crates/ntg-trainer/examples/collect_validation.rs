@@ -5,6 +5,11 @@
 //! per N of its training numbers and of its `validation_objects`), never
 //! test episodes, so designs can be compared on them, on N = 6 too.
 //!
+//! With `SHOW_FAILED=K` it also prints the first K failed episodes of each
+//! N: the demo's actions, the interpreter's transcription and the actions
+//! the policy executed, and counts the failures by how they ended (`<end>`
+//! chosen with goals left, or the step limit).
+//!
 //! ```text
 //! cargo run --release -p ntg-trainer --example collect_validation -- RUN
 //! ```
@@ -31,6 +36,37 @@ fn main() -> anyhow::Result<()> {
     groups.sort_unstable();
     groups.dedup();
     println!("N | episodes | success | goals met | transcribed exactly");
+    let show: usize = std::env::var("SHOW_FAILED")
+        .ok()
+        .map(|k| k.parse())
+        .transpose()
+        .context("SHOW_FAILED must be a number of episodes")?
+        .unwrap_or(0);
+    for &n in &groups {
+        let failed: Vec<_> = records.iter().filter(|r| r.group == n && !r.success).collect();
+        if show == 0 || failed.is_empty() {
+            continue;
+        }
+        let ended = failed
+            .iter()
+            .filter(|r| r.trace.last().is_some_and(|a| a == ctg_graph::Vocabulary::END_NAME))
+            .count();
+        println!(
+            "N = {n}: {} failed, {ended} by `<end>` with goals left, {} at the step limit",
+            failed.len(),
+            failed.len() - ended
+        );
+        for r in failed.iter().take(show) {
+            println!(
+                "  goals {}/{}\n    demo    {}\n    read    {}\n    did     {}",
+                r.goals_met,
+                r.goals,
+                r.demo_actions.join(" "),
+                r.transcription.join(" "),
+                r.trace.join(" ")
+            );
+        }
+    }
     for n in groups {
         let of_n: Vec<_> = records.iter().filter(|r| r.group == n).cloned().collect();
         let success = ntg_train::domain::success_rate(&of_n);
