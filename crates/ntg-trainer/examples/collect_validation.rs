@@ -43,13 +43,20 @@ fn main() -> anyhow::Result<()> {
         .context("SHOW_FAILED must be a number of episodes")?
         .unwrap_or(0);
     for &n in &groups {
-        let failed: Vec<_> = records.iter().filter(|r| r.group == n && !r.success).collect();
+        let failed: Vec<_> = records
+            .iter()
+            .filter(|r| r.group == n && !r.success)
+            .collect();
         if show == 0 || failed.is_empty() {
             continue;
         }
         let ended = failed
             .iter()
-            .filter(|r| r.trace.last().is_some_and(|a| a == ctg_graph::Vocabulary::END_NAME))
+            .filter(|r| {
+                r.trace
+                    .last()
+                    .is_some_and(|a| a == ctg_graph::Vocabulary::END_NAME)
+            })
             .count();
         println!(
             "N = {n}: {} failed, {ended} by `<end>` with goals left, {} at the step limit",

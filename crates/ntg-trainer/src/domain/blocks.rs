@@ -738,6 +738,39 @@ pub fn recipe_changes(config: &BlocksRunConfig, recipe: Recipe) -> Vec<String> {
         .collect()
 }
 
+/// Every setting of `config` that says how a run trained, as a figure row
+/// would name it (`(dotted.key, name)`, in key order): what tells two
+/// curves of one method and input apart where their runs differ in a
+/// setting. The scale (tasks, demos, epochs), the seeds, the method and
+/// the thread layout are left out: a curve's points differ in those.
+pub fn named_settings(config: &BlocksRunConfig) -> Vec<(String, String)> {
+    let skipped = [
+        "ablation",
+        "method",
+        "model_seed",
+        "train_tasks",
+        "demos_per_task",
+        "optim.seed",
+        "optim.epochs",
+        "optim.shards",
+        "video.encoder.shards",
+    ];
+    let mut settings = Vec::new();
+    flatten_json(
+        "",
+        &serde_json::to_value(config).unwrap_or_default(),
+        &mut settings,
+    );
+    settings
+        .into_iter()
+        .filter(|(key, _)| !skipped.contains(&key.as_str()))
+        .map(|(key, v)| {
+            let name = addition_name(&key, &v);
+            (key, name)
+        })
+        .collect()
+}
+
 /// The leaves of `value` as `(dotted.key, value)`, in key order.
 fn flatten_json(
     prefix: &str,

@@ -731,6 +731,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             recipe_changes: Vec::new(),
+            settings: Vec::new(),
+            distinction: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,

@@ -485,6 +485,16 @@ pub struct NtpExpPoint {
     /// before the recipe changed. Empty for the paper's recipe.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub recipe_changes: Vec<String>,
+    /// Every setting of the run's configuration, named
+    /// ([`blocks::named_settings`]): what [`name_apart`] compares.
+    #[serde(skip)]
+    pub settings: Vec<(String, String)>,
+    /// The settings that tell this point's curve apart from another curve
+    /// of the same method, recipe and input (another panel that trained
+    /// differently), named after the method ([`name_apart`]); empty where
+    /// no other curve shares the name.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub distinction: Vec<String>,
     /// Video runs: the side in pixels of the camera's frames (the run's
     /// `video.camera`), shown in the row's input cell; `None` on state.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -839,7 +849,62 @@ pub fn run(
     // State input first, then each input in the file's order (a long run
     // may be listed first so that it starts first).
     points.sort_by_key(|(order, point)| (point.obs == ObsKind::Vid, *order));
-    Ok(points.into_iter().map(|(_, point)| point).collect())
+    let mut points: Vec<NtpExpPoint> = points.into_iter().map(|(_, point)| point).collect();
+    name_apart(&mut points);
+    Ok(points)
+}
+
+/// Names apart the curves that would share a name: two panels (two tags)
+/// of one method, recipe, input and perception whose runs trained
+/// differently. Each such curve's points get, as their
+/// [`NtpExpPoint::distinction`], every setting in which its first run
+/// differs from the first run of another of them (in key order); a curve
+/// that differs in no named setting is named by its panel's tag.
+pub fn name_apart(points: &mut [NtpExpPoint]) {
+    let base = |p: &NtpExpPoint| CurveId {
+        tag: None,
+        distinction: Vec::new(),
+        ..p.curve_id()
+    };
+    let mut curves: Vec<(CurveId, Option<String>, usize)> = Vec::new();
+    for (i, p) in points.iter().enumerate() {
+        if !curves
+            .iter()
+            .any(|(b, tag, _)| *b == base(p) && *tag == p.tag)
+        {
+            curves.push((base(p), p.tag.clone(), i));
+        }
+    }
+    for (b, tag, first) in &curves {
+        let others: Vec<usize> = curves
+            .iter()
+            .filter(|(ob, otag, _)| ob == b && otag != tag)
+            .map(|&(_, _, i)| i)
+            .collect();
+        if others.is_empty() {
+            continue;
+        }
+        let own = &points[*first].settings;
+        let mut distinction: Vec<String> = own
+            .iter()
+            .filter(|(key, name)| {
+                others.iter().any(|&o| {
+                    points[o]
+                        .settings
+                        .iter()
+                        .find(|(k, _)| k == key)
+                        .is_none_or(|(_, n)| n != name)
+                })
+            })
+            .map(|(_, name)| name.clone())
+            .collect();
+        if distinction.is_empty() {
+            distinction.extend(tag.iter().map(|t| format!("panel {t}")));
+        }
+        for p in points.iter_mut().filter(|p| base(p) == *b && p.tag == *tag) {
+            p.distinction = distinction.clone();
+        }
+    }
 }
 
 /// One run of a wave: its place in the file's order, panel, method and
@@ -1110,6 +1175,8 @@ fn run_point(
         permute_objects: config.permute_objects,
         additions: blocks::additions(&config),
         recipe_changes: blocks::recipe_changes(&config, recipe),
+        settings: blocks::named_settings(&config),
+        distinction: Vec::new(),
         camera: (obs == ObsKind::Vid).then(|| config.camera().size),
         stage_a_videos: config
             .video
@@ -1741,6 +1808,7 @@ impl NtpExpPoint {
             executed_node: self.executed_node,
             tag: self.tag.clone(),
             recipe_changes: self.recipe_changes.clone(),
+            distinction: self.distinction.clone(),
         }
     }
 }
@@ -1778,6 +1846,9 @@ pub struct CurveId {
     /// Where the run's recommended recipe differs from the recipe as it is
     /// now (`NtpExpPoint::recipe_changes`), named after the method.
     pub recipe_changes: Vec<String>,
+    /// What tells the curve apart from another of the same name
+    /// (`NtpExpPoint::distinction`), named after the method.
+    pub distinction: Vec<String>,
 }
 
 impl CurveId {
@@ -1815,7 +1886,7 @@ impl CurveId {
             self.ntp_core.legend_suffix(),
             executed_node_suffix(self.executed_node)
         );
-        for change in &self.recipe_changes {
+        for change in self.recipe_changes.iter().chain(&self.distinction) {
             name.push_str(&format!(", {change}"));
         }
         name
@@ -3117,6 +3188,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             recipe_changes: Vec::new(),
+            settings: Vec::new(),
+            distinction: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3210,6 +3283,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             recipe_changes: Vec::new(),
+            settings: Vec::new(),
+            distinction: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3263,6 +3338,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             recipe_changes: Vec::new(),
+            settings: Vec::new(),
+            distinction: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3335,6 +3412,8 @@ mod tests {
             permute_objects: true,
             additions: Vec::new(),
             recipe_changes: Vec::new(),
+            settings: Vec::new(),
+            distinction: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3432,6 +3511,8 @@ mod tests {
             permute_objects: false,
             additions: Vec::new(),
             recipe_changes: Vec::new(),
+            settings: Vec::new(),
+            distinction: Vec::new(),
             camera: None,
             stage_a_videos: None,
             tag: None,
@@ -3506,6 +3587,31 @@ mod tests {
             "{relations:?}"
         );
         assert_eq!(trend_checks(&tagged), relations);
+        // Two panels of one method and input that trained differently are
+        // named apart by what differs; a curve alone keeps its name.
+        let mut apart = points.clone();
+        let setting = |lr: &str| {
+            vec![(
+                "optim.learning_rate".to_owned(),
+                format!("learning rate {lr}"),
+            )]
+        };
+        apart.iter_mut().for_each(|p| p.settings = setting("0.003"));
+        apart.push(NtpExpPoint {
+            tag: Some("lr1".into()),
+            settings: setting("0.001"),
+            ..point(0, 90)
+        });
+        name_apart(&mut apart);
+        assert_eq!(row_name(&apart[0]), "NTG (ours), learning rate 0.003");
+        assert_eq!(row_name(&apart[3]), "NTG (ours), learning rate 0.001");
+        let mut alone = points.clone();
+        name_apart(&mut alone);
+        assert_eq!(row_name(&alone[0]), "NTG (ours)");
+        // Two panels that differ in no named setting: the tag names them.
+        apart[3].settings = setting("0.003");
+        name_apart(&mut apart);
+        assert_eq!(row_name(&apart[3]), "NTG (ours), panel lr1");
         let report = report_section(&points, "");
         assert!(report.contains("| NTG (ours), seed 1 |"), "{report}");
         assert!(report.contains("**Over seeds.**"), "{report}");
