@@ -1861,7 +1861,7 @@ impl CurveId {
             name = format!("{name}, {side}×{side} frames");
         }
         if let Some(videos) = self.stage_a_videos {
-            name = format!("{name}, stage A on {videos} videos");
+            name = format!("{name}, stage A on up to {videos} videos");
         }
         name
     }
@@ -1871,7 +1871,7 @@ impl CurveId {
     /// number of videos where not the recipe's.
     pub fn panel_name(&self) -> String {
         match self.stage_a_videos {
-            Some(videos) => format!("{}, stage A on {videos} videos", self.method_name()),
+            Some(videos) => format!("{}, stage A on up to {videos} videos", self.method_name()),
             None => self.method_name(),
         }
     }
@@ -1893,7 +1893,7 @@ impl CurveId {
     }
 
     /// The curve's input in words: `State`, `Vid`, or `Vid, 128×128` for
-    /// frames of another camera (`, stage A on 5000 videos` where stage A
+    /// frames of another camera (`, stage A on up to 5000 videos` where stage A
     /// read another number of videos than the recipe's).
     pub fn input(&self) -> String {
         let mut input = match self.camera {
@@ -1901,7 +1901,7 @@ impl CurveId {
             None => format!("{:?}", self.obs),
         };
         if let Some(videos) = self.stage_a_videos {
-            input.push_str(&format!(", stage A on {videos} videos"));
+            input.push_str(&format!(", stage A on up to {videos} videos"));
         }
         input
     }
@@ -2626,14 +2626,14 @@ impl Side {
         )
     }
 
-    /// The input: `Vid` or `Vid, 128×128` (`, stage A on 5000 videos`).
+    /// The input: `Vid` or `Vid, 128×128` (`, stage A on up to 5000 videos`).
     fn input(&self) -> String {
         let mut input = match self.camera {
             Some(side) => format!("{:?}, {side}×{side}", self.obs),
             None => format!("{:?}", self.obs),
         };
         if let Some(videos) = self.stage_a_videos {
-            input.push_str(&format!(", stage A on {videos} videos"));
+            input.push_str(&format!(", stage A on up to {videos} videos"));
         }
         input
     }
