@@ -181,6 +181,11 @@ fn a_video_run_killed_in_stage_b_resumes_to_the_uninterrupted_run() {
         metrics_without_time(&stage_a(&killed)),
         metrics_without_time(&stage_a(&straight))
     );
+    // A finished stage A keeps its encoder, not its training frames.
+    for run in [&killed, &straight] {
+        assert!(stage_a(run).checkpoint_dir().is_dir());
+        assert!(!stage_a(run).dataset_dir().exists());
+    }
     let (a, b) = (
         weights(killed.checkpoint_dir()),
         weights(straight.checkpoint_dir()),
