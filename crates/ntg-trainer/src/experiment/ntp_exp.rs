@@ -2405,8 +2405,20 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
         seeds.sort_by_key(|p| p.seed);
         (!seeds.is_empty()).then_some(seeds)
     }
+    // A video protocol's name beyond its camera and stage A: what its NTG
+    // curve is named apart by (`name_apart`), e.g. its learning rate.
+    let labels: Vec<(u64, String)> = points
+        .iter()
+        .filter(|p| p.obs == ObsKind::Vid && !p.distinction.is_empty())
+        .map(|p| (protocol_of(p), p.distinction.join(", ")))
+        .collect();
+    let input_of = |side: &Side| match labels.iter().find(|(h, _)| *h == side.protocol) {
+        Some((_, label)) => format!("{}, {label}", side.input()),
+        None => side.input(),
+    };
+    let name_of = |side: &Side| format!("{} ({})", side.legend(), input_of(side));
     let rate = |seeds: &[&NtpExpPoint]| {
-        let name = Side::of(seeds[0]).name();
+        let name = name_of(&Side::of(seeds[0]));
         match seeds {
             [one] => format!("{name} {:.3}", one.success.rate),
             _ => format!("{name} {}", crate::stats::seeds_text(&seed_rates(seeds))),
@@ -2472,45 +2484,54 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
     // a protocol of its own: the paper's relations are checked within
     // one); and each baseline's core networks there.
     // A stage A on another number of videos is a protocol of its own too.
-    type Input = (ObsKind, Option<u32>, Option<usize>);
-    let mut inputs: Vec<Input> = vec![(ObsKind::State, None, None)];
+    // So is each video panel's tag (a protocol: `cam128a20klr1` trains
+    // stage B at another learning rate than `cam128a20k`).
+    type Input = (ObsKind, Option<u32>, Option<usize>, u64);
+    let mut inputs: Vec<Input> = vec![(ObsKind::State, None, None, 0)];
     for p in points.iter().filter(|p| p.obs == ObsKind::Vid) {
-        let input = (p.obs, p.other_camera(), p.stage_a_videos);
+        let input = (p.obs, p.other_camera(), p.stage_a_videos, protocol_of(p));
         if !inputs.contains(&input) {
             inputs.push(input);
         }
     }
-    inputs[1..].sort_by_key(|&(_, camera, videos)| (camera, videos));
-    let cores_of = |method: MethodId, (obs, camera, stage_a_videos): Input| -> Vec<Side> {
-        [NtpCoreKind::Reactive, NtpCoreKind::Gru]
-            .into_iter()
-            .map(|core| Side {
-                method,
-                core,
-                executed_node: false,
-                obs,
-                camera,
-                stage_a_videos,
-            })
-            .filter(|side| points.iter().any(|p| Side::of(p) == *side))
-            .collect()
-    };
-    let side = |method: MethodId, (obs, camera, stage_a_videos): Input| Side {
+    inputs[1..].sort_by_key(|&(_, camera, videos, _)| (camera, videos));
+    let cores_of =
+        |method: MethodId, (obs, camera, stage_a_videos, protocol): Input| -> Vec<Side> {
+            [NtpCoreKind::Reactive, NtpCoreKind::Gru]
+                .into_iter()
+                .map(|core| Side {
+                    method,
+                    core,
+                    executed_node: false,
+                    obs,
+                    camera,
+                    stage_a_videos,
+                    protocol,
+                })
+                .filter(|side| points.iter().any(|p| Side::of(p) == *side))
+                .collect()
+        };
+    let side = |method: MethodId, (obs, camera, stage_a_videos, protocol): Input| Side {
         method,
         core: NtpCoreKind::Reactive,
         executed_node: false,
         obs,
         camera,
         stage_a_videos,
+        protocol,
     };
-    let state = (ObsKind::State, None, None);
+    let state = (ObsKind::State, None, None, 0);
     let baselines = [MethodId::Ntp, MethodId::NtpFlat, MethodId::NtpDetector];
     let mut lines = Vec::new();
     for &input in inputs.iter().filter(|(obs, ..)| *obs == ObsKind::Vid) {
         for ntp_vid in cores_of(MethodId::Ntp, input) {
             let ntp_state = side(MethodId::Ntp, state);
             lines.extend(judge(
-                &format!("{} clearly below {}", ntp_vid.name(), ntp_state.name()),
+                &format!(
+                    "{} clearly below {}",
+                    name_of(&ntp_vid),
+                    name_of(&ntp_state)
+                ),
                 pairs(&paper, ntp_state, ntp_vid, 0),
                 &above,
             ));
@@ -2521,8 +2542,8 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
         lines.extend(judge(
             &format!(
                 "NTG ({}) on par with {} or above",
-                ntg_vid.input(),
-                ntp_state.name()
+                input_of(&ntg_vid),
+                name_of(&ntp_state)
             ),
             pairs(&paper, ntg_vid, ntp_state, 0),
             &on_par_or_above,
@@ -2535,7 +2556,7 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
                 &format!(
                     "NTG above {} from 100 tasks on ({} input)",
                     baseline.legend(),
-                    ntg.input()
+                    input_of(&ntg)
                 ),
                 pairs(&paper, ntg, baseline, 100),
                 &above,
@@ -2551,7 +2572,7 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
                     "{} below {} ({} input)",
                     flat.legend(),
                     ntp.legend(),
-                    ntp.input()
+                    input_of(&ntp)
                 ),
                 pairs(&paper, ntp, flat, 0),
                 &above,
@@ -2578,7 +2599,7 @@ pub fn trend_checks(points: &[NtpExpPoint]) -> Vec<String> {
                     &format!(
                         "Not in the paper: {ntg_name} above {} with the recommended recipe on both sides ({} input)",
                         baseline.legend(),
-                        ntg.input()
+                        input_of(&ntg)
                     ),
                     pairs(&recommended, ntg, baseline, 0),
                     &above,
@@ -2602,6 +2623,20 @@ struct Side {
     camera: Option<u32>,
     /// Stage A's demo videos where not the recipe's number.
     stage_a_videos: Option<usize>,
+    /// The video panel's protocol ([`protocol_of`]).
+    protocol: u64,
+}
+
+/// A video point's protocol, its panel's tag (hashed, to compare): the
+/// paper's relations are checked within one. State points are all one.
+fn protocol_of(p: &NtpExpPoint) -> u64 {
+    use std::hash::{Hash, Hasher};
+    if p.obs != ObsKind::Vid {
+        return 0;
+    }
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    p.tag.hash(&mut hasher);
+    hasher.finish()
 }
 
 impl Side {
@@ -2613,6 +2648,7 @@ impl Side {
             obs: p.obs,
             camera: p.other_camera(),
             stage_a_videos: p.stage_a_videos,
+            protocol: protocol_of(p),
         }
     }
 
@@ -2636,11 +2672,6 @@ impl Side {
             input.push_str(&format!(", stage A on up to {videos} videos"));
         }
         input
-    }
-
-    /// `NTP (Vid)`, `NTP, GRU core (Vid, 128×128)`.
-    fn name(&self) -> String {
-        format!("{} ({})", self.legend(), self.input())
     }
 }
 
@@ -3612,6 +3643,38 @@ mod tests {
         apart[3].settings = setting("0.003");
         name_apart(&mut apart);
         assert_eq!(row_name(&apart[3]), "NTG (ours), panel lr1");
+        // Two video panels (tags) of one camera are two protocols: the
+        // relations pair NTG with the baselines of its own panel, and name
+        // the protocol by what tells its NTG apart.
+        let vid = |method: MethodId, tag: &str, lr: &str, successes: usize| {
+            let mut p = NtpExpPoint {
+                method,
+                obs: ObsKind::Vid,
+                camera: Some(128),
+                tag: Some(tag.into()),
+                settings: setting(lr),
+                ..point(0, successes)
+            };
+            p.run = PathBuf::from(format!("{tag}-{}", method.legend()));
+            p
+        };
+        let mut protocols = vec![
+            vid(MethodId::Ntg, "old", "0.003", 30),
+            vid(MethodId::Ntg, "new", "0.001", 90),
+            vid(MethodId::Ntp, "new", "0.001", 10),
+        ];
+        name_apart(&mut protocols);
+        let relations = trend_checks(&protocols);
+        let line = relations
+            .iter()
+            .find(|l| l.starts_with("NTG above NTP from 100 tasks on"))
+            .unwrap_or_else(|| panic!("{relations:?}"));
+        assert!(
+            line.contains("(Vid, 128×128, learning rate 0.001 input)"),
+            "{line}"
+        );
+        assert!(line.contains("0.900 vs"), "{line}");
+        assert!(!line.contains("mean of"), "{line}");
         let report = report_section(&points, "");
         assert!(report.contains("| NTG (ours), seed 1 |"), "{report}");
         assert!(report.contains("**Over seeds.**"), "{report}");
