@@ -187,12 +187,13 @@ pub struct DemoDataset {
     demos: Vec<DemoEntry>,
 }
 
-/// Bytes a dataset built in `num_parts` parts of about `part_bytes` each
-/// still needs on disk when `missing` parts are not built yet: those
-/// parts, then the whole written beside them by concatenation (the parts
-/// are removed only after it).
-fn space_needed(part_bytes: u64, num_parts: usize, missing: usize) -> u64 {
-    part_bytes * (missing as u64 + num_parts as u64)
+/// Bytes a dataset built in parts of about `part_bytes` each still needs
+/// on disk when `missing` parts are not built yet: those
+/// parts, and one part more while they are concatenated (each part is
+/// removed once it is written into the whole, so the whole never sits
+/// beside all of its parts).
+fn space_needed(part_bytes: u64, missing: usize) -> u64 {
+    part_bytes * (missing as u64 + 1)
 }
 
 /// Refuses to go on building the dataset of `dir` when `needed` bytes are
@@ -567,7 +568,7 @@ impl DemoDataset {
                     .filter(|&j| !part_dir_of(j).join("index.json").is_file())
                     .count();
                 let part_bytes = part.obs.bytes().map_or(0, |b| b.len() as u64);
-                let needed = space_needed(part_bytes, num_parts, missing);
+                let needed = space_needed(part_bytes, missing);
                 let available = fs4::available_space(&parts_dir).with_context(|| {
                     format!("reading the free space of {}", parts_dir.display())
                 })?;
@@ -583,20 +584,26 @@ impl DemoDataset {
                 part_dir.display(),
                 parts_dir.display()
             );
-            parts.push(part);
+            parts.push((part, part_dir));
         }
-        Self::concatenate(&parts, dir)?;
-        drop(parts);
+        Self::concatenate(parts, dir)?;
         fs::remove_dir_all(&parts_dir)
             .with_context(|| format!("removing {}", parts_dir.display()))?;
         Self::load_mapped(dir)
     }
 
-    /// Saves `parts` (of one vocabulary, row size and storage) one after the
-    /// other as one dataset in `dir`, as [`DemoDataset::save`] does, writing
-    /// each part's rows straight to the file.
-    fn concatenate(parts: &[Self], dir: &Path) -> anyhow::Result<()> {
-        let first = parts.first().context("no parts")?;
+    /// Saves `parts` (of one vocabulary, row size and storage, each with
+    /// the folder it is mapped from) one after the other as one dataset in
+    /// `dir`, as [`DemoDataset::save`] does, writing each part's rows
+    /// straight to the file and removing the part's folder once they are
+    /// written: the disk holds the whole and at most one part beside it. A
+    /// build killed meanwhile builds the removed parts again (the same
+    /// frames: each video's draw is its own) and concatenates anew.
+    fn concatenate(parts: Vec<(Self, std::path::PathBuf)>, dir: &Path) -> anyhow::Result<()> {
+        let (vocab, obs_dim) = match parts.first() {
+            Some((first, _)) => (first.vocab.clone(), first.obs_dim),
+            None => bail!("no parts"),
+        };
         fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let mut demos = Vec::new();
         let bin_tmp = dir.join("observations.bin.partial");
@@ -604,9 +611,9 @@ impl DemoDataset {
             fs::File::create(&bin_tmp).with_context(|| format!("writing {}", bin_tmp.display()))?;
         let mut w = BufWriter::new(file);
         let mut offset = 0;
-        for part in parts {
+        for (part, part_dir) in parts {
             ensure!(
-                part.vocab == first.vocab && part.obs_dim == first.obs_dim,
+                part.vocab == vocab && part.obs_dim == obs_dim,
                 "datasets of different vocabularies or row sizes"
             );
             let bytes = part
@@ -615,20 +622,25 @@ impl DemoDataset {
                 .context("only datasets of bytes are concatenated on disk")?;
             w.write_all(bytes)
                 .with_context(|| format!("writing {}", bin_tmp.display()))?;
+            // The part's rows are on their way to the file: flushed before
+            // the part they come from is unmapped and removed.
+            w.flush()
+                .with_context(|| format!("writing {}", bin_tmp.display()))?;
             demos.extend(part.demos.iter().map(|d| DemoEntry {
                 first_row: d.first_row + offset,
                 ..d.clone()
             }));
             offset += part.num_rows();
+            drop(part);
+            fs::remove_dir_all(&part_dir)
+                .with_context(|| format!("removing {}", part_dir.display()))?;
         }
-        w.flush()
-            .with_context(|| format!("writing {}", bin_tmp.display()))?;
         drop(w);
         let index = Index {
             format: FORMAT.into(),
-            obs_dim: first.obs_dim,
+            obs_dim,
             dtype: ObsDtype::U8,
-            vocabulary: first.vocab.clone(),
+            vocabulary: vocab,
             demos,
         };
         let bin_path = dir.join("observations.bin");
@@ -964,9 +976,10 @@ mod tests {
     /// how much it needs and has.
     #[test]
     fn building_in_parts_refuses_when_the_disk_cannot_hold_it() {
-        // 4 parts of 10 bytes, 3 still to build: 30 for them, 40 for the whole.
-        assert_eq!(space_needed(10, 4, 3), 70);
-        assert_eq!(space_needed(10, 4, 0), 40);
+        // 4 parts of 10 bytes, 3 still to build: 30 for them, and 10 more
+        // while they are concatenated (each part removed once written).
+        assert_eq!(space_needed(10, 3), 40);
+        assert_eq!(space_needed(10, 0), 10);
         let err = check_space(
             Path::new("cache"),
             70_000_000_000,
