@@ -96,11 +96,19 @@ pub enum Dash {
     Dotted,
     /// Dashes of 16 pixels.
     LongDashed,
+    /// Dashes of 10 pixels with gaps as long.
+    SparseDashed,
 }
 
 impl Dash {
     /// The dash patterns in the order variants of a method get them.
-    pub const ALL: [Dash; 4] = [Dash::Solid, Dash::Dashed, Dash::Dotted, Dash::LongDashed];
+    pub const ALL: [Dash; 5] = [
+        Dash::Solid,
+        Dash::Dashed,
+        Dash::Dotted,
+        Dash::LongDashed,
+        Dash::SparseDashed,
+    ];
 }
 
 /// How a series is drawn: a method's colour and marker ([`method_look`]),
@@ -392,6 +400,7 @@ fn dash_pattern(dash: Dash) -> Option<(i32, i32)> {
         Dash::Dashed => Some((8, 5)),
         Dash::Dotted => Some((2, 4)),
         Dash::LongDashed => Some((18, 5)),
+        Dash::SparseDashed => Some((10, 10)),
     }
 }
 
