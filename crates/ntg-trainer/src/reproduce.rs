@@ -493,20 +493,13 @@ fn report_of(
 ) -> String {
     let mut s = String::new();
     let where_it_ran = if results.profile == Profile::Paper {
-        let exceptions = match compute.multi_threaded.as_slice() {
-            [] => String::new(),
-            runs => {
-                let runs: Vec<String> = runs
-                    .iter()
-                    .map(|(run, threads)| {
-                        REPORT.fill("threads_exception", &[("run", run), ("threads", threads)])
-                    })
-                    .collect();
-                format!(
-                    " {}",
-                    REPORT.fill("threads_exceptions", &[("runs", &runs.join(", "))])
-                )
-            }
+        // A count here; the runs themselves in a list at the end.
+        let exceptions = match compute.multi_threaded.len() {
+            0 => String::new(),
+            count => format!(
+                " {}",
+                REPORT.fill("threads_exceptions", &[("count", &count)])
+            ),
         };
         REPORT.fill("threads", &[("exceptions", &exceptions)])
     } else {
@@ -592,6 +585,20 @@ fn report_of(
     }
     for (what, why) in &results.not_yet {
         let _ = writeln!(s, "- {what}: {why}");
+    }
+    if results.profile == Profile::Paper && !compute.multi_threaded.is_empty() {
+        let runs: Vec<String> = compute
+            .multi_threaded
+            .iter()
+            .map(|(run, threads)| {
+                REPORT.fill("threads_exception", &[("run", run), ("threads", threads)])
+            })
+            .collect();
+        let _ = writeln!(
+            s,
+            "\n{}",
+            REPORT.fill("threads_list", &[("runs", &runs.join(", "))])
+        );
     }
     s
 }

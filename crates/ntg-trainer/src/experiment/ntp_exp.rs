@@ -1612,21 +1612,43 @@ pub(crate) fn figure_panels(points: &[NtpExpPoint]) -> (Vec<Panel>, Vec<Panel>) 
         }
     }
     // The inputs, state first, then video by frame side (the standard
-    // camera first).
-    let mut inputs: Vec<(ObsKind, Option<u32>)> =
-        curves.iter().map(|c| (c.obs, c.camera)).collect();
-    inputs.sort_by_key(|&(obs, camera)| (obs != ObsKind::State, camera));
+    // camera first) and by stage A's number of videos (the recipe's
+    // first): a panel per protocol of perception, so that its curves
+    // are told apart by method and recipe, not by a long legend.
+    // NTP (Detector) trains no frame encoder: it joins the panel of the
+    // other methods of its tag (the same camera and demos).
+    let panel_videos = |c: &CurveId| {
+        if c.method != MethodId::NtpDetector {
+            return c.stage_a_videos;
+        }
+        curves
+            .iter()
+            .find(|o| {
+                o.method != MethodId::NtpDetector
+                    && (o.obs, o.camera, &o.tag) == (c.obs, c.camera, &c.tag)
+            })
+            .map_or(c.stage_a_videos, |o| o.stage_a_videos)
+    };
+    type Input = (ObsKind, Option<u32>, Option<usize>);
+    let mut inputs: Vec<Input> = curves
+        .iter()
+        .map(|c| (c.obs, c.camera, panel_videos(c)))
+        .collect();
+    inputs.sort_by_key(|&(obs, camera, videos)| (obs != ObsKind::State, camera, videos));
     inputs.dedup();
     let letters = "abcdefghijklmnopqrstuvwxyz";
-    let panel = |(i, &(obs, camera)): (usize, &(ObsKind, Option<u32>)), goals: bool| {
-        let input = match (obs, camera) {
+    let panel = |(i, &(obs, camera, videos)): (usize, &Input), goals: bool| {
+        let mut input = match (obs, camera) {
             (ObsKind::State, _) => "state input".to_owned(),
             (ObsKind::Vid, None) => "video input".to_owned(),
             (ObsKind::Vid, Some(side)) => format!("video input, {side}×{side} frames"),
         };
+        if let Some(videos) = videos {
+            input.push_str(&format!(", stage A on up to {videos} videos"));
+        }
         let of_panel: Vec<CurveId> = curves
             .iter()
-            .filter(|c| c.obs == obs && c.camera == camera)
+            .filter(|c| c.obs == obs && c.camera == camera && panel_videos(c) == videos)
             .cloned()
             .collect();
         let dashes = panel_dashes(&of_panel);
@@ -1647,7 +1669,8 @@ pub(crate) fn figure_panels(points: &[NtpExpPoint]) -> (Vec<Panel>, Vec<Panel>) 
                     })
                     .collect();
                 Series {
-                    name: curve.panel_name(),
+                    // The panel's title names the input and stage A.
+                    name: curve.method_name(),
                     points,
                     look: Some(look),
                 }
@@ -1864,16 +1887,6 @@ impl CurveId {
             name = format!("{name}, stage A on up to {videos} videos");
         }
         name
-    }
-
-    /// The curve's name in its panel, which names the input: the method
-    /// and what it was trained with ([`Self::method_name`]), and stage A's
-    /// number of videos where not the recipe's.
-    pub fn panel_name(&self) -> String {
-        match self.stage_a_videos {
-            Some(videos) => format!("{}, stage A on up to {videos} videos", self.method_name()),
-            None => self.method_name(),
-        }
     }
 
     /// The method and what it was trained with, without the input: the
@@ -3675,6 +3688,29 @@ mod tests {
         );
         assert!(line.contains("0.900 vs"), "{line}");
         assert!(!line.contains("mean of"), "{line}");
+        // A panel per camera and number of stage A videos, named in its
+        // title; its curves are named by method and recipe alone.
+        let mut perception = protocols.clone();
+        perception[0].stage_a_videos = Some(5000);
+        perception[1].stage_a_videos = Some(20000);
+        perception[2].stage_a_videos = Some(20000);
+        perception.push(point(0, 50));
+        // The detector, which has no stage A, joins its tag's panel.
+        perception.push(vid(MethodId::NtpDetector, "old", "0.003", 20));
+        let (panels, goals) = figure_panels(&perception);
+        let titles: Vec<&str> = panels.iter().map(|p| p.title.as_str()).collect();
+        assert_eq!(
+            titles,
+            [
+                "(a) state input",
+                "(b) video input, 128×128 frames, stage A on up to 5000 videos",
+                "(c) video input, 128×128 frames, stage A on up to 20000 videos",
+            ]
+        );
+        assert_eq!(goals.len(), 3);
+        let names: Vec<&str> = panels[2].series.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["NTG (ours), learning rate 0.001", "NTP"]);
+        assert_eq!(panels[1].series.len(), 2, "NTG and the detector of tag old");
         let report = report_section(&points, "");
         assert!(report.contains("| NTG (ours), seed 1 |"), "{report}");
         assert!(report.contains("**Over seeds.**"), "{report}");
@@ -4078,6 +4114,9 @@ mod tests {
         let video = expected.video.as_mut().unwrap();
         video.encoder.demos = 2000; // each task's first two videos
         video.encoder.epochs = 5; // chosen on validation tasks
+        // The paper profile's perception: 128x128 frames, a 16-channel stem.
+        video.camera.size = 128;
+        video.encoder.stem = 16;
         assert_eq!(c, expected);
     }
 }
