@@ -43,6 +43,19 @@ pub struct StateEncoderConfig {
     /// another becomes a single feature instead of a learned comparison.
     #[config(default = 0)]
     pub pairwise_objects: usize,
+    /// Heights read as far as `limit` only: with `Some(limit)`, the
+    /// vertical coordinate (every third value) of the first
+    /// [`StateEncoderConfig::clamped_objects`] positions, and of every
+    /// pairwise difference, is clamped to `[−limit, limit]` before the MLP.
+    /// At a limit no training state exceeds this is the identity on the
+    /// training data; on taller towers than any trained on it shows a cube
+    /// far below as "far below" instead of a value the MLP never saw.
+    /// `None` (and configurations saved before it): off.
+    pub height_clamp: Option<f32>,
+    /// How many object positions (`x, y, z` each, from the start of the
+    /// state) [`StateEncoderConfig::height_clamp`] applies to; `None`:
+    /// [`StateEncoderConfig::pairwise_objects`].
+    pub clamped_objects: Option<usize>,
     /// Embedding size `H`.
     #[config(default = 128)]
     pub out_dim: usize,
@@ -204,6 +217,21 @@ impl EncoderConfig {
                 positive("input_dim", c.input_dim)?;
                 positive("hidden", c.hidden)?;
                 positive("hidden_layers", c.hidden_layers)?;
+                if let Some(limit) = c.height_clamp
+                    && !(limit.is_finite() && limit > 0.0)
+                {
+                    return Err(ModelError::Config(format!(
+                        "encoder: height_clamp must be a positive number, got {limit}"
+                    )));
+                }
+                let clamped = c.clamped_objects.unwrap_or(c.pairwise_objects);
+                if c.height_clamp.is_some() && 3 * clamped > c.input_dim {
+                    return Err(ModelError::Config(format!(
+                        "encoder: height_clamp over {clamped} objects needs at least {} state values, got {}",
+                        3 * clamped,
+                        c.input_dim
+                    )));
+                }
                 if 3 * c.pairwise_objects > c.input_dim {
                     return Err(ModelError::Config(format!(
                         "encoder: pairwise_objects = {} needs at least {} state values, got {}",
@@ -267,6 +295,11 @@ impl EncoderConfig {
                 fc2: init.linear(c.hidden, c.out_dim, true),
                 input_dim: c.input_dim,
                 pairwise_objects: c.pairwise_objects,
+                height_clamp: c.height_clamp.unwrap_or(0.0),
+                clamped_objects: match c.height_clamp {
+                    Some(_) => c.clamped_objects.unwrap_or(c.pairwise_objects),
+                    None => 0,
+                },
             }),
             EncoderConfig::Frame(c) => {
                 let [c1, c2, c3] = c.conv_channels;
@@ -333,6 +366,10 @@ pub struct StateEncoder {
     pub input_dim: usize,
     /// `K` of [`StateEncoderConfig::pairwise_objects`].
     pub pairwise_objects: usize,
+    /// [`StateEncoderConfig::height_clamp`]'s limit (0: off).
+    pub height_clamp: f32,
+    /// The positions it applies to (0: off).
+    pub clamped_objects: usize,
 }
 
 /// The frame CNN (see [`FrameEncoderConfig`]).
@@ -429,12 +466,33 @@ impl Encoder {
         match self {
             Encoder::State(e) => {
                 let k = e.pairwise_objects;
-                let x = if k > 0 {
+                let limit = e.height_clamp;
+                let diffs = (k > 0).then(|| {
                     let p: Tensor<3> = obs.clone().narrow(1, 0, 3 * k).reshape([batch, k, 3]);
                     let diff = p.clone().unsqueeze_dim::<4>(2) - p.unsqueeze_dim::<4>(1);
-                    Tensor::cat(vec![obs, diff.reshape([batch, 3 * k * k])], 1)
+                    let diff = if limit > 0.0 {
+                        clamp_heights(diff, limit)
+                    } else {
+                        diff
+                    };
+                    diff.reshape([batch, 3 * k * k])
+                });
+                let m = e.clamped_objects;
+                let obs = if limit > 0.0 && m > 0 {
+                    let dim = obs.dims()[1];
+                    let p: Tensor<3> = obs.clone().narrow(1, 0, 3 * m).reshape([batch, m, 3]);
+                    let p: Tensor<2> = clamp_heights(p, limit).reshape([batch, 3 * m]);
+                    if dim > 3 * m {
+                        Tensor::cat(vec![p, obs.narrow(1, 3 * m, dim - 3 * m)], 1)
+                    } else {
+                        p
+                    }
                 } else {
                     obs
+                };
+                let x = match diffs {
+                    Some(d) => Tensor::cat(vec![obs, d], 1),
+                    None => obs,
                 };
                 let h = e
                     .mid
@@ -496,6 +554,15 @@ impl Encoder {
 /// `[batch, 2, s, s]`: x then y of each pixel, from −1 to 1.
 /// The spatial softmax of feature maps `[B, C, S, S]`: per channel, the
 /// expected `x` then `y` (from −1 to 1) under the softmax of its values
+/// `x` (last axis `x, y, z`) with its `z` clamped to `[−limit, limit]`
+/// ([`StateEncoderConfig::height_clamp`]).
+fn clamp_heights<const D: usize>(x: Tensor<D>, limit: f32) -> Tensor<D> {
+    let last = D - 1;
+    let xy = x.clone().narrow(last, 0, 2);
+    let z = x.narrow(last, 2, 1).clamp(-limit, limit);
+    Tensor::cat(vec![xy, z], last)
+}
+
 /// over the map, `[B, 2C]` (every `x`, then every `y`).
 fn expected_coordinates(maps: Tensor<4>) -> Tensor<2> {
     let [batch, channels, s, _] = maps.dims();
@@ -518,6 +585,52 @@ fn coordinate_channels(batch: usize, s: usize, device: &burn::tensor::Device) ->
 
 #[cfg(test)]
 mod tests {
+    use super::{Encoder, EncoderConfig, StateEncoderConfig};
+    use burn::tensor::{Tensor, TensorData};
+
+    #[test]
+    fn height_clamp_reads_heights_up_to_its_limit_only() {
+        const D: usize = 9;
+        let dev = crate::cpu_device();
+        let close =
+            |a: &[f32], b: &[f32], tol: f32| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= tol);
+        // Three objects' positions, pairwise on. Same seed, so the same
+        // weights with and without the clamp.
+        let plain = StateEncoderConfig::new(D)
+            .with_hidden(16)
+            .with_out_dim(12)
+            .with_pairwise_objects(3);
+        let clamped = plain.clone().with_height_clamp(Some(0.3));
+        let e = EncoderConfig::State(plain).init(0, &dev).unwrap();
+        let c = EncoderConfig::State(clamped.clone()).init(0, &dev).unwrap();
+        let enc = |e: &Encoder, r: &[f32]| {
+            let rows = Tensor::<2>::from_data(TensorData::new(r.to_vec(), [1, D]), &dev);
+            crate::nn::to_vec(e.forward(rows).unwrap()).unwrap()
+        };
+        // Heights and height differences within the limit: the identity.
+        let within = [0.1, 0.2, 0.0, -0.3, 0.1, 0.1, 0.5, -0.4, 0.15];
+        assert!(close(&enc(&e, &within), &enc(&c, &within), 1e-6));
+        // Within the limit a height still tells scenes apart.
+        let lower = [0.1, 0.2, -0.05, -0.3, 0.1, 0.1, 0.5, -0.4, 0.15];
+        assert!(!close(&enc(&c, &within), &enc(&c, &lower), 1e-4));
+        // Beyond it, heights and their differences read alike.
+        let all_far = [0.1, 0.2, -5.0, -0.3, 0.1, 3.0, 0.5, -0.4, -4.0];
+        let all_limit = [0.1, 0.2, -5.5, -0.3, 0.1, 3.5, 0.5, -0.4, -4.5];
+        assert!(close(&enc(&c, &all_far), &enc(&c, &all_limit), 1e-6));
+        assert!(!close(&enc(&e, &all_far), &enc(&e, &all_limit), 1e-4));
+        // x and y are never clamped.
+        let wide = [5.0, 0.2, 0.0, -0.3, 0.1, 0.1, 0.5, -0.4, 0.15];
+        assert!(!close(&enc(&c, &wide), &enc(&c, &within), 1e-4));
+        // A limit that is not a positive number, or over more objects than
+        // the state holds, is a configuration error.
+        for bad in [0.0, -1.0, f32::NAN] {
+            let config = clamped.clone().with_height_clamp(Some(bad));
+            assert!(EncoderConfig::State(config).init(0, &dev).is_err());
+        }
+        let config = clamped.with_clamped_objects(Some(4));
+        assert!(EncoderConfig::State(config).init(0, &dev).is_err());
+    }
+
     /// A map peaked at one cell gives that cell's coordinates; a flat map
     /// the centre.
     #[test]

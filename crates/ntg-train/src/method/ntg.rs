@@ -705,6 +705,10 @@ pub struct NtgOptions {
     /// location-aware attention's shift +1 (absent: 0).
     #[serde(default)]
     pub location_step_prior: Option<f32>,
+    /// The current node is the last action executed, not the localizer's
+    /// (runs on states; video runs keep it under `video`).
+    #[serde(default)]
+    pub executed_node: bool,
     /// The options runs keep under `optim`.
     #[serde(default)]
     pub optim: NtgOptimOptions,
@@ -763,6 +767,7 @@ impl NtgOptions {
         "location_step_prior",
         "optim.token_dropout",
         "optim.gcn_from_other_demo",
+        "executed_node",
         "video.executed_node",
         "video.interpreter_frame_pool",
     ];
@@ -818,8 +823,7 @@ impl NtgOptions {
         // The trained part switched off; the current node from the agent's
         // record only where the run asks (an ablation's own choice of it
         // is an evaluation setting).
-        let executed_node = video
-            .executed_node
+        let executed_node = (video.executed_node || self.executed_node)
             .then_some(true)
             .or(config.ablation.executed_node);
         config.ablation = self.ablation.ablation();

@@ -154,6 +154,13 @@ pub struct BlocksRunConfig {
     /// test structures ([`TaskSource::Structure`]). Absent: false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub structure_benchmark: bool,
+    /// NTG on states: the policy's current node is the last action the
+    /// agent executed (`ntg_model::AblationConfig::executed_node`, not in
+    /// the paper), not the node localizer's reading of the state. Training
+    /// is the same; model selection and evaluation roll out with it. On
+    /// video the same switch is `video.executed_node`. Absent: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub executed_node: bool,
     /// NTG's demo interpreter (`--interpreter`; absent: the paper's Luong
     /// interpreter, as in every run saved before it). Read by NTG only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -589,6 +596,7 @@ impl Recipe {
             ntp_core: NtpCoreKind::Reactive,
             tasks: None,
             structure_benchmark: false,
+            executed_node: false,
             interpreter: None,
             location_step_prior: None,
             optim: OptimConfig {
@@ -822,7 +830,7 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "optim.gcn_from_other_demo" => "GCN reads another demo".into(),
         "optim.token_dropout" => format!("token dropout {v}"),
         "video.demos_per_renaming" => format!("video cube renaming in groups of {v}"),
-        "video.executed_node" => "executed node (not the localizer)".into(),
+        "executed_node" | "video.executed_node" => "executed node (not the localizer)".into(),
         "video.interpreter_frame_pool" => format!("interpreter frame pooling {v}"),
         "video.encoder_labels" => format!("stage A labels {v}"),
         "ntp_core" if v == "gru" => "recurrent (GRU) core".into(),
@@ -873,7 +881,7 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     if config.soft_edges {
         model_config.soft_edges = Some(true);
     }
-    if config.video.as_ref().is_some_and(|v| v.executed_node) {
+    if config.executed_node || config.video.as_ref().is_some_and(|v| v.executed_node) {
         model_config.ablation.executed_node = Some(true);
     }
     if let Some(pool) = config.video.as_ref().map(|v| v.interpreter_frame_pool)
@@ -974,6 +982,7 @@ pub fn train_model(
     config.method.method().check(&json)?;
     check_encoder_labels(config)?;
     check_ntp_core(config)?;
+    check_executed_node(config)?;
     let split = task_split(config.task_source())?;
     let tasks = split.train(config.train_tasks)?;
     let demos = || -> anyhow::Result<Demos> {
@@ -1426,6 +1435,27 @@ fn check_ntp_core(config: &BlocksRunConfig) -> anyhow::Result<()> {
     if !config.ntp_core.is_reactive() && !config.method.method().reads("ntp_core") {
         bail!(
             "ntp_core = \"gru\" (--ntp-core) sets NTP's core network; {} has none",
+            config.method.legend()
+        );
+    }
+    Ok(())
+}
+
+/// Refuses the state runs' executed node ([`BlocksRunConfig::executed_node`])
+/// on video, whose switch is `video.executed_node`, and for a method
+/// without NTG's policy.
+fn check_executed_node(config: &BlocksRunConfig) -> anyhow::Result<()> {
+    if !config.executed_node {
+        return Ok(());
+    }
+    if config.obs != ObsKind::State {
+        bail!(
+            "executed_node = true is the state runs' switch; a video run takes its node source from video.executed_node"
+        );
+    }
+    if !config.method.method().reads("executed_node") {
+        bail!(
+            "executed_node = true sets where NTG's policy takes its current node; {} has no node localizer",
             config.method.legend()
         );
     }
@@ -2183,6 +2213,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         ntp_core: own.ntp_core.unwrap_or(base.ntp_core),
         tasks: own.tasks.clone(),
         structure_benchmark: own.task_set == Some(TaskSetKind::Structure),
+        executed_node: base.executed_node,
         interpreter: flags.interpreter,
         location_step_prior: match (flags.location_step_prior, flags.interpreter) {
             (Some(0.0), _) => None,
@@ -2896,6 +2927,32 @@ mod tests {
         config.video.as_mut().unwrap().encoder_labels = FrameLabels::Flat;
         let json = serde_json::to_string(&config).unwrap();
         assert!(!json.contains("encoder_labels"), "{json}");
+    }
+
+    #[test]
+    fn a_state_run_takes_its_node_from_the_executed_actions_when_asked() {
+        let mut config = Recipe::Recommended.config(ObsKind::State, 5, 2, 1, 0);
+        let json = serde_json::to_string(&config).unwrap();
+        assert!(!json.contains("executed_node"), "absent when off: {json}");
+        let model = new_model(&config, &ntg_model::cpu_device()).unwrap();
+        assert_eq!(model.config.ablation.executed_node, None);
+        config.executed_node = true;
+        check_executed_node(&config).unwrap();
+        let model = new_model(&config, &ntg_model::cpu_device()).unwrap();
+        assert_eq!(model.config.ablation.executed_node, Some(true));
+        assert!(
+            additions(&config)
+                .iter()
+                .any(|a| a == "executed node (not the localizer)"),
+            "{:?}",
+            additions(&config)
+        );
+        config.method = MethodId::Ntp;
+        assert!(check_executed_node(&config).is_err());
+        let mut video = Recipe::Paper.config(ObsKind::Vid, 5, 2, 1, 0);
+        video.executed_node = true;
+        let e = check_executed_node(&video).unwrap_err().to_string();
+        assert!(e.contains("video.executed_node"), "{e}");
     }
 
     #[test]

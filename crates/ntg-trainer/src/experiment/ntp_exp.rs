@@ -1185,7 +1185,8 @@ fn run_point(
             .filter(|&n| n != blocks::BlocksVideo::new(false).encoder.demos),
         tag: scale.tag.clone(),
         ntp_core: config.ntp_core,
-        executed_node: method.is_ntg() && config.video.as_ref().is_some_and(|v| v.executed_node),
+        executed_node: method.is_ntg()
+            && (config.executed_node || config.video.as_ref().is_some_and(|v| v.executed_node)),
         success: result.success,
         goal_fraction: result.mean_goal_fraction,
         untrained,
@@ -4024,6 +4025,7 @@ mod tests {
             ntp_core: crate::blocks::NtpCoreKind::Reactive,
             tasks: None,
             structure_benchmark: false,
+            executed_node: false,
             interpreter: None,
             location_step_prior: None,
             optim: crate::fit::OptimConfig {

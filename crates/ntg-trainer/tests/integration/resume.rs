@@ -33,6 +33,7 @@ fn config() -> BlocksRunConfig {
         ntp_core: Default::default(),
         tasks: None,
         structure_benchmark: false,
+        executed_node: false,
         interpreter: None,
         location_step_prior: None,
         optim: OptimConfig {

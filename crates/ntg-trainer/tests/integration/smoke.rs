@@ -44,6 +44,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         ntp_core: Default::default(),
         tasks: None,
         structure_benchmark: false,
+        executed_node: false,
         interpreter: None,
         location_step_prior: None,
         optim: OptimConfig {
