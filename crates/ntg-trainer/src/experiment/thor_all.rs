@@ -100,6 +100,10 @@ pub struct ThorAllScale {
     /// default for `obs` (`InterpreterKind::default_for`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub interpreter: Option<InterpreterKind>,
+    /// On video: the demo videos stage A trains both methods' frame
+    /// encoders on (`video.encoder.demos`). Absent: the run's default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub encoder_demos: Option<usize>,
     /// Names this protocol's runs apart from an earlier protocol's: run
     /// folders `thor_all-TAG-METHOD…`. Absent: `thor_all-METHOD…`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -368,6 +372,17 @@ impl ThorAllExperiment {
         if let Some(interpreter) = scale.interpreter {
             config.interpreter = interpreter;
             config.location_step_prior = crate::collect::default_step_prior(method, interpreter);
+        }
+        if let Some(demos) = scale.encoder_demos {
+            let video = config.video.as_mut().with_context(|| {
+                format!(
+                    "{}: profile {}: encoder_demos sets stage A of runs on frames; this profile's obs is {:?}",
+                    self.origin,
+                    profile.name(),
+                    scale.obs
+                )
+            })?;
+            video.encoder.demos = demos;
         }
         let overrides = self
             .overrides
@@ -1107,6 +1122,44 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("another tag"), "{err}");
+    }
+
+    #[test]
+    fn a_protocol_s_encoder_demos_set_both_methods_stage_a_on_frames_only() {
+        let mut experiment = ThorAllExperiment::load(Default::default()).unwrap();
+        let run = |method| ThorAllRun {
+            method,
+            seed: 0,
+            memory: true,
+            earlier: false,
+        };
+        let demos = |e: &ThorAllExperiment, method| {
+            e.run_config(Profile::Paper, run(method))
+                .unwrap()
+                .video
+                .unwrap()
+                .encoder
+                .demos
+        };
+        let default = demos(&experiment, MethodId::Ntg);
+        experiment.profiles.paper.encoder_demos = Some(default + 3000);
+        for method in [MethodId::Ntg, MethodId::Flat] {
+            assert_eq!(demos(&experiment, method), default + 3000, "{method:?}");
+        }
+        // The earlier protocol keeps its own.
+        let earlier = ThorAllRun {
+            earlier: true,
+            ..run(MethodId::Ntg)
+        };
+        let config = experiment.run_config(Profile::Paper, earlier).unwrap();
+        assert_eq!(config.video.unwrap().encoder.demos, default);
+        // On the state there is no stage A to set.
+        experiment.profiles.quick.encoder_demos = Some(4000);
+        let err = experiment
+            .run_config(Profile::Quick, run(MethodId::Ntg))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("encoder_demos"), "{err}");
     }
 
     #[test]
