@@ -2077,6 +2077,11 @@ pub struct BlocksFlags {
     /// pairwise difference of cube positions.
     #[arg(long)]
     pub pairwise: bool,
+    /// NTG on states: the policy's current node is the last action it
+    /// executed, not the node localizer's reading of the state (not in the
+    /// paper; a video run's node source comes with its recipe).
+    #[arg(long)]
+    pub executed_node: bool,
     /// Hidden layers of the localizer's and edge classifier's state encoder
     /// MLPs (state observations only; the demo interpreter keeps one)
     /// [default: 3 with --recipe recommended, else 1].
@@ -2213,7 +2218,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         ntp_core: own.ntp_core.unwrap_or(base.ntp_core),
         tasks: own.tasks.clone(),
         structure_benchmark: own.task_set == Some(TaskSetKind::Structure),
-        executed_node: base.executed_node,
+        executed_node: base.executed_node || own.executed_node,
         interpreter: flags.interpreter,
         location_step_prior: match (flags.location_step_prior, flags.interpreter) {
             (Some(0.0), _) => None,
@@ -2336,6 +2341,7 @@ impl DomainRuns for Blocks {
                 config.method.name()
             );
         }
+        check_executed_node(&config).context("--executed-node")?;
         if (config.interpreter.is_some() || config.location_step_prior.is_some())
             && !config.method.method().reads("interpreter")
         {

@@ -189,6 +189,15 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--domain", "sorting", "--interpreter", "stepping"]),
             "--interpreter".into(),
         ),
+        // The executed node is a state run's switch, and NTG's only.
+        (
+            train(&["--domain", "blocks", "--obs", "vid", "--executed-node"]),
+            "--executed-node".into(),
+        ),
+        (
+            train(&["--domain", "blocks", "--method", "ntp", "--executed-node"]),
+            "--executed-node".into(),
+        ),
         // A validation length that test episodes have (N = 5).
         (
             train(&[
