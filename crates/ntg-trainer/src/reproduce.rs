@@ -1300,7 +1300,7 @@ mod tests {
         let mut current = paper.thor_all.clone();
         current.scale.earlier = None;
         for line in &mut current.lines {
-            line.earlier = false;
+            line.earlier = 0;
         }
         for (learn_end, memory) in [(true, false), (false, true)] {
             let mut thor_all = current.clone();
@@ -1316,11 +1316,11 @@ mod tests {
         thor_all.scale.interpreter = Some(crate::collect::InterpreterKind::SteppingVideo);
         thor_all.scale.validation_objects = vec![6];
         let mut old = thor_all.lines[0].clone();
-        old.earlier = true;
+        old.earlier = 1;
         thor_all.lines.push(old);
         thor_all::report_section(&thor_all);
         // None of the current protocol's runs trained yet.
-        thor_all.lines.retain(|l| l.earlier);
+        thor_all.lines.retain(|l| l.earlier > 0);
         thor_all::report_section(&thor_all);
         let mut jigsaws = paper.jigsaws.clone();
         jigsaws.methods.reverse();

@@ -110,10 +110,17 @@ pub struct ThorAllScale {
     pub tag: Option<String>,
     /// The profile's earlier protocol, kept: its runs (their records
     /// restored, or trained where there are none) are reported in a table
-    /// of their own beside this protocol's, and not drawn. Its own runs'
-    /// folders must differ from this protocol's (a `tag` on one of them).
+    /// of their own beside this protocol's, and not drawn (but for its
+    /// NTG line beside the current protocol's). It may keep an earlier one
+    /// of its own, and so on back; every protocol's run folders must
+    /// differ from the others' (a `tag` on each but one).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub earlier: Option<Box<ThorAllScale>>,
+    /// What sets this protocol apart from the one after it, in words, where
+    /// the report and the figure name it as an earlier protocol (e.g.
+    /// "the paper's interpreter"). Absent: none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub about: Option<String>,
 }
 
 fn no_tasks(n: &usize) -> bool {
@@ -128,6 +135,35 @@ fn yes() -> bool {
     true
 }
 
+/// `scale` and the earlier protocols it keeps, newest first: index `k` is
+/// the protocol `k` back.
+pub fn protocols(scale: &ThorAllScale) -> Vec<&ThorAllScale> {
+    let mut chain = vec![scale];
+    while let Some(earlier) = chain.last().and_then(|s| s.earlier.as_deref()) {
+        chain.push(earlier);
+    }
+    chain
+}
+
+fn is_current(earlier: &u8) -> bool {
+    *earlier == 0
+}
+
+/// [`ThorAllLine::earlier`]: a number of protocols back, or (results
+/// written before there could be more than one) `true` for one back.
+fn protocol_back<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u8, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Back {
+        Flag(bool),
+        Count(u8),
+    }
+    Ok(match Back::deserialize(d)? {
+        Back::Flag(b) => u8::from(b),
+        Back::Count(n) => n,
+    })
+}
+
 /// One run of the figure: a method, a seed, and whether it has the
 /// execution memory.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -138,8 +174,9 @@ pub struct ThorAllRun {
     pub seed: u64,
     /// Whether it has the execution memory.
     pub memory: bool,
-    /// A run of the profile's earlier protocol ([`ThorAllScale::earlier`]).
-    pub earlier: bool,
+    /// Which protocol: 0 the profile's current one, 1 its earlier one
+    /// ([`ThorAllScale::earlier`]), 2 that one's earlier one, and so on.
+    pub earlier: u8,
 }
 
 /// One method's line of fig. "thor_all".
@@ -155,9 +192,15 @@ pub struct ThorAllLine {
     /// one (results written before the variant without: yes).
     #[serde(default = "yes", skip_serializing_if = "Clone::clone")]
     pub memory: bool,
-    /// A run of the profile's earlier protocol (reported apart, not drawn).
-    #[serde(default, skip_serializing_if = "is_false")]
-    pub earlier: bool,
+    /// Which protocol ([`ThorAllRun::earlier`]): 0 the current one; an
+    /// earlier one's are reported apart, not drawn. Results written when
+    /// the profile kept one earlier protocol say `true` for it.
+    #[serde(
+        default,
+        skip_serializing_if = "is_current",
+        deserialize_with = "protocol_back"
+    )]
+    pub earlier: u8,
     /// Success per N on unseen tasks.
     pub points: Vec<NPoint>,
     /// The epoch (from 0) that scored best on the validation tasks and was
@@ -228,7 +271,8 @@ impl ThorAllExperiment {
         experiment.origin = origin;
         for profile in [Profile::Smoke, Profile::Quick, Profile::Paper] {
             let scale = experiment.profiles.get(profile);
-            for s in std::iter::once(scale).chain(scale.earlier.as_deref()) {
+            let chain = protocols(scale);
+            for s in &chain {
                 if let Some(tag) = &s.tag {
                     ensure!(
                         !tag.is_empty()
@@ -241,20 +285,20 @@ impl ThorAllExperiment {
                     );
                 }
             }
-            if let Some(earlier) = &scale.earlier {
+            for (i, a) in chain.iter().enumerate() {
                 ensure!(
-                    earlier.tag != scale.tag,
-                    "{}: profile {}: the earlier protocol needs another tag than the current one (their runs would share folders)",
-                    experiment.origin,
-                    profile.name()
-                );
-                ensure!(
-                    earlier.earlier.is_none(),
-                    "{}: profile {}: an earlier protocol keeps no earlier one of its own",
+                    chain[..i].iter().all(|b| b.tag != a.tag),
+                    "{}: profile {}: each earlier protocol needs another tag than the protocols after it (their runs would share folders)",
                     experiment.origin,
                     profile.name()
                 );
             }
+            ensure!(
+                chain.len() <= usize::from(u8::MAX),
+                "{}: profile {}: too many earlier protocols",
+                experiment.origin,
+                profile.name()
+            );
         }
         Ok(experiment)
     }
@@ -266,29 +310,28 @@ impl ThorAllExperiment {
         seeds
     }
 
-    /// The scale of `profile`'s current protocol, or of its earlier one.
-    pub fn scale(&self, profile: Profile, earlier: bool) -> anyhow::Result<&ThorAllScale> {
-        let current = self.profiles.get(profile);
-        if !earlier {
-            return Ok(current);
-        }
-        current.earlier.as_deref().with_context(|| {
-            format!(
-                "{}: profile {} has no earlier protocol",
-                self.origin,
-                profile.name()
-            )
-        })
+    /// The scale of `profile`'s protocol `earlier` back (0: the current).
+    pub fn scale(&self, profile: Profile, earlier: u8) -> anyhow::Result<&ThorAllScale> {
+        protocols(self.profiles.get(profile))
+            .get(usize::from(earlier))
+            .copied()
+            .with_context(|| {
+                format!(
+                    "{}: profile {} has no protocol {earlier} back",
+                    self.origin,
+                    profile.name()
+                )
+            })
     }
 
     /// Every run of `profile`: each method for each seed, then, with
     /// `without_memory`, each method without memory (first seed); then the
-    /// same for its earlier protocol, if it keeps one.
+    /// same for each earlier protocol it keeps, newest first.
     pub fn runs(&self, profile: Profile) -> Vec<ThorAllRun> {
         let current = self.profiles.get(profile);
         let mut runs = Vec::new();
-        for (scale, earlier) in [(Some(current), false), (current.earlier.as_deref(), true)] {
-            let Some(scale) = scale else { continue };
+        for (earlier, scale) in protocols(current).into_iter().enumerate() {
+            let earlier = u8::try_from(earlier).unwrap_or(u8::MAX);
             let mut seeds = vec![self.seed];
             seeds.extend_from_slice(&scale.extra_seeds);
             for seed in seeds {
@@ -560,21 +603,24 @@ fn share_videos(
 /// title says so); else the current ones, and the earlier protocol's NTG
 /// with memory dotted, for comparison.
 pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
-    let earlier = !result.lines.iter().any(|l| !l.earlier);
-    let mut kinds: Vec<(MethodId, bool, bool)> = Vec::new();
-    for l in result.lines.iter().filter(|l| l.earlier == earlier) {
+    // The newest protocol with a line is drawn; beside the current one,
+    // the NTG of the protocol just before it.
+    let shown = result.lines.iter().map(|l| l.earlier).min().unwrap_or(0);
+    let mut kinds: Vec<(MethodId, bool, u8)> = Vec::new();
+    for l in result.lines.iter().filter(|l| l.earlier == shown) {
         if !kinds.contains(&(l.method, l.memory, l.earlier)) {
             kinds.push((l.method, l.memory, l.earlier));
         }
     }
-    if !earlier
+    if shown == 0
         && result
             .lines
             .iter()
-            .any(|l| l.earlier && l.method == MethodId::Ntg && l.memory)
+            .any(|l| l.earlier == 1 && l.method == MethodId::Ntg && l.memory)
     {
-        kinds.push((MethodId::Ntg, true, true));
+        kinds.push((MethodId::Ntg, true, 1));
     }
+    let chain = protocols(&result.scale);
     let series = kinds
         .into_iter()
         .map(|(method, memory, of_earlier)| {
@@ -615,8 +661,8 @@ pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
             if !memory {
                 name.push_str(", no memory");
             }
-            let dash = if of_earlier && !earlier {
-                name.push_str(", earlier protocol (paper's interpreter)");
+            let dash = if of_earlier != shown {
+                name.push_str(&earlier_name(&chain, of_earlier));
                 Dash::Dotted
             } else if memory {
                 Dash::Solid
@@ -634,11 +680,7 @@ pub fn write_figure(result: &ThorAllResult, stem: &Path) -> anyhow::Result<()> {
         title: format!(
             "(b) object collection, {} input{}",
             obs_name(result.scale.obs),
-            if earlier && result.scale.earlier.is_some() {
-                " (earlier protocol)"
-            } else {
-                ""
-            }
+            if shown > 0 { " (earlier protocol)" } else { "" }
         ),
         x_label: "number of target objects N".into(),
         y_label: "success on unseen tasks".into(),
@@ -685,14 +727,14 @@ fn seeds_phrase(lines: &[&ThorAllLine]) -> String {
 pub fn report_section(result: &ThorAllResult) -> String {
     use std::fmt::Write as _;
     let sc = &result.scale;
-    let of = |earlier: bool| -> Vec<&ThorAllLine> {
+    let of = |earlier: u8| -> Vec<&ThorAllLine> {
         result
             .lines
             .iter()
             .filter(|l| l.earlier == earlier)
             .collect()
     };
-    let (current, earlier) = (of(false), of(true));
+    let current = of(0);
     let mut s = match super::open_section(&THOR_ALL.text("head"), !result.lines.is_empty()) {
         Ok(head) => head,
         Err(whole) => return whole,
@@ -710,8 +752,21 @@ pub fn report_section(result: &ThorAllResult) -> String {
         let without = THOR_ALL.fill("without_memory", &[("comparison", &without)]);
         let _ = writeln!(s, "{without}\n");
     }
-    if let (Some(old), false) = (sc.earlier.as_deref(), earlier.is_empty()) {
-        let _ = writeln!(s, "{}\n", THOR_ALL.text("earlier_title"));
+    for (back, old) in protocols(sc).into_iter().enumerate().skip(1) {
+        let earlier = of(u8::try_from(back).unwrap_or(u8::MAX));
+        if earlier.is_empty() {
+            continue;
+        }
+        let about = old
+            .about
+            .as_deref()
+            .map(|a| format!(" ({a})"))
+            .unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "{}\n",
+            THOR_ALL.fill("earlier_title", &[("about", &about)])
+        );
         protocol_tables(&mut s, old, &result.train_objects, &earlier);
         if let Some(c) = compare(&earlier, true) {
             let _ = writeln!(
@@ -726,6 +781,19 @@ pub fn report_section(result: &ThorAllResult) -> String {
         }
     }
     s
+}
+
+/// What a legend adds for a line of the protocol `back` protocols before
+/// the current one in `chain` ([`protocols`]): ", earlier protocol", and
+/// the protocol's words where it has them.
+fn earlier_name(chain: &[&ThorAllScale], back: u8) -> String {
+    match chain
+        .get(usize::from(back))
+        .and_then(|s| s.about.as_deref())
+    {
+        Some(about) => format!(", earlier protocol ({about})"),
+        None => ", earlier protocol".to_owned(),
+    }
 }
 
 /// The interpreter phrase of the report's setup for NTG runs of `sc`.
@@ -900,7 +968,7 @@ fn line_name(line: &ThorAllLine) -> String {
 /// missing.
 /// The current protocol's lines only.
 pub fn comparison_sentence(result: &ThorAllResult) -> Option<String> {
-    let current: Vec<&ThorAllLine> = result.lines.iter().filter(|l| !l.earlier).collect();
+    let current: Vec<&ThorAllLine> = result.lines.iter().filter(|l| l.earlier == 0).collect();
     compare(&current, true).map(|c| THOR_ALL.fill("measured", &[("comparison", &c)]))
 }
 
@@ -971,7 +1039,7 @@ mod tests {
             method,
             seed: 0,
             memory: true,
-            earlier: false,
+            earlier: 0,
             points: successes
                 .iter()
                 .enumerate()
@@ -1037,25 +1105,25 @@ mod tests {
         };
         let paper = Profile::Paper;
         assert_eq!(
-            experiment.run_name(paper, run(MethodId::Ntg, 0, true, false)),
+            experiment.run_name(paper, run(MethodId::Ntg, 0, true, 0)),
             "thor_all-len-ntg"
         );
         assert_eq!(
-            experiment.run_name(paper, run(MethodId::Flat, 2, true, false)),
+            experiment.run_name(paper, run(MethodId::Flat, 2, true, 0)),
             "thor_all-len-flat-seed2"
         );
         // The earlier protocol keeps its folders, so its records still
         // belong to its runs.
         assert_eq!(
-            experiment.run_name(paper, run(MethodId::Ntg, 0, true, true)),
+            experiment.run_name(paper, run(MethodId::Ntg, 0, true, 1)),
             "thor_all-ntg"
         );
         assert_eq!(
-            experiment.run_name(Profile::Quick, run(MethodId::Ntg, 0, true, false)),
+            experiment.run_name(Profile::Quick, run(MethodId::Ntg, 0, true, 0)),
             "thor_all-ntg"
         );
         let c = experiment
-            .run_config(paper, run(MethodId::Ntg, 2, true, false))
+            .run_config(paper, run(MethodId::Ntg, 2, true, 0))
             .unwrap();
         assert_eq!((c.model_seed, c.optim.seed), (2, 2));
         // Both methods once more without the memory, first seed; then the
@@ -1125,13 +1193,99 @@ mod tests {
     }
 
     #[test]
+    fn a_profile_keeps_a_chain_of_earlier_protocols_each_in_folders_of_its_own() {
+        // The current protocol becomes the earlier one of a newer protocol
+        // (tag "new"), which keeps the chain: current, len, the paper's
+        // interpreter.
+        let text = crate::experiment::BUILT_IN
+            .iter()
+            .find(|(name, _)| *name == "thor_all")
+            .unwrap()
+            .1;
+        let mut experiment: ThorAllExperiment = {
+            let dir = tempfile::tempdir().unwrap();
+            std::fs::write(dir.path().join("thor_all.toml"), text).unwrap();
+            ThorAllExperiment::load(crate::experiment::Source::Dir(dir.path())).unwrap()
+        };
+        let len = experiment.profiles.paper.clone();
+        let mut newer = len.clone();
+        newer.tag = Some("new".into());
+        newer.encoder_demos = Some(4000);
+        let mut len = len;
+        len.about = Some("stage A on fewer videos".into());
+        newer.earlier = Some(Box::new(len));
+        experiment.profiles.paper = newer;
+        let chain = protocols(&experiment.profiles.paper);
+        assert_eq!(
+            chain.iter().map(|s| s.tag.as_deref()).collect::<Vec<_>>(),
+            [Some("new"), Some("len"), None]
+        );
+        let runs = experiment.runs(Profile::Paper);
+        let names: Vec<String> = runs
+            .iter()
+            .map(|&r| experiment.run_name(Profile::Paper, r))
+            .collect();
+        for (back, name) in [
+            (0, "thor_all-new-ntg"),
+            (1, "thor_all-len-ntg"),
+            (2, "thor_all-ntg"),
+        ] {
+            let i = names
+                .iter()
+                .position(|n| n == name)
+                .unwrap_or_else(|| panic!("{names:?}"));
+            assert_eq!(runs[i].earlier, back, "{name}");
+        }
+        let unique: std::collections::BTreeSet<&String> = names.iter().collect();
+        assert_eq!(unique.len(), names.len(), "{names:?}");
+        // Each protocol's own settings: stage A of the newest only.
+        let demos = |back: u8| {
+            let run = ThorAllRun {
+                method: MethodId::Ntg,
+                seed: 0,
+                memory: true,
+                earlier: back,
+            };
+            experiment
+                .run_config(Profile::Paper, run)
+                .unwrap()
+                .video
+                .unwrap()
+                .encoder
+                .demos
+        };
+        assert_eq!(demos(0), 4000);
+        assert_ne!(demos(1), 4000);
+        assert!(experiment.scale(Profile::Paper, 3).is_err());
+        // Two protocols of one tag would share folders: refused.
+        let dir = tempfile::tempdir().unwrap();
+        let nested = text.replace(
+            "[profiles.paper.earlier]\n",
+            "[profiles.paper.earlier]\ntag = \"len\"\n",
+        );
+        std::fs::write(dir.path().join("thor_all.toml"), nested).unwrap();
+        let err = ThorAllExperiment::load(crate::experiment::Source::Dir(dir.path()))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("another tag"), "{err}");
+        // Results written when a profile kept one earlier protocol read it
+        // as one back.
+        let mut json = serde_json::to_value(line(MethodId::Ntg, &[1000], 1000)).unwrap();
+        json["earlier"] = true.into();
+        let old: ThorAllLine = serde_json::from_value(json).unwrap();
+        assert_eq!(old.earlier, 1);
+        let json = serde_json::to_value(&old).unwrap();
+        assert_eq!(json["earlier"], 1);
+    }
+
+    #[test]
     fn a_protocol_s_encoder_demos_set_both_methods_stage_a_on_frames_only() {
         let mut experiment = ThorAllExperiment::load(Default::default()).unwrap();
         let run = |method| ThorAllRun {
             method,
             seed: 0,
             memory: true,
-            earlier: false,
+            earlier: 0,
         };
         let demos = |e: &ThorAllExperiment, method| {
             e.run_config(Profile::Paper, run(method))
@@ -1148,7 +1302,7 @@ mod tests {
         }
         // The earlier protocol keeps its own.
         let earlier = ThorAllRun {
-            earlier: true,
+            earlier: 1,
             ..run(MethodId::Ntg)
         };
         let config = experiment.run_config(Profile::Paper, earlier).unwrap();
@@ -1243,7 +1397,7 @@ mod tests {
                             method,
                             seed: 0,
                             memory: true,
-                            earlier: false,
+                            earlier: 0,
                         }
                     )
                     .unwrap(),
@@ -1257,7 +1411,7 @@ mod tests {
                     method: MethodId::Flat,
                     seed: 0,
                     memory: true,
-                    earlier: false,
+                    earlier: 0,
                 },
             )
             .unwrap();
