@@ -817,9 +817,13 @@ fn protocol_tables(
     lines: &[&ThorAllLine],
 ) {
     use std::fmt::Write as _;
-    let state_input = match sc.obs {
-        ObsKind::State => format!(", {}", THOR_ALL.text("state_input")),
-        ObsKind::Vid => String::new(),
+    let state_input = match (sc.obs, sc.encoder_demos) {
+        (ObsKind::State, _) => format!(", {}", THOR_ALL.text("state_input")),
+        (ObsKind::Vid, Some(videos)) => format!(
+            ", {}",
+            THOR_ALL.fill("stage_a_videos", &[("videos", &videos)])
+        ),
+        (ObsKind::Vid, None) => String::new(),
     };
     let setup = THOR_ALL.fill(
         "setup",
@@ -1106,16 +1110,20 @@ mod tests {
         let paper = Profile::Paper;
         assert_eq!(
             experiment.run_name(paper, run(MethodId::Ntg, 0, true, 0)),
-            "thor_all-len-ntg"
+            "thor_all-a4k-ntg"
         );
         assert_eq!(
             experiment.run_name(paper, run(MethodId::Flat, 2, true, 0)),
-            "thor_all-len-flat-seed2"
+            "thor_all-a4k-flat-seed2"
         );
-        // The earlier protocol keeps its folders, so its records still
-        // belong to its runs.
+        // The earlier protocols keep their folders, so their records still
+        // belong to their runs.
         assert_eq!(
             experiment.run_name(paper, run(MethodId::Ntg, 0, true, 1)),
+            "thor_all-len-ntg"
+        );
+        assert_eq!(
+            experiment.run_name(paper, run(MethodId::Ntg, 0, true, 2)),
             "thor_all-ntg"
         );
         assert_eq!(
@@ -1127,15 +1135,19 @@ mod tests {
             .unwrap();
         assert_eq!((c.model_seed, c.optim.seed), (2, 2));
         // Both methods once more without the memory, first seed; then the
-        // same eight runs of the earlier protocol.
+        // same eight runs of each earlier protocol.
         let runs = experiment.runs(paper);
-        assert_eq!(runs.len(), 16);
+        assert_eq!(runs.len(), 24);
         assert_eq!(
             experiment.run_name(paper, runs[7]),
-            "thor_all-len-flat-no-memory"
+            "thor_all-a4k-flat-no-memory"
         );
         assert_eq!(
             experiment.run_name(paper, runs[15]),
+            "thor_all-len-flat-no-memory"
+        );
+        assert_eq!(
+            experiment.run_name(paper, runs[23]),
             "thor_all-flat-no-memory"
         );
         let c = experiment.run_config(paper, runs[7]).unwrap();
@@ -1157,8 +1169,19 @@ mod tests {
         );
         assert_eq!(flat.location_step_prior, None);
         assert!(ntg.same_videos(&flat));
-        // The earlier protocol: the paper's interpreter, training lengths only.
-        let old = experiment.run_config(paper, runs[8]).unwrap();
+        // Stage A on 4000 videos, the protocol before on the runs' 1000.
+        let video = |c: &CollectRunConfig| c.video.as_ref().unwrap().encoder.demos;
+        assert_eq!((video(&ntg), video(&flat)), (4000, 4000));
+        let len = experiment.run_config(paper, runs[8]).unwrap();
+        assert_eq!(video(&len), 1000);
+        let ntg = CollectRunConfig {
+            video: len.video.clone(),
+            ..ntg
+        };
+        assert_eq!(ntg, len);
+        // The protocol before that: the paper's interpreter, training
+        // lengths only.
+        let old = experiment.run_config(paper, runs[16]).unwrap();
         assert_eq!(old.interpreter, InterpreterKind::Luong);
         assert_eq!(
             (old.location_step_prior, old.validation_objects.len()),
@@ -1210,7 +1233,7 @@ mod tests {
         let len = experiment.profiles.paper.clone();
         let mut newer = len.clone();
         newer.tag = Some("new".into());
-        newer.encoder_demos = Some(4000);
+        newer.encoder_demos = Some(8000);
         let mut len = len;
         len.about = Some("stage A on fewer videos".into());
         newer.earlier = Some(Box::new(len));
@@ -1218,7 +1241,7 @@ mod tests {
         let chain = protocols(&experiment.profiles.paper);
         assert_eq!(
             chain.iter().map(|s| s.tag.as_deref()).collect::<Vec<_>>(),
-            [Some("new"), Some("len"), None]
+            [Some("new"), Some("a4k"), Some("len"), None]
         );
         let runs = experiment.runs(Profile::Paper);
         let names: Vec<String> = runs
@@ -1227,8 +1250,9 @@ mod tests {
             .collect();
         for (back, name) in [
             (0, "thor_all-new-ntg"),
-            (1, "thor_all-len-ntg"),
-            (2, "thor_all-ntg"),
+            (1, "thor_all-a4k-ntg"),
+            (2, "thor_all-len-ntg"),
+            (3, "thor_all-ntg"),
         ] {
             let i = names
                 .iter()
@@ -1254,14 +1278,13 @@ mod tests {
                 .encoder
                 .demos
         };
-        assert_eq!(demos(0), 4000);
-        assert_ne!(demos(1), 4000);
-        assert!(experiment.scale(Profile::Paper, 3).is_err());
+        assert_eq!((demos(0), demos(1), demos(2)), (8000, 4000, 1000));
+        assert!(experiment.scale(Profile::Paper, 4).is_err());
         // Two protocols of one tag would share folders: refused.
         let dir = tempfile::tempdir().unwrap();
         let nested = text.replace(
-            "[profiles.paper.earlier]\n",
-            "[profiles.paper.earlier]\ntag = \"len\"\n",
+            "[profiles.paper.earlier.earlier]\n",
+            "[profiles.paper.earlier.earlier]\ntag = \"a4k\"\n",
         );
         std::fs::write(dir.path().join("thor_all.toml"), nested).unwrap();
         let err = ThorAllExperiment::load(crate::experiment::Source::Dir(dir.path()))
@@ -1295,6 +1318,7 @@ mod tests {
                 .encoder
                 .demos
         };
+        experiment.profiles.paper.encoder_demos = None;
         let default = demos(&experiment, MethodId::Ntg);
         experiment.profiles.paper.encoder_demos = Some(default + 3000);
         for method in [MethodId::Ntg, MethodId::Flat] {
