@@ -161,6 +161,16 @@ pub struct BlocksRunConfig {
     /// video the same switch is `video.executed_node`. Absent: false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub executed_node: bool,
+    /// State runs: the state encoders that read pairwise cube offsets (the
+    /// node localizer's, the edge classifier's, the NTP family's) read
+    /// every height (gripper-relative and between two cubes) only as far
+    /// as this many metres (`ntg_model::StateEncoderConfig::height_clamp`;
+    /// `--state-height-clamp`). Below two cube sizes it keeps "on" from
+    /// "further above", and a tower taller than any trained on reads
+    /// as the same relations a trained one has. Not in the paper. Absent:
+    /// heights read as they are.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub state_height_clamp: Option<f32>,
     /// NTG's demo interpreter (`--interpreter`; absent: the paper's Luong
     /// interpreter, as in every run saved before it). Read by NTG only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -597,6 +607,7 @@ impl Recipe {
             tasks: None,
             structure_benchmark: false,
             executed_node: false,
+            state_height_clamp: None,
             interpreter: None,
             location_step_prior: None,
             optim: OptimConfig {
@@ -831,6 +842,7 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "optim.token_dropout" => format!("token dropout {v}"),
         "video.demos_per_renaming" => format!("video cube renaming in groups of {v}"),
         "executed_node" | "video.executed_node" => "executed node (not the localizer)".into(),
+        "state_height_clamp" => format!("heights read to {v} m"),
         "video.interpreter_frame_pool" => format!("interpreter frame pooling {v}"),
         "video.encoder_labels" => format!("stage A labels {v}"),
         "ntp_core" if v == "gru" => "recurrent (GRU) core".into(),
@@ -872,9 +884,8 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     // relational input it fit its training demos as well but transcribed
     // unseen ones worse (held-out token accuracy 0.73 against 0.98 at 1000
     // tasks x 20 demos).
-    model_config.localizer.encoder =
-        encoder(config.obs, config.state_hidden_layers, config.pairwise);
-    model_config.edge.encoder = encoder(config.obs, config.state_hidden_layers, config.pairwise);
+    model_config.localizer.encoder = observation_encoder(config);
+    model_config.edge.encoder = observation_encoder(config);
     if config.edge_fusion_hidden > 0 {
         model_config.edge.fusion_hidden = Some(config.edge_fusion_hidden);
     }
@@ -894,6 +905,25 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     model_config.ablation.executed_node = executed_node;
     model_config.seed = config.model_seed;
     Ok(NtgModel::new(model_config, device)?)
+}
+
+/// The encoder of the networks that judge one observation (NTG's node
+/// localizer and edge classifier, the NTP family's core): the block
+/// world's [`encoder`] with the run's layers and pairwise offsets, heights
+/// clamped where the run asks ([`BlocksRunConfig::state_height_clamp`],
+/// state runs only).
+pub fn observation_encoder(config: &BlocksRunConfig) -> ntg_model::EncoderConfig {
+    let encoder = encoder(config.obs, config.state_hidden_layers, config.pairwise);
+    match (encoder, config.state_height_clamp) {
+        (ntg_model::EncoderConfig::State(state), Some(limit)) if config.obs == ObsKind::State => {
+            ntg_model::EncoderConfig::State(
+                state
+                    .with_height_clamp(Some(limit))
+                    .with_clamped_objects(Some(env_blocks::world::NUM_OBJECTS)),
+            )
+        }
+        (encoder, _) => encoder,
+    }
 }
 
 /// A trained block-stacking model: NTG on state rows, or on frames.
@@ -983,6 +1013,7 @@ pub fn train_model(
     check_encoder_labels(config)?;
     check_ntp_core(config)?;
     check_executed_node(config)?;
+    check_state_height_clamp(config)?;
     let split = task_split(config.task_source())?;
     let tasks = split.train(config.train_tasks)?;
     let demos = || -> anyhow::Result<Demos> {
@@ -1029,7 +1060,7 @@ pub fn train_model(
         demos: &demos,
         encoders: RowEncoders {
             sequence: encoder(config.obs, 1, false),
-            observation: encoder(config.obs, config.state_hidden_layers, config.pairwise),
+            observation: observation_encoder(config),
         },
         renaming,
         validation: (!validation.is_empty()).then_some(Validation {
@@ -1287,7 +1318,10 @@ impl PrimitiveLevel for BlocksPrimitive {
     fn encoder(&self, on_frames: bool) -> ntg_model::EncoderConfig {
         let c = &self.config;
         match on_frames {
-            false => encoder(ObsKind::State, c.state_hidden_layers, c.pairwise),
+            false => observation_encoder(&BlocksRunConfig {
+                obs: ObsKind::State,
+                ..c.clone()
+            }),
             true => encoder(ObsKind::Vid, c.state_hidden_layers, false),
         }
     }
@@ -1458,6 +1492,22 @@ fn check_executed_node(config: &BlocksRunConfig) -> anyhow::Result<()> {
             "executed_node = true sets where NTG's policy takes its current node; {} has no node localizer",
             config.method.legend()
         );
+    }
+    Ok(())
+}
+
+/// Refuses a height clamp ([`BlocksRunConfig::state_height_clamp`]) that is
+/// not a positive number of metres, or on video, whose frames have no
+/// heights to clamp.
+fn check_state_height_clamp(config: &BlocksRunConfig) -> anyhow::Result<()> {
+    let Some(limit) = config.state_height_clamp else {
+        return Ok(());
+    };
+    if !(limit.is_finite() && limit > 0.0) {
+        bail!("state_height_clamp must be a positive number of metres, got {limit}");
+    }
+    if config.obs != ObsKind::State {
+        bail!("state_height_clamp = {limit} applies to state rows; a video run reads frames");
     }
     Ok(())
 }
@@ -2082,6 +2132,10 @@ pub struct BlocksFlags {
     /// paper; a video run's node source comes with its recipe).
     #[arg(long)]
     pub executed_node: bool,
+    /// State runs: the state encoders read heights only as far as this
+    /// many metres (a cube is 0.05 m; not in the paper) [default: no clamp].
+    #[arg(long, value_name = "METRES", allow_negative_numbers = true)]
+    pub state_height_clamp: Option<f32>,
     /// Hidden layers of the localizer's and edge classifier's state encoder
     /// MLPs (state observations only; the demo interpreter keeps one)
     /// [default: 3 with --recipe recommended, else 1].
@@ -2219,6 +2273,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         tasks: own.tasks.clone(),
         structure_benchmark: own.task_set == Some(TaskSetKind::Structure),
         executed_node: base.executed_node || own.executed_node,
+        state_height_clamp: own.state_height_clamp.or(base.state_height_clamp),
         interpreter: flags.interpreter,
         location_step_prior: match (flags.location_step_prior, flags.interpreter) {
             (Some(0.0), _) => None,
@@ -2342,6 +2397,7 @@ impl DomainRuns for Blocks {
             );
         }
         check_executed_node(&config).context("--executed-node")?;
+        check_state_height_clamp(&config).context("--state-height-clamp")?;
         if (config.interpreter.is_some() || config.location_step_prior.is_some())
             && !config.method.method().reads("interpreter")
         {
@@ -2959,6 +3015,51 @@ mod tests {
         video.executed_node = true;
         let e = check_executed_node(&video).unwrap_err().to_string();
         assert!(e.contains("video.executed_node"), "{e}");
+    }
+
+    #[test]
+    fn a_height_clamp_reaches_the_encoders_that_judge_a_state_and_its_row_names_it() {
+        let mut config = Recipe::Recommended.config(ObsKind::State, 5, 2, 1, 0);
+        let json = serde_json::to_string(&config).unwrap();
+        assert!(
+            !json.contains("state_height_clamp"),
+            "absent when off: {json}"
+        );
+        config.state_height_clamp = Some(0.075);
+        check_state_height_clamp(&config).unwrap();
+        let model = new_model(&config, &ntg_model::cpu_device()).unwrap();
+        let clamp = |e: &ntg_model::EncoderConfig| match e {
+            ntg_model::EncoderConfig::State(s) => (s.height_clamp, s.clamped_objects),
+            other => panic!("a state encoder expected, got {other:?}"),
+        };
+        let clamped = (Some(0.075), Some(env_blocks::world::NUM_OBJECTS));
+        assert_eq!(clamp(&model.config.localizer.encoder), clamped);
+        assert_eq!(clamp(&model.config.edge.encoder), clamped);
+        // The demo interpreter reads heights as they are.
+        assert_eq!(clamp(&model.config.interpreter.encoder), (None, None));
+        assert!(
+            additions(&config)
+                .iter()
+                .any(|a| a == "heights read to 0.075 m"),
+            "{:?}",
+            additions(&config)
+        );
+        // A baseline's state encoder reads them clamped too.
+        config.method = MethodId::Ntp;
+        assert_eq!(clamp(&observation_encoder(&config)), clamped);
+        for bad in [0.0, -0.1, f32::NAN] {
+            config.state_height_clamp = Some(bad);
+            assert!(check_state_height_clamp(&config).is_err(), "{bad}");
+        }
+        let mut video = Recipe::Paper.config(ObsKind::Vid, 5, 2, 1, 0);
+        video.state_height_clamp = Some(0.075);
+        let e = check_state_height_clamp(&video).unwrap_err().to_string();
+        assert!(e.contains("frames"), "{e}");
+        video.state_height_clamp = None;
+        assert!(matches!(
+            observation_encoder(&video),
+            ntg_model::EncoderConfig::State(s) if s.height_clamp.is_none()
+        ));
     }
 
     #[test]

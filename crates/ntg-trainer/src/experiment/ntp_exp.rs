@@ -4026,6 +4026,7 @@ mod tests {
             tasks: None,
             structure_benchmark: false,
             executed_node: false,
+            state_height_clamp: None,
             interpreter: None,
             location_step_prior: None,
             optim: crate::fit::OptimConfig {

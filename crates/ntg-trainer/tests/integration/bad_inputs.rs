@@ -198,6 +198,22 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--domain", "blocks", "--method", "ntp", "--executed-node"]),
             "--executed-node".into(),
         ),
+        // A height clamp is a positive length, and a state run's.
+        (
+            train(&["--domain", "blocks", "--state-height-clamp", "-1"]),
+            "--state-height-clamp".into(),
+        ),
+        (
+            train(&[
+                "--domain",
+                "blocks",
+                "--obs",
+                "vid",
+                "--state-height-clamp",
+                "0.075",
+            ]),
+            "--state-height-clamp".into(),
+        ),
         // A validation length that test episodes have (N = 5).
         (
             train(&[

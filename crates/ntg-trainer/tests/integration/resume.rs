@@ -34,6 +34,7 @@ fn config() -> BlocksRunConfig {
         tasks: None,
         structure_benchmark: false,
         executed_node: false,
+        state_height_clamp: None,
         interpreter: None,
         location_step_prior: None,
         optim: OptimConfig {
