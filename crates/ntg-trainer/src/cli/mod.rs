@@ -303,10 +303,10 @@ mod tests {
 
     #[test]
     fn flags_of_another_domain_are_refused_not_ignored() {
-        let err = parse_from(["ntg", "train", "--out", "r", "--memory"]).unwrap_err();
+        let err = parse_from(["ntg", "train", "--out", "r", "--learn-end"]).unwrap_err();
         let line = usage_error(&err);
         assert!(
-            line.contains("--memory is a flag of --domain collect; this run is --domain blocks"),
+            line.contains("--learn-end is a flag of --domain collect; this run is --domain blocks"),
             "{line}"
         );
         let err = parse_from([
@@ -327,7 +327,13 @@ mod tests {
         );
         // A domain's own flags, and flags left at their defaults, pass.
         parse_from([
-            "ntg", "train", "--domain", "collect", "--out", "r", "--memory",
+            "ntg",
+            "train",
+            "--domain",
+            "collect",
+            "--out",
+            "r",
+            "--learn-end",
         ])
         .unwrap();
         parse_from(["ntg", "train", "--out", "r", "--pairwise"]).unwrap();

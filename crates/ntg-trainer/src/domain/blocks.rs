@@ -171,6 +171,13 @@ pub struct BlocksRunConfig {
     /// heights read as they are.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub state_height_clamp: Option<f32>,
+    /// NTG: an execution memory (`--memory`, as object collection's): the
+    /// edge classifier also reads the nodes of the task graph the agent
+    /// has not executed yet (`ntg_model::pending_nodes`), so that a scene
+    /// that looks finished is not taken for one while the demo's actions
+    /// are pending. Not in the paper's block stacking. Absent: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub memory: bool,
     /// NTG's demo interpreter (`--interpreter`; absent: the paper's Luong
     /// interpreter, as in every run saved before it). Read by NTG only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -608,6 +615,7 @@ impl Recipe {
             structure_benchmark: false,
             executed_node: false,
             state_height_clamp: None,
+            memory: false,
             interpreter: None,
             location_step_prior: None,
             optim: OptimConfig {
@@ -843,6 +851,7 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "video.demos_per_renaming" => format!("video cube renaming in groups of {v}"),
         "executed_node" | "video.executed_node" => "executed node (not the localizer)".into(),
         "state_height_clamp" => format!("heights read to {v} m"),
+        "memory" => "execution memory".into(),
         "video.interpreter_frame_pool" => format!("interpreter frame pooling {v}"),
         "video.encoder_labels" => format!("stage A labels {v}"),
         "ntp_core" if v == "gru" => "recurrent (GRU) core".into(),
@@ -894,6 +903,9 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     }
     if config.executed_node || config.video.as_ref().is_some_and(|v| v.executed_node) {
         model_config.ablation.executed_node = Some(true);
+    }
+    if config.memory {
+        model_config.edge.memory_dim = Some(vocab.len());
     }
     if let Some(pool) = config.video.as_ref().map(|v| v.interpreter_frame_pool)
         && pool > 1
@@ -1014,6 +1026,7 @@ pub fn train_model(
     check_ntp_core(config)?;
     check_executed_node(config)?;
     check_state_height_clamp(config)?;
+    check_memory(config)?;
     let split = task_split(config.task_source())?;
     let tasks = split.train(config.train_tasks)?;
     let demos = || -> anyhow::Result<Demos> {
@@ -1490,6 +1503,18 @@ fn check_executed_node(config: &BlocksRunConfig) -> anyhow::Result<()> {
     if !config.method.method().reads("executed_node") {
         bail!(
             "executed_node = true sets where NTG's policy takes its current node; {} has no node localizer",
+            config.method.legend()
+        );
+    }
+    Ok(())
+}
+
+/// Refuses an execution memory ([`BlocksRunConfig::memory`]) for a method
+/// whose networks read none.
+fn check_memory(config: &BlocksRunConfig) -> anyhow::Result<()> {
+    if config.memory && !config.method.method().reads("memory") {
+        bail!(
+            "memory = true gives NTG's edge classifier the task-graph nodes not yet executed; {} has no edge classifier",
             config.method.legend()
         );
     }
@@ -2274,6 +2299,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         structure_benchmark: own.task_set == Some(TaskSetKind::Structure),
         executed_node: base.executed_node || own.executed_node,
         state_height_clamp: own.state_height_clamp.or(base.state_height_clamp),
+        memory: base.memory || flags.memory,
         interpreter: flags.interpreter,
         location_step_prior: match (flags.location_step_prior, flags.interpreter) {
             (Some(0.0), _) => None,
@@ -2398,6 +2424,7 @@ impl DomainRuns for Blocks {
         }
         check_executed_node(&config).context("--executed-node")?;
         check_state_height_clamp(&config).context("--state-height-clamp")?;
+        check_memory(&config).context("--memory")?;
         if (config.interpreter.is_some() || config.location_step_prior.is_some())
             && !config.method.method().reads("interpreter")
         {
@@ -3060,6 +3087,32 @@ mod tests {
             observation_encoder(&video),
             ntg_model::EncoderConfig::State(s) if s.height_clamp.is_none()
         ));
+    }
+
+    #[test]
+    fn an_execution_memory_is_ntg_s_and_its_row_names_it() {
+        let mut config = Recipe::Recommended.config(ObsKind::State, 5, 2, 1, 0);
+        let json = serde_json::to_string(&config).unwrap();
+        assert!(!json.contains("memory"), "absent when off: {json}");
+        assert_eq!(
+            new_model(&config, &ntg_model::cpu_device())
+                .unwrap()
+                .edges
+                .memory_dim,
+            0
+        );
+        config.memory = true;
+        check_memory(&config).unwrap();
+        let model = new_model(&config, &ntg_model::cpu_device()).unwrap();
+        assert_eq!(model.edges.memory_dim, flat_vocabulary().len());
+        assert!(
+            additions(&config).iter().any(|a| a == "execution memory"),
+            "{:?}",
+            additions(&config)
+        );
+        config.method = MethodId::Ntp;
+        let e = check_memory(&config).unwrap_err().to_string();
+        assert!(e.contains("no edge classifier"), "{e}");
     }
 
     #[test]

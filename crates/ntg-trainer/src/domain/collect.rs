@@ -708,11 +708,6 @@ pub struct CollectFlags {
     /// support (without it, episodes end at the step limit).
     #[arg(long)]
     pub learn_end: bool,
-    /// Give both policies an execution memory: the actions the agent has
-    /// taken so far (the Flat Policy reads them in its attention query,
-    /// NTG's edge classifier reads the task-graph nodes not yet executed).
-    #[arg(long)]
-    pub memory: bool,
     /// Validation tasks per number of training objects: held-out
     /// train-side tasks (never test tasks) rolled out after every epoch;
     /// the best epoch is kept in best/ and is the one `ntg eval` scores.
@@ -784,7 +779,7 @@ impl DomainRuns for Collect {
         );
         config.segments = !c.no_segments;
         config.learn_end = c.learn_end;
-        config.memory = c.memory;
+        config.memory = flags.memory;
         config.interpreter = interpreter_of(flags);
         config.location_step_prior = location_step_prior_of(flags);
         config.validation_tasks_per_n = c.validation_tasks_per_n;

@@ -204,6 +204,13 @@ pub struct TrainFlags {
     /// luong, the paper's].
     #[arg(long, value_parser = crate::spec::parse::choice::<crate::method::ntg::InterpreterKind>())]
     pub interpreter: Option<crate::method::ntg::InterpreterKind>,
+    /// Give the policy an execution memory, the actions the agent has
+    /// taken so far: NTG's edge classifier reads the task-graph nodes not
+    /// yet executed (object collection; block stacking, not in the paper
+    /// there), the Flat Policy reads them in its attention query (object
+    /// collection).
+    #[arg(long)]
+    pub memory: bool,
     /// NTG with a stepping interpreter: initial weight of its
     /// location-aware attention's forward shifts, a bias towards reading
     /// on (0 = no preference) [default: 0.3 with a stepping interpreter].

@@ -365,6 +365,11 @@ impl DomainRuns for Sorting {
                 "--interpreter and --location-step-prior are block stacking's and object collection's; object sorting trains the paper's interpreter"
             );
         }
+        if flags.memory {
+            bail!(
+                "--memory is block stacking's and object collection's; object sorting trains NTG without an execution memory"
+            );
+        }
         let own = &own.sorting;
         let config = SortingRunConfig {
             domain: "sorting".into(),

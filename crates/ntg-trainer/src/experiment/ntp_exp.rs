@@ -4027,6 +4027,7 @@ mod tests {
             structure_benchmark: false,
             executed_node: false,
             state_height_clamp: None,
+            memory: false,
             interpreter: None,
             location_step_prior: None,
             optim: crate::fit::OptimConfig {

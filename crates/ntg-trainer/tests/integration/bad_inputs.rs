@@ -166,8 +166,8 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
         ),
         // Flags of another domain or another input.
         (
-            train(&["--domain", "blocks", "--memory"]),
-            "--memory".into(),
+            train(&["--domain", "blocks", "--learn-end"]),
+            "--learn-end".into(),
         ),
         (
             train(&["--domain", "collect", "--location-step-prior", "inf"]),
@@ -213,6 +213,15 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
                 "0.075",
             ]),
             "--state-height-clamp".into(),
+        ),
+        // An execution memory is NTG's, and not object sorting's.
+        (
+            train(&["--domain", "sorting", "--memory"]),
+            "--memory".into(),
+        ),
+        (
+            train(&["--domain", "blocks", "--method", "ntp", "--memory"]),
+            "--memory".into(),
         ),
         // A validation length that test episodes have (N = 5).
         (

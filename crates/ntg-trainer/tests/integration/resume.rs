@@ -35,6 +35,7 @@ fn config() -> BlocksRunConfig {
         structure_benchmark: false,
         executed_node: false,
         state_height_clamp: None,
+        memory: false,
         interpreter: None,
         location_step_prior: None,
         optim: OptimConfig {

@@ -46,6 +46,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         structure_benchmark: false,
         executed_node: false,
         state_height_clamp: None,
+        memory: false,
         interpreter: None,
         location_step_prior: None,
         optim: OptimConfig {
