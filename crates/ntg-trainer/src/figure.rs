@@ -756,17 +756,38 @@ pub struct GroupedBars {
     pub series: Vec<(String, Vec<Bar>)>,
 }
 
-/// Width in pixels of one grouped-bar chart (its legend to its right).
+/// Least width in pixels of one grouped-bar chart (its legend to its right).
 const GROUPED_WIDTH: u32 = 520;
+
+/// Width in pixels of the plots of `charts` (one for all, as they are laid
+/// side by side evenly): [`GROUPED_WIDTH`], or wider where a chart's
+/// category labels (12-px text, about 7 px a character, plus a gap) would
+/// otherwise run into each other.
+fn grouped_plot_width(charts: &[GroupedBars]) -> u32 {
+    charts
+        .iter()
+        .map(|c| {
+            let longest = c
+                .categories
+                .iter()
+                .map(|l| l.chars().count())
+                .max()
+                .unwrap_or(0) as u32;
+            // The y-axis label area (48 px) and the plot's margins.
+            64 + c.categories.len() as u32 * (longest * 7 + 12)
+        })
+        .fold(GROUPED_WIDTH, u32::max)
+}
 
 fn draw_grouped<DB: DrawingBackend>(
     area: &DrawingArea<DB, Shift>,
     chart: &GroupedBars,
+    plot_width: u32,
 ) -> anyhow::Result<()>
 where
     DB::ErrorType: 'static,
 {
-    let (plot, beside) = area.split_horizontally(GROUPED_WIDTH);
+    let (plot, beside) = area.split_horizontally(plot_width);
     let n = chart.categories.len().max(1);
     let mut c = ChartBuilder::on(&plot)
         .caption(&chart.title, ("sans-serif", 17))
@@ -842,7 +863,7 @@ pub fn write_grouped_bars(charts: &[GroupedBars], stem: &Path) -> anyhow::Result
         .unwrap_or(0) as u32;
     let legend = (longest * 7 + 44).clamp(100, 300);
     let size = (
-        (GROUPED_WIDTH + legend) * charts.len().max(1) as u32,
+        (grouped_plot_width(charts) + legend) * charts.len().max(1) as u32,
         PANEL_HEIGHT,
     );
     let svg = stem.with_extension("svg");
@@ -864,8 +885,9 @@ where
 {
     root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
     let areas = root.split_evenly((1, charts.len().max(1)));
+    let width = grouped_plot_width(charts);
     for (area, chart) in areas.iter().zip(charts) {
-        draw_grouped(area, chart)?;
+        draw_grouped(area, chart, width)?;
     }
     root.present().map_err(|e| anyhow!("{e}"))
 }
@@ -875,6 +897,20 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn grouped_bars_widen_for_many_long_category_labels() {
+        let chart = |labels: &[&str]| GroupedBars {
+            title: String::new(),
+            y_label: String::new(),
+            categories: labels.iter().map(|l| l.to_string()).collect(),
+            series: Vec::new(),
+        };
+        assert_eq!(grouped_plot_width(&[chart(&["NTG", "NTP"])]), GROUPED_WIDTH);
+        let many = chart(&["NTG rec. (nodetach)"; 8]);
+        let width = grouped_plot_width(&[chart(&["NTG"]), many]);
+        assert!(width >= 8 * 19 * 7, "{width}");
+    }
 
     #[test]
     fn a_count_axis_has_ticks_only_at_the_counts() {
