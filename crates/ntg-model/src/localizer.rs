@@ -15,13 +15,49 @@ pub struct NodeLocalizerConfig {
     /// Number of CTG nodes `N`.
     pub num_nodes: usize,
     /// Observation encoder; its output size is the node embedding size.
+    /// With `previous_observation` it reads rows twice as long as an
+    /// observation ([`NodeLocalizer::in_context`]).
     pub encoder: EncoderConfig,
+    /// Temporal context (not in the paper): the localizer reads the
+    /// observation the agent acted on before this one beside the current
+    /// one, as `[o_t, o_t − o_{t−1}]` (the first observation of an episode
+    /// is its own previous one). A single frame after `pick(X)` (X held
+    /// just above its spot) and after `place(X)` (a cube let go onto X)
+    /// can look alike; the change since the last decision tells them
+    /// apart. `None`: off (configurations saved before it load).
+    pub previous_observation: Option<bool>,
 }
 
 impl NodeLocalizerConfig {
+    /// Whether the localizer reads the previous observation too
+    /// ([`NodeLocalizerConfig::previous_observation`]).
+    pub fn reads_previous(&self) -> bool {
+        self.previous_observation.unwrap_or(false)
+    }
+
+    /// Length of one observation row (the encoder reads twice that with
+    /// the previous observation).
+    pub fn obs_dim(&self) -> usize {
+        if self.reads_previous() {
+            self.encoder.input_dim() / 2
+        } else {
+            self.encoder.input_dim()
+        }
+    }
+
     /// Checks the sizes.
     pub fn validate(&self) -> Result<()> {
         self.encoder.validate()?;
+        if self.reads_previous() {
+            match &self.encoder {
+                EncoderConfig::State(c) if c.pairwise_objects == 0 && c.input_dim % 2 == 0 => {}
+                _ => {
+                    return Err(ModelError::Config(
+                        "node localizer: the previous observation is read by a plain state encoder (no pairwise object features) of twice the observation's length".into(),
+                    ));
+                }
+            }
+        }
         if self.num_nodes < 3 {
             return Err(ModelError::Config(format!(
                 "node localizer: num_nodes must be at least 3, got {}",
@@ -70,6 +106,21 @@ impl NodeLocalizer {
     pub fn forward(&self, obs: Tensor<2>) -> Result<Tensor<2>> {
         let enc = self.encoder.forward(obs)?;
         Ok(self.forward_encoded(enc))
+    }
+
+    /// The localizer's input with temporal context: `[o_t, o_t − o_{t−1}]`
+    /// `[B, 2D]` from observations `[B, D]` and the previous ones `[B, D]`
+    /// ([`NodeLocalizerConfig::previous_observation`]).
+    pub fn in_context(obs: Tensor<2>, previous: Tensor<2>) -> Result<Tensor<2>> {
+        if obs.dims() != previous.dims() {
+            return Err(ModelError::shape(
+                "previous observations",
+                format!("{:?}", obs.dims()),
+                previous.dims(),
+            ));
+        }
+        let change = obs.clone() - previous;
+        Ok(Tensor::cat(vec![obs, change], 1))
     }
 
     /// Node logits from already encoded observations `[B, H]`.

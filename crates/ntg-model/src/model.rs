@@ -154,7 +154,7 @@ impl NtgConfig {
         }
         let dims = [
             self.interpreter.encoder.input_dim(),
-            self.localizer.encoder.input_dim(),
+            self.localizer.obs_dim(),
             self.edge.encoder.input_dim(),
         ];
         if dims.iter().any(|&d| d != dims[0]) {
@@ -173,7 +173,7 @@ impl NtgConfig {
 
     /// Length `D` of one observation row.
     pub fn obs_dim(&self) -> usize {
-        self.localizer.encoder.input_dim()
+        self.localizer.obs_dim()
     }
 }
 

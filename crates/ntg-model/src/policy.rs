@@ -21,6 +21,9 @@ use crate::{ModelError, Result};
 struct Scores {
     observation: Vec<f32>,
     memory: Option<Vec<f32>>,
+    /// The previous observation the localizer read with this one (with
+    /// temporal context; `None` otherwise).
+    previous: Option<Vec<f32>>,
     /// The last executed action, when the node comes from the record.
     executed_node: Option<ActionId>,
     /// Localizer logits `[N]` (`None` when the localizer is ablated;
@@ -69,6 +72,9 @@ pub struct NtgPolicy {
     /// The last action executed (`<start>` before the first), from
     /// [`NtgPolicy::set_executed`].
     last_executed: RefCell<ActionId>,
+    /// The observation acted on before the current one, from
+    /// [`NtgPolicy::set_previous_observation`].
+    previous: RefCell<Option<Vec<f32>>>,
     cache: RefCell<Option<Scores>>,
 }
 
@@ -118,6 +124,7 @@ impl NtgPolicy {
             ne_gcn: completed.embeddings,
             memory: RefCell::new(None),
             last_executed: RefCell::new(Vocabulary::START),
+            previous: RefCell::new(None),
             cache: RefCell::new(None),
         })
     }
@@ -183,6 +190,24 @@ impl NtgPolicy {
         *self.last_executed.borrow_mut() = executed.last().copied().unwrap_or(Vocabulary::START);
         if self.has_memory() {
             *self.memory.borrow_mut() = Some(crate::pending_nodes(&self.initial, executed));
+        }
+    }
+
+    /// Whether the localizer reads the previous observation too
+    /// ([`crate::NodeLocalizerConfig::previous_observation`]; then the
+    /// agent tells it with [`NtgPolicy::set_previous_observation`]).
+    pub fn reads_previous_observation(&self) -> bool {
+        self.model.config.localizer.reads_previous()
+    }
+
+    /// Tells a localizer with temporal context the observation the agent
+    /// acted on before the one it scores next (`None` at the first
+    /// decision of an episode: the observation is then its own previous
+    /// one, as the first frame of a demo is in training). A no-op for a
+    /// localizer without it.
+    pub fn set_previous_observation(&self, previous: Option<&[f32]>) {
+        if self.reads_previous_observation() {
+            *self.previous.borrow_mut() = previous.map(<[f32]>::to_vec);
         }
     }
 
@@ -254,6 +279,25 @@ impl NtgPolicy {
         })
     }
 
+    /// ℓ(·|o) of the observation scored last, as probabilities over all
+    /// `N` nodes: what the node localizer read from it. `None` before the
+    /// first observation, and where the localizer did not choose the node
+    /// (the node taken from the agent's record, or the localizer ablated).
+    pub fn last_localizer_probabilities(&self) -> Option<Vec<f32>> {
+        let cache = self.cache.borrow();
+        let scores = cache.as_ref()?;
+        if scores.executed_node.is_some() || scores.node_logits.is_none() {
+            return None;
+        }
+        let n = self.graph.num_nodes();
+        Some(
+            log_node_probabilities(scores, n)
+                .into_iter()
+                .map(|l| l.exp() as f32)
+                .collect(),
+        )
+    }
+
     /// ℓ(n|o) as probabilities over all `N` nodes.
     pub fn node_probabilities(&self, observation: &[f32]) -> Result<Vec<f32>> {
         let scores = self.scores(observation)?;
@@ -317,12 +361,14 @@ impl NtgPolicy {
     /// Runs (or reuses) the networks on one observation.
     fn scores(&self, observation: &[f32]) -> Result<Scores> {
         let memory = self.memory.borrow().clone();
+        let previous = self.previous.borrow().clone();
         let executed_node = self
             .uses_executed_node()
             .then(|| *self.last_executed.borrow());
         if let Some(cached) = self.cache.borrow().as_ref()
             && cached.observation == observation
             && cached.memory == memory
+            && cached.previous == previous
             && cached.executed_node == executed_node
         {
             return Ok(cached.clone());
@@ -351,7 +397,16 @@ impl NtgPolicy {
                     .collect(),
             )
         } else if ablation.node_localizer {
-            Some(to_vec(model.localizer.forward(obs.clone())?)?)
+            let input = if model.config.localizer.reads_previous() {
+                let before = match &previous {
+                    Some(p) => rows_tensor(&[p.as_slice()], model.obs_dim(), &device)?,
+                    None => obs.clone(),
+                };
+                crate::localizer::NodeLocalizer::in_context(obs.clone(), before)?
+            } else {
+                obs.clone()
+            };
+            Some(to_vec(model.localizer.forward(input)?)?)
         } else {
             None
         };
@@ -385,6 +440,7 @@ impl NtgPolicy {
         let scores = Scores {
             observation: observation.to_vec(),
             memory,
+            previous,
             executed_node,
             node_logits,
             edge_logits,

@@ -860,6 +860,80 @@ fn the_executed_node_replaces_the_localizer_with_the_last_action_taken() {
 }
 
 #[test]
+fn the_last_localizer_reading_is_the_node_distribution_of_the_last_observation() {
+    let dev = device();
+    let model = NtgModel::new(small_config(9), &dev).unwrap();
+    let policy = NtgPolicy::from_actions(&model, &ids(&[2, 4, 3])).unwrap();
+    // Nothing scored yet.
+    assert_eq!(policy.last_localizer_probabilities(), None);
+    let (a, b) = (one_hot_row(1), one_hot_row(2));
+    policy.action_distribution(&a).unwrap();
+    policy.action_distribution(&b).unwrap();
+    let last = policy.last_localizer_probabilities().unwrap();
+    assert_eq!(last, policy.node_probabilities(&b).unwrap());
+    assert_ne!(last, policy.node_probabilities(&a).unwrap());
+    // With the node taken from the record, the localizer read nothing.
+    let mut cfg = small_config(9);
+    cfg.ablation.executed_node = Some(true);
+    let model = NtgModel::new(cfg, &dev).unwrap();
+    let policy = NtgPolicy::from_actions(&model, &ids(&[2, 4, 3])).unwrap();
+    policy.set_executed(&ids(&[2]));
+    policy.action_distribution(&a).unwrap();
+    assert_eq!(policy.last_localizer_probabilities(), None);
+}
+
+#[test]
+fn a_localizer_with_temporal_context_reads_the_change_since_the_previous_observation() {
+    let dev = device();
+    let mut cfg = small_config(9);
+    let EncoderConfig::State(state) = &mut cfg.localizer.encoder else {
+        panic!("small_config has state encoders");
+    };
+    state.input_dim *= 2;
+    cfg.localizer.previous_observation = Some(true);
+    let model = NtgModel::new(cfg.clone(), &dev).unwrap();
+    assert_eq!(model.obs_dim(), D);
+    let policy = NtgPolicy::from_actions(&model, &ids(&[2, 4, 3])).unwrap();
+    assert!(policy.reads_previous_observation());
+    let (a, b) = (one_hot_row(1), one_hot_row(2));
+    // The first decision reads the observation as its own previous one.
+    policy.set_previous_observation(None);
+    let first = policy.node_probabilities(&b).unwrap();
+    policy.set_previous_observation(Some(&b));
+    assert_eq!(policy.node_probabilities(&b).unwrap(), first);
+    // Another previous observation, another reading of the same one.
+    policy.set_previous_observation(Some(&a));
+    let after_a = policy.node_probabilities(&b).unwrap();
+    assert_ne!(after_a, first);
+    // The same as the localizer's logits on [o, o - o_prev].
+    let input = NodeLocalizer::in_context(
+        rows_tensor(&[b.as_slice()], D, &dev).unwrap(),
+        rows_tensor(&[a.as_slice()], D, &dev).unwrap(),
+    )
+    .unwrap();
+    let logits = to_vec(model.valid().localizer.forward(input).unwrap()).unwrap();
+    let z: f32 = logits.iter().map(|l| l.exp()).sum();
+    for (p, l) in after_a.iter().zip(&logits) {
+        assert!((p - l.exp() / z).abs() < 1e-5);
+    }
+    // Observations of another length, and an encoder with pairwise
+    // features, are refused.
+    assert!(
+        NodeLocalizer::in_context(
+            rows_tensor(&[b.as_slice()], D, &dev).unwrap(),
+            Tensor::zeros([1, D + 1], &dev),
+        )
+        .is_err()
+    );
+    let mut pairwise = cfg;
+    if let EncoderConfig::State(state) = &mut pairwise.localizer.encoder {
+        state.pairwise_objects = 2;
+    }
+    let err = pairwise.validate().unwrap_err().to_string();
+    assert!(err.contains("previous observation"), "{err}");
+}
+
+#[test]
 fn a_model_folder_with_safetensors_weights_loads_the_same_model() {
     let dev = device();
     let dir = tempfile::tempdir().unwrap();

@@ -437,6 +437,10 @@ impl TrainStep<NtgModel> for NtgStep<'_> {
         // memory of the task-graph nodes not executed before it.
         let retry_weight = t.retry_weight.max(1.0);
         let (mut obs, mut nodes) = (Vec::new(), Vec::new());
+        // With temporal context, the keyframe before each (the first its
+        // own), as the agent reads the observation of its last decision.
+        let reads_previous = model.config().localizer.reads_previous();
+        let mut previous = Vec::new();
         let (mut e_obs, mut e_nodes, mut e_next, mut e_demo, mut e_graphs) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let (mut e_weights, mut e_memory): (Vec<f32>, Vec<Vec<f32>>) = (Vec::new(), Vec::new());
@@ -447,6 +451,9 @@ impl TrainStep<NtgModel> for NtgStep<'_> {
             for (i, ((o, node), nx)) in nodes_rows.zip(labels).zip(nexts).enumerate() {
                 obs.push(o);
                 nodes.push(node);
+                if reads_previous {
+                    previous.push(&rows[keyframes[b][i.saturating_sub(1)]]);
+                }
                 if t.skip_end && nx == Vocabulary::END {
                     continue;
                 }
@@ -463,7 +470,15 @@ impl TrainStep<NtgModel> for NtgStep<'_> {
             }
         }
         let obs_tensor = rows_tensor(&obs, dim, device)?;
-        let loc_logits = model.localizer.forward(obs_tensor.clone())?;
+        let loc_input = if reads_previous {
+            ntg_model::NodeLocalizer::in_context(
+                obs_tensor.clone(),
+                rows_tensor(&previous, dim, device)?,
+            )?
+        } else {
+            obs_tensor.clone()
+        };
+        let loc_logits = model.localizer.forward(loc_input)?;
         let loc = model
             .localizer
             .loss(loc_logits, ids_tensor(&nodes, n, device)?)?;
@@ -749,6 +764,10 @@ pub struct NtgVideoOptions {
     /// The demo interpreter reads frames averaged in windows of this many.
     #[serde(default)]
     pub interpreter_frame_pool: usize,
+    /// The node localizer reads the frame the agent acted on before this
+    /// one too ([`ntg_model::NodeLocalizerConfig::previous_observation`]).
+    #[serde(default)]
+    pub localizer_previous_frame: bool,
 }
 
 impl NtgOptions {
@@ -770,6 +789,7 @@ impl NtgOptions {
         "executed_node",
         "video.executed_node",
         "video.interpreter_frame_pool",
+        "video.localizer_previous_frame",
     ];
 
     /// Refuses what cannot be trained, naming the flag.
@@ -796,6 +816,14 @@ impl NtgOptions {
         {
             anyhow::bail!("--location-step-prior must be finite, got {w}");
         }
+        if let Some(video) = &self.video
+            && video.localizer_previous_frame
+            && (video.executed_node || self.executed_node)
+        {
+            anyhow::bail!(
+                "--localizer-previous-frame: the run takes the current node from the agent's record (--executed-node), so the localizer does not choose it"
+            );
+        }
         Ok(())
     }
 
@@ -819,6 +847,13 @@ impl NtgOptions {
         let video = self.video.clone().unwrap_or_default();
         if video.interpreter_frame_pool > 1 {
             config.interpreter.frame_pool = Some(video.interpreter_frame_pool);
+        }
+        if video.localizer_previous_frame {
+            // The model's validation refuses any other encoder.
+            if let ntg_model::EncoderConfig::State(c) = &mut config.localizer.encoder {
+                c.input_dim *= 2;
+            }
+            config.localizer.previous_observation = Some(true);
         }
         // The trained part switched off; the current node from the agent's
         // record only where the run asks (an ablation's own choice of it
@@ -1125,7 +1160,13 @@ impl TrainedPolicy for NtgModel {
         demo: &[Vec<f32>],
         vocabulary: &ctg_graph::Vocabulary,
     ) -> anyhow::Result<Box<dyn Agent>> {
-        Ok(Box::new(NtgPolicy::from_demo(self, demo, vocabulary)?))
+        Ok(Box::new(NtgAgent {
+            policy: NtgPolicy::from_demo(self, demo, vocabulary)?,
+            names: (0..vocabulary.len())
+                .map(|i| vocabulary.name(ActionId::new(i)).unwrap_or("?").to_owned())
+                .collect(),
+            previous: std::cell::RefCell::new(None),
+        }))
     }
     fn as_any(&self) -> &dyn std::any::Any {
         self
@@ -1138,22 +1179,59 @@ impl TrainedPolicy for NtgModel {
     }
 }
 
-/// NTG's agent: the graph executor over the demo's completed task graph.
-impl Agent for NtgPolicy {
+/// NTG's agent as evaluation conditions it: the graph executor over the
+/// demo's completed task graph (the policy), with the names of its nodes,
+/// so that [`Agent::explain`] can say which node the localizer read from
+/// the frame.
+struct NtgAgent {
+    policy: NtgPolicy,
+    names: Vec<String>,
+    /// The observation of the last decision (for a localizer with
+    /// temporal context).
+    previous: std::cell::RefCell<Option<Vec<f32>>>,
+}
+
+impl Agent for NtgAgent {
     fn act(
         &self,
         row: &[f32],
         executed: &[ActionId],
         ties: &mut crate::method::Ties,
     ) -> anyhow::Result<ActionId> {
-        self.set_executed(executed);
+        if self.policy.reads_previous_observation() {
+            let mut previous = self.previous.borrow_mut();
+            self.policy.set_previous_observation(previous.as_deref());
+            *previous = Some(row.to_vec());
+        }
+        self.policy.set_executed(executed);
         Ok(self
+            .policy
             .action_distribution(row)?
             .most_likely_breaking_ties(ties.draw()))
     }
     fn transcription(&self) -> &[ActionId] {
-        self.demo_actions()
+        self.policy.demo_actions()
     }
+    /// `localized NODE P, NODE P`: the node localizer's two most likely
+    /// nodes for the last observation (nothing where the node came from the
+    /// agent's record).
+    fn explain(&self) -> Option<String> {
+        let p = self.policy.last_localizer_probabilities()?;
+        Some(format!("localized {}", localized_top(&p, &self.names, 2)))
+    }
+}
+
+/// The `k` most likely nodes of `p` as `NAME P` joined by `, ` (lowest id
+/// first on ties).
+fn localized_top(p: &[f32], names: &[String], k: usize) -> String {
+    let mut order: Vec<usize> = (0..p.len()).collect();
+    order.sort_by(|&a, &b| p[b].total_cmp(&p[a]).then(a.cmp(&b)));
+    order
+        .into_iter()
+        .take(k)
+        .map(|i| format!("{} {:.3}", names.get(i).map_or("?", String::as_str), p[i]))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 #[cfg(test)]
@@ -1185,6 +1263,23 @@ mod tests {
         // Read back from the same keys, the options are what was written.
         let json = serde_json::to_value(&options).unwrap();
         assert_eq!(NtgOptions::deserialize(json).unwrap(), options);
+    }
+
+    #[test]
+    fn the_explanation_names_the_most_likely_nodes_first() {
+        let names: Vec<String> = ["<start>", "pick(A)", "place(B)"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        assert_eq!(
+            localized_top(&[0.1, 0.3, 0.6], &names, 2),
+            "place(B) 0.600, pick(A) 0.300"
+        );
+        // Ties keep the lower id first.
+        assert_eq!(
+            localized_top(&[0.5, 0.5, 0.0], &names, 2),
+            "<start> 0.500, pick(A) 0.500"
+        );
     }
 
     #[test]

@@ -452,6 +452,13 @@ pub struct BlocksVideo {
     /// Absent in runs saved before it: false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub executed_node: bool,
+    /// NTG's node localizer reads the frame of the agent's previous
+    /// decision beside the current one, `[o_t, o_t − o_{t−1}]` on their
+    /// frame embeddings (not in the paper; temporal context,
+    /// `ntg_model::NodeLocalizerConfig::previous_observation`). Absent in
+    /// runs saved before it: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub localizer_previous_frame: bool,
     /// What stage A's frame encoder is trained to tell apart in NTP's and
     /// NTP Flat's video runs (NTG's always reads flat actions). Absent in
     /// runs saved before it: [`FrameLabels::Flat`].
@@ -532,6 +539,7 @@ impl BlocksVideo {
             demos_per_renaming: if recommended { 4 } else { 0 },
             interpreter_frame_pool: if recommended { 4 } else { 1 },
             executed_node: recommended,
+            localizer_previous_frame: false,
             encoder_labels: FrameLabels::Flat,
         }
     }
@@ -853,6 +861,7 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "state_height_clamp" => format!("heights read to {v} m"),
         "memory" => "execution memory".into(),
         "video.interpreter_frame_pool" => format!("interpreter frame pooling {v}"),
+        "video.localizer_previous_frame" => "localizer reads the previous frame".into(),
         "video.encoder_labels" => format!("stage A labels {v}"),
         "ntp_core" if v == "gru" => "recurrent (GRU) core".into(),
         "ntp_core" => format!("{v} core"),
@@ -911,6 +920,16 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
         && pool > 1
     {
         model_config.interpreter.frame_pool = Some(pool);
+    }
+    if config
+        .video
+        .as_ref()
+        .is_some_and(|v| v.localizer_previous_frame)
+    {
+        if let ntg_model::EncoderConfig::State(c) = &mut model_config.localizer.encoder {
+            c.input_dim *= 2;
+        }
+        model_config.localizer.previous_observation = Some(true);
     }
     let executed_node = model_config.ablation.executed_node;
     model_config.ablation = config.ablation.ablation();
@@ -2204,6 +2223,14 @@ pub struct BlocksFlags {
     /// the recommended recipe, 1 in the paper's].
     #[arg(long, value_name = "K", value_parser = crate::spec::parse::positive)]
     pub interpreter_frame_pool: Option<usize>,
+    /// --obs vid, --method ntg: the node localizer reads the frame of the
+    /// agent's previous decision beside the current one (temporal context;
+    /// not in the paper). Needs the localizer to choose the node: refused
+    /// with --recipe recommended on video, whose node comes from the
+    /// agent's record (an experiment file's `video.executed_node = false`
+    /// combines them).
+    #[arg(long)]
+    pub localizer_previous_frame: bool,
     /// --obs vid: side in pixels of the camera's square frames, a multiple
     /// of 8 from 8 to 512 (the same framing: a cube spans about side/13
     /// pixels) [default: 64].
@@ -2263,6 +2290,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
             .interpreter_frame_pool
             .unwrap_or(v.interpreter_frame_pool);
         v.demos_per_renaming = own.video_renaming_group.unwrap_or(v.demos_per_renaming);
+        v.localizer_previous_frame |= own.localizer_previous_frame;
         v.encoder_labels = own.encoder_labels.unwrap_or(v.encoder_labels);
         if let Some(size) = own.camera_size {
             v.camera = env_blocks::Camera::of_size(u32::try_from(size).unwrap_or(u32::MAX));
@@ -2404,6 +2432,12 @@ impl DomainRuns for Blocks {
         {
             bail!(
                 "--interpreter-frame-pool sets NTG's demo interpreter on videos: it needs --obs vid and --method ntg"
+            );
+        }
+        if own.localizer_previous_frame && !(vid && method.reads("video.localizer_previous_frame"))
+        {
+            bail!(
+                "--localizer-previous-frame sets NTG's node localizer on videos: it needs --obs vid and --method ntg"
             );
         }
         if own.encoder_labels.is_some() && !(vid && method.reads("video.encoder_labels")) {

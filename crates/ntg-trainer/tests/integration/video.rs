@@ -38,6 +38,11 @@ fn config() -> BlocksRunConfig {
     video.encoder.batch_size = 32;
     video.encoder.learning_rate = 2e-3;
     video.demos_per_renaming = 0;
+    // The localizer choosing the node, reading the previous decision's
+    // frame too (temporal context): stage B must build its inputs from the
+    // keyframe before each.
+    video.executed_node = false;
+    video.localizer_previous_frame = true;
     // Both stages in two data-parallel shards, as `ntg train` trains (and
     // so on both of CI's cores).
     video.encoder.shards = 2;
@@ -103,10 +108,35 @@ fn staged_training_fits_its_demo_videos() {
     );
 
     // Stage B: the interpreter transcribes the videos from their
-    // embeddings.
+    // embeddings, and the localizer, reading each keyframe with the one
+    // before it, names its node.
+    assert!(model.policy.config.localizer.reads_previous());
+    let localizer = burn::module::Module::valid(&model.policy.localizer);
     let (mut tokens, mut token_total) = (0, 0);
+    let (mut nodes_right, mut keyframes) = (0, 0);
     for v in videos {
         let embedded = encode_rows(&net, v.frames()).unwrap();
+        let key = v.keyframe_indices();
+        let dim = embedded[0].len();
+        let at = |i: usize| {
+            rows_tensor(
+                &[embedded[key[i]].as_slice()],
+                dim,
+                &ntg_model::cpu_device(),
+            )
+            .unwrap()
+        };
+        for (i, node) in v.node_labels().into_iter().enumerate() {
+            let input =
+                ntg_model::NodeLocalizer::in_context(at(i), at(i.saturating_sub(1))).unwrap();
+            let logits = localizer.forward(input).unwrap();
+            let logits = logits.into_data().try_to_vec::<f32>().unwrap();
+            let best = (0..logits.len())
+                .max_by(|&a, &b| logits[a].total_cmp(&logits[b]))
+                .unwrap();
+            nodes_right += usize::from(best == node.index());
+            keyframes += 1;
+        }
         let decoded: Vec<ActionId> = model.policy.interpreter.decode(&embedded).unwrap();
         tokens += decoded
             .iter()
@@ -115,6 +145,12 @@ fn staged_training_fits_its_demo_videos() {
             .count();
         token_total += v.actions().len().max(decoded.len());
     }
+    let node_accuracy = nodes_right as f64 / keyframes as f64;
+    assert!(
+        node_accuracy > 0.5,
+        "keyframe localization with the previous keyframe {node_accuracy:.3} (chance {:.3})",
+        1.0 / n as f64
+    );
     let token_accuracy = tokens as f64 / token_total as f64;
     assert!(
         token_accuracy > 0.5,
