@@ -12,7 +12,8 @@
 //! behind (an older executed action), ahead (an action not executed yet),
 //! and whether the last action had failed in the environment (a slip or an
 //! off-centre drop, so the scene still shows the step before). Then, per
-//! episode, success with and without a disagreement.
+//! episode, success with and without a disagreement, and the failed
+//! episodes by their first fault and whether the demo was read exactly.
 //!
 //! ```text
 //! cargo run --release -p ntg-trainer --example localizer_rollouts -- RUN [TASKS]
@@ -58,7 +59,7 @@ fn main() -> anyhow::Result<()> {
     let mut after_failure: std::collections::BTreeMap<String, [usize; 2]> =
         std::collections::BTreeMap::new();
     // Failed episodes by the first thing that went wrong in them.
-    let mut first_fault: std::collections::BTreeMap<&'static str, usize> =
+    let mut first_fault: std::collections::BTreeMap<(&'static str, &'static str), usize> =
         std::collections::BTreeMap::new();
     for (i, task) in tasks.iter().enumerate() {
         let episode = Episode {
@@ -131,7 +132,14 @@ fn main() -> anyhow::Result<()> {
             }
         }
         if !record.success {
-            *first_fault.entry(first_fault_of(&seen)).or_insert(0) += 1;
+            let exact = if record.transcribed_exactly == Some(true) {
+                "demo read exactly"
+            } else {
+                "demo misread"
+            };
+            *first_fault
+                .entry((first_fault_of(&seen), exact))
+                .or_insert(0) += 1;
         }
         episodes_ok += usize::from(record.success);
         episodes_disagree += usize::from(disagreed);
@@ -180,8 +188,8 @@ fn main() -> anyhow::Result<()> {
     println!("\nfirst disagreement of each episode:");
     first_kinds.print();
     println!("\nfailed episodes by their first fault:");
-    for (fault, n) in &first_fault {
-        println!("  {fault:<45} {n:4}");
+    for ((fault, exact), n) in &first_fault {
+        println!("  {fault:<45} {exact:<18} {n:4}");
     }
     Ok(())
 }
