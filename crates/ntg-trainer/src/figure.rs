@@ -98,16 +98,19 @@ pub enum Dash {
     LongDashed,
     /// Dashes of 10 pixels with gaps as long.
     SparseDashed,
+    /// Dots far apart.
+    SparseDotted,
 }
 
 impl Dash {
     /// The dash patterns in the order variants of a method get them.
-    pub const ALL: [Dash; 5] = [
+    pub const ALL: [Dash; 6] = [
         Dash::Solid,
         Dash::Dashed,
         Dash::Dotted,
         Dash::LongDashed,
         Dash::SparseDashed,
+        Dash::SparseDotted,
     ];
 }
 
@@ -401,6 +404,7 @@ fn dash_pattern(dash: Dash) -> Option<(i32, i32)> {
         Dash::Dotted => Some((2, 4)),
         Dash::LongDashed => Some((18, 5)),
         Dash::SparseDashed => Some((10, 10)),
+        Dash::SparseDotted => Some((2, 10)),
     }
 }
 
