@@ -311,7 +311,7 @@ fn legend_width(panels: &[Panel]) -> u32 {
         .map(|s| s.name.chars().count())
         .max();
     match longest {
-        Some(chars) => (chars as u32 * 7 + 56).clamp(120, 440),
+        Some(chars) => (chars as u32 * 7 + 56).clamp(120, 840),
         None => 0,
     }
 }
