@@ -290,8 +290,20 @@ fn series_names(panels: &[Panel]) -> Vec<&str> {
     names
 }
 
-/// Pixels per legend row.
+/// Pixels per legend row (a series' first line).
 const LEGEND_ROW: u32 = 18;
+
+/// Pixels per further line of a series name wrapped in the legend.
+const LEGEND_LINE: u32 = 14;
+
+/// Characters per legend line: longer series names wrap at word
+/// boundaries, so that a figure with long names (every addition a run
+/// uses) keeps its panels large instead of widening its legends.
+const LEGEND_LINE_CHARS: usize = 46;
+
+/// Length in pixels of a legend's line sample, and where its text starts.
+const LEGEND_SAMPLE: i32 = 56;
+const LEGEND_TEXT_LEFT: i32 = LEGEND_SAMPLE + 8;
 
 /// Size in pixels of one panel's chart (its legend goes to its right).
 const CHART_WIDTH: u32 = 460;
@@ -300,18 +312,45 @@ const PANEL_HEIGHT: u32 = 360;
 /// Panels per row of a figure; more go on further rows.
 const PANELS_PER_ROW: usize = 2;
 
+/// `name` in lines of at most [`LEGEND_LINE_CHARS`] characters, broken
+/// after spaces (a word longer than a line gets a line of its own).
+fn legend_lines(name: &str) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    let mut line = String::new();
+    for word in name.split_inclusive(' ') {
+        let fits = line.chars().count() + word.trim_end().chars().count() <= LEGEND_LINE_CHARS;
+        if !line.is_empty() && !fits {
+            lines.push(line.trim_end().to_string());
+            line.clear();
+        }
+        line.push_str(word);
+    }
+    if !line.is_empty() || lines.is_empty() {
+        lines.push(line.trim_end().to_string());
+    }
+    lines
+}
+
+/// Height in pixels of `panel`'s legend below its 40-pixel top margin.
+fn legend_height(panel: &Panel) -> u32 {
+    drawn(panel)
+        .map(|(_, s)| LEGEND_ROW + (legend_lines(&s.name).len() as u32 - 1) * LEGEND_LINE)
+        .sum()
+}
+
 /// Width in pixels of the legend beside each panel: room for the longest
-/// series name of the figure (about 7 pixels per character at the
-/// legend's 12-point font, after a 40-pixel line sample).
+/// line of the figure's series names (about 7 pixels per character at the
+/// legend's 12-point font, after a 56-pixel line sample).
 fn legend_width(panels: &[Panel]) -> u32 {
     let longest = panels
         .iter()
         .flat_map(|p| &p.series)
         .filter(|s| !s.points.is_empty())
-        .map(|s| s.name.chars().count())
+        .flat_map(|s| legend_lines(&s.name))
+        .map(|line| line.chars().count())
         .max();
     match longest {
-        Some(chars) => (chars as u32 * 7 + 56).clamp(120, 840),
+        Some(chars) => (chars as u32 * 7 + LEGEND_TEXT_LEFT as u32 + 8).max(120),
         None => 0,
     }
 }
@@ -333,8 +372,8 @@ fn row_heights(panels: &[Panel]) -> Vec<u32> {
     panels
         .chunks(PANELS_PER_ROW)
         .map(|row| {
-            let rows = row.iter().map(|p| drawn(p).count()).max().unwrap_or(0) as u32;
-            PANEL_HEIGHT.max(40 + rows * LEGEND_ROW + 8)
+            let legend = row.iter().map(legend_height).max().unwrap_or(0);
+            PANEL_HEIGHT.max(40 + legend + 8)
         })
         .collect()
 }
@@ -419,25 +458,29 @@ where
     DB::ErrorType: 'static,
 {
     let style = TextStyle::from(("sans-serif", 12).into_font()).color(&BLACK);
-    for (row, (i, series)) in drawn(panel).enumerate() {
-        let (x, y) = (
-            6,
-            40 + row as i32 * LEGEND_ROW as i32 + LEGEND_ROW as i32 / 2,
-        );
+    let mut top = 40;
+    for (i, series) in drawn(panel) {
+        let lines = legend_lines(&series.name);
+        let (x, y) = (6, top + LEGEND_ROW as i32 / 2);
+        top += (LEGEND_ROW + (lines.len() as u32 - 1) * LEGEND_LINE) as i32;
         let look = looks[i];
         let stroke = PALETTE[look.colour % PALETTE.len()].stroke_width(2);
-        let sample = vec![(x, y), (x + 40, y)];
+        // The marker sits near the sample's start, so that the rest shows
+        // at least two periods of the longest dash pattern.
+        let sample = vec![(x, y), (x + LEGEND_SAMPLE, y)];
         match dash_pattern(look.dash) {
             None => area.draw(&PathElement::new(sample, stroke)),
             Some((dash, gap)) => area.draw(&DashedPathElement::new(sample, dash, gap, stroke)),
         }
-        .and_then(|_| area.draw(&marker!((x + 20, y), look)))
+        .and_then(|_| area.draw(&marker!((x + 8, y), look)))
         .and_then(|_| {
-            area.draw(&Text::new(
-                series.name.clone(),
-                (x + 48, y - 7),
-                style.clone(),
-            ))
+            lines.iter().enumerate().try_for_each(|(k, line)| {
+                area.draw(&Text::new(
+                    line.clone(),
+                    (x + LEGEND_TEXT_LEFT, y - 7 + k as i32 * LEGEND_LINE as i32),
+                    style.clone(),
+                ))
+            })
         })
         .map_err(|e| anyhow!("drawing the legend: {e}"))?;
     }
@@ -760,27 +803,62 @@ pub struct GroupedBars {
     pub series: Vec<(String, Vec<Bar>)>,
 }
 
-/// Least width in pixels of one grouped-bar chart (its legend to its right).
-const GROUPED_WIDTH: u32 = 520;
+/// Least width in pixels of one grouped-bar chart's plot (its legend to
+/// its right).
+const GROUPED_WIDTH: u32 = 280;
 
-/// Width in pixels of the plots of `charts` (one for all, as they are laid
-/// side by side evenly): [`GROUPED_WIDTH`], or wider where a chart's
-/// category labels (12-px text, about 7 px a character, plus a gap) would
-/// otherwise run into each other.
-fn grouped_plot_width(charts: &[GroupedBars]) -> u32 {
-    charts
+/// Widest a row of grouped-bar charts gets before the next chart starts a
+/// row of its own.
+const GROUPED_ROW_WIDTH: u32 = 1800;
+
+/// Width in pixels of `chart`'s plot: room for each category's label
+/// (12-px text, about 7 px a character, plus a gap) and for its bars (about
+/// 40 px each) and for its title, at least [`GROUPED_WIDTH`], so that a chart of few bars
+/// stays narrow and one of many long labels does not run them together.
+fn grouped_plot_width(chart: &GroupedBars) -> u32 {
+    let longest = chart
+        .categories
         .iter()
-        .map(|c| {
-            let longest = c
-                .categories
-                .iter()
-                .map(|l| l.chars().count())
-                .max()
-                .unwrap_or(0) as u32;
-            // The y-axis label area (48 px) and the plot's margins.
-            64 + c.categories.len() as u32 * (longest * 7 + 12)
-        })
-        .fold(GROUPED_WIDTH, u32::max)
+        .map(|l| l.chars().count())
+        .max()
+        .unwrap_or(0) as u32;
+    let per_category = (longest * 7 + 12).max(40 * chart.series.len() as u32 + 24);
+    // The y-axis label area (48 px) and the plot's margins; the title (17-px
+    // text, about 9 px a character) fits above.
+    let title = chart.title.chars().count() as u32 * 9 + 24;
+    (64 + chart.categories.len() as u32 * per_category)
+        .max(title)
+        .max(GROUPED_WIDTH)
+}
+
+/// Width in pixels of `chart`'s legend: its longest series name.
+fn grouped_legend_width(chart: &GroupedBars) -> u32 {
+    let longest = chart
+        .series
+        .iter()
+        .map(|(name, _)| name.chars().count())
+        .max()
+        .unwrap_or(0) as u32;
+    (longest * 7 + 44).clamp(100, 300)
+}
+
+/// Where each chart goes (left, top), and the figure's size: charts side
+/// by side, a new row where the next would make one wider than
+/// [`GROUPED_ROW_WIDTH`].
+fn grouped_layout(charts: &[GroupedBars]) -> (Vec<(u32, u32)>, (u32, u32)) {
+    let (mut left, mut top, mut width) = (0, 0, 0);
+    let mut places = Vec::new();
+    for chart in charts {
+        let w = grouped_plot_width(chart) + grouped_legend_width(chart);
+        if left > 0 && left + w > GROUPED_ROW_WIDTH {
+            left = 0;
+            top += PANEL_HEIGHT;
+        }
+        places.push((left, top));
+        left += w;
+        width = width.max(left);
+    }
+    (places, (width.max(GROUPED_WIDTH), top + PANEL_HEIGHT))
 }
 
 fn draw_grouped<DB: DrawingBackend>(
@@ -856,20 +934,11 @@ where
     Ok(())
 }
 
-/// Writes grouped-bar `charts` side by side, each with its legend at its
-/// right, as `<stem>.svg` and `<stem>.png`.
+/// Writes grouped-bar `charts` side by side (in rows, [`grouped_layout`]),
+/// each with its legend at its right, as `<stem>.svg` and `<stem>.png`.
 pub fn write_grouped_bars(charts: &[GroupedBars], stem: &Path) -> anyhow::Result<()> {
     register_font()?;
-    let longest = charts
-        .iter()
-        .flat_map(|c| c.series.iter().map(|(name, _)| name.chars().count()))
-        .max()
-        .unwrap_or(0) as u32;
-    let legend = (longest * 7 + 44).clamp(100, 300);
-    let size = (
-        (grouped_plot_width(charts) + legend) * charts.len().max(1) as u32,
-        PANEL_HEIGHT,
-    );
+    let (_, size) = grouped_layout(charts);
     let svg = stem.with_extension("svg");
     let png = stem.with_extension("png");
     if let Some(dir) = stem.parent() {
@@ -888,10 +957,14 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
-    let areas = root.split_evenly((1, charts.len().max(1)));
-    let width = grouped_plot_width(charts);
-    for (area, chart) in areas.iter().zip(charts) {
-        draw_grouped(area, chart, width)?;
+    let (places, _) = grouped_layout(charts);
+    for (&(left, top), chart) in places.iter().zip(charts) {
+        let plot = grouped_plot_width(chart);
+        let area = root.clone().shrink(
+            (left, top),
+            (plot + grouped_legend_width(chart), PANEL_HEIGHT),
+        );
+        draw_grouped(&area, chart, plot)?;
     }
     root.present().map_err(|e| anyhow!("{e}"))
 }
@@ -910,10 +983,18 @@ mod tests {
             categories: labels.iter().map(|l| l.to_string()).collect(),
             series: Vec::new(),
         };
-        assert_eq!(grouped_plot_width(&[chart(&["NTG", "NTP"])]), GROUPED_WIDTH);
+        assert_eq!(grouped_plot_width(&chart(&["NTG", "NTP"])), GROUPED_WIDTH);
         let many = chart(&["NTG rec. (nodetach)"; 8]);
-        let width = grouped_plot_width(&[chart(&["NTG"]), many]);
+        let width = grouped_plot_width(&many);
         assert!(width >= 8 * 19 * 7, "{width}");
+        // A chart of one category stays narrow beside a wide one; a third
+        // wide one starts a second row.
+        let (places, size) = grouped_layout(&[many.clone(), chart(&["NTG"])]);
+        assert_eq!(places, vec![(0, 0), (width + 100, 0)]);
+        assert_eq!(size, (width + 100 + GROUPED_WIDTH + 100, PANEL_HEIGHT));
+        let (places, size) = grouped_layout(&[many.clone(), many.clone()]);
+        assert_eq!(places, vec![(0, 0), (0, PANEL_HEIGHT)]);
+        assert_eq!(size, (width + 100, 2 * PANEL_HEIGHT));
     }
 
     #[test]
@@ -998,6 +1079,45 @@ mod tests {
         // Two panels in a row, each with its legend (its narrowest) at its
         // right.
         assert_eq!((png.width(), png.height()), (2 * (460 + 120), 360));
+    }
+
+    #[test]
+    fn long_series_names_wrap_at_spaces_and_keep_the_legend_narrow() {
+        let name = "NTG (ours), recommended recipe, learning rate 0.001, \
+                    execution memory, localizer reads the previous frame";
+        let lines = legend_lines(name);
+        assert!(lines.len() > 1, "{lines:?}");
+        assert!(lines.iter().all(|l| l.chars().count() <= LEGEND_LINE_CHARS));
+        // Nothing is lost or reordered: the lines rejoin to the name.
+        assert_eq!(lines.join(" "), name);
+        assert_eq!(legend_lines("NTG"), vec!["NTG".to_string()]);
+        // A word longer than a line keeps a line of its own.
+        let long = "x".repeat(LEGEND_LINE_CHARS + 5);
+        assert_eq!(
+            legend_lines(&format!("a {long} b")),
+            vec!["a", long.as_str(), "b"]
+        );
+        let panel = Panel {
+            title: "p".into(),
+            x_label: String::new(),
+            y_label: String::new(),
+            x_log: false,
+            x_ticks_at_points: false,
+            y_range: (0.0, 1.0),
+            series: vec![Series {
+                name: name.into(),
+                points: vec![Point::exact(1.0, 0.5)],
+                look: None,
+            }],
+        };
+        assert!(
+            legend_width(std::slice::from_ref(&panel))
+                <= LEGEND_LINE_CHARS as u32 * 7 + LEGEND_TEXT_LEFT as u32 + 8
+        );
+        assert_eq!(
+            legend_height(&panel),
+            LEGEND_ROW + (lines.len() as u32 - 1) * LEGEND_LINE
+        );
     }
 
     #[test]
