@@ -821,7 +821,7 @@ impl NtgOptions {
             && (video.executed_node || self.executed_node)
         {
             anyhow::bail!(
-                "--localizer-previous-frame: the run takes the current node from the agent's record (--executed-node), so the localizer does not choose it"
+                "--localizer-previous-frame: the run takes the current node from the agent's record (--node-source executed, the recommended recipe's on video), so the localizer does not choose it; add --node-source localizer"
             );
         }
         Ok(())

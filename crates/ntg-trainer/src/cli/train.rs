@@ -285,6 +285,62 @@ mod tests {
     }
 
     #[test]
+    fn the_node_source_is_the_recipe_s_unless_set_on_either_input() {
+        let video = |args: &[&str]| {
+            let v = config_of(args).video.unwrap();
+            (v.executed_node, v.localizer_previous_frame)
+        };
+        // On video the recommended recipe takes the executed node, the
+        // paper's the localizer; --node-source overrides either, so the
+        // localizer can read the previous frame in the recommended recipe.
+        assert_eq!(video(&["--obs", "vid"]), (true, false));
+        assert_eq!(
+            video(&["--obs", "vid", "--recipe", "paper"]),
+            (false, false)
+        );
+        assert_eq!(
+            video(&[
+                "--obs",
+                "vid",
+                "--node-source",
+                "localizer",
+                "--localizer-previous-frame"
+            ]),
+            (false, true)
+        );
+        assert_eq!(
+            video(&[
+                "--obs",
+                "vid",
+                "--recipe",
+                "paper",
+                "--node-source",
+                "executed"
+            ]),
+            (true, false)
+        );
+        let c = config_of(&["--obs", "vid", "--node-source", "localizer"]);
+        assert!(
+            !c.executed_node,
+            "a video run's switch is video.executed_node"
+        );
+        // On states the switch is the run's own.
+        assert!(!config_of(&[]).executed_node);
+        assert!(config_of(&["--node-source", "executed"]).executed_node);
+        assert!(config_of(&["--node-source", "localizer"]).video.is_none());
+        assert!(
+            blocks::additions(&config_of(&[
+                "--obs",
+                "vid",
+                "--node-source",
+                "localizer",
+                "--localizer-previous-frame"
+            ]))
+            .contains(&"localizer reads the previous frame".to_owned())
+        );
+    }
+
+    #[test]
     fn the_paper_recipe_adds_nothing() {
         let c = config_of(&["--recipe", "paper"]);
         assert_eq!(

@@ -229,6 +229,17 @@ pub enum TaskSetKind {
     Structure,
 }
 
+/// `ntg train --domain blocks --node-source`: where NTG's policy takes its
+/// current node from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum NodeSource {
+    /// The node localizer's reading of the observation (the paper's
+    /// policy).
+    Localizer,
+    /// The last action the agent executed (not in the paper).
+    Executed,
+}
+
 /// Where a block-stacking run's training, validation and test tasks come
 /// from ([`BlocksRunConfig::task_source`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -2171,11 +2182,13 @@ pub struct BlocksFlags {
     /// pairwise difference of cube positions.
     #[arg(long)]
     pub pairwise: bool,
-    /// NTG on states: the policy's current node is the last action it
-    /// executed, not the node localizer's reading of the state (not in the
-    /// paper; a video run's node source comes with its recipe).
-    #[arg(long)]
-    pub executed_node: bool,
+    /// --method ntg: where the policy takes its current node from:
+    /// `localizer`, the node localizer's reading of the observation (the
+    /// paper's policy), or `executed`, the last action the agent executed
+    /// (not in the paper) [default: executed on video with --recipe
+    /// recommended, else localizer].
+    #[arg(long, value_enum, value_name = "SOURCE")]
+    pub node_source: Option<NodeSource>,
     /// State runs: the state encoders read heights only as far as this
     /// many metres (a cube is 0.05 m; not in the paper) [default: no clamp].
     #[arg(long, value_name = "METRES", allow_negative_numbers = true)]
@@ -2225,10 +2238,8 @@ pub struct BlocksFlags {
     pub interpreter_frame_pool: Option<usize>,
     /// --obs vid, --method ntg: the node localizer reads the frame of the
     /// agent's previous decision beside the current one (temporal context;
-    /// not in the paper). Needs the localizer to choose the node: refused
-    /// with --recipe recommended on video, whose node comes from the
-    /// agent's record (an experiment file's `video.executed_node = false`
-    /// combines them).
+    /// not in the paper). Needs the localizer to choose the node: with
+    /// --recipe recommended, add --node-source localizer.
     #[arg(long)]
     pub localizer_previous_frame: bool,
     /// --obs vid: side in pixels of the camera's square frames, a multiple
@@ -2291,6 +2302,10 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
             .unwrap_or(v.interpreter_frame_pool);
         v.demos_per_renaming = own.video_renaming_group.unwrap_or(v.demos_per_renaming);
         v.localizer_previous_frame |= own.localizer_previous_frame;
+        v.executed_node = match own.node_source {
+            Some(source) => source == NodeSource::Executed,
+            None => v.executed_node,
+        };
         v.encoder_labels = own.encoder_labels.unwrap_or(v.encoder_labels);
         if let Some(size) = own.camera_size {
             v.camera = env_blocks::Camera::of_size(u32::try_from(size).unwrap_or(u32::MAX));
@@ -2325,7 +2340,11 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         ntp_core: own.ntp_core.unwrap_or(base.ntp_core),
         tasks: own.tasks.clone(),
         structure_benchmark: own.task_set == Some(TaskSetKind::Structure),
-        executed_node: base.executed_node || own.executed_node,
+        // The state runs' switch; a video run's is `video.executed_node`.
+        executed_node: match (&base.video, own.node_source) {
+            (None, Some(source)) => source == NodeSource::Executed,
+            _ => base.executed_node,
+        },
         state_height_clamp: own.state_height_clamp.or(base.state_height_clamp),
         memory: base.memory || flags.memory,
         interpreter: flags.interpreter,
@@ -2456,7 +2475,13 @@ impl DomainRuns for Blocks {
                 config.method.name()
             );
         }
-        check_executed_node(&config).context("--executed-node")?;
+        if own.node_source.is_some() && !method.reads("executed_node") {
+            bail!(
+                "--node-source chooses where NTG's policy takes its current node; {} has no node localizer",
+                config.method.legend()
+            );
+        }
+        check_executed_node(&config).context("--node-source")?;
         check_state_height_clamp(&config).context("--state-height-clamp")?;
         check_memory(&config).context("--memory")?;
         if (config.interpreter.is_some() || config.location_step_prior.is_some())

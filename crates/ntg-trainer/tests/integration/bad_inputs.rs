@@ -189,14 +189,47 @@ fn every_bad_input_is_a_clean_error_that_changes_nothing() {
             train(&["--domain", "sorting", "--interpreter", "stepping"]),
             "--interpreter".into(),
         ),
-        // The executed node is a state run's switch, and NTG's only.
+        // The node source is NTG's only; the localizer reads the previous
+        // frame only where it chooses the node.
         (
-            train(&["--domain", "blocks", "--obs", "vid", "--executed-node"]),
-            "--executed-node".into(),
+            train(&[
+                "--domain",
+                "blocks",
+                "--method",
+                "ntp",
+                "--node-source",
+                "executed",
+            ]),
+            "--node-source".into(),
         ),
         (
-            train(&["--domain", "blocks", "--method", "ntp", "--executed-node"]),
-            "--executed-node".into(),
+            train(&[
+                "--domain",
+                "blocks",
+                "--obs",
+                "vid",
+                "--method",
+                "ntp-flat",
+                "--node-source",
+                "localizer",
+            ]),
+            "--node-source".into(),
+        ),
+        (
+            train(&["--domain", "blocks", "--node-source", "nowhere"]),
+            "--node-source".into(),
+        ),
+        (
+            train(&[
+                "--domain",
+                "blocks",
+                "--obs",
+                "vid",
+                "--recipe",
+                "recommended",
+                "--localizer-previous-frame",
+            ]),
+            "add --node-source localizer".into(),
         ),
         // A height clamp is a positive length, and a state run's.
         (
