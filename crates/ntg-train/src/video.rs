@@ -725,9 +725,10 @@ pub fn train_encoder(
         return Ok(net);
     }
     let demos = stage.demos.min(video.pairs.len());
-    // Built STAGE_A_PART_VIDEOS videos at a time, each part saved and
-    // dropped, and read back mapped from disk: at 128×128 the frames of
-    // 20,000 videos (18 GB) do not fit this project's 24 GB machine. The
+    // Built STAGE_A_PART_VIDEOS videos at a time, each part saved
+    // (compressed row by row) and dropped, and read back mapped from disk:
+    // at 128×128 the frames of 20,000 videos are 18 GB, which do not fit
+    // this project's 24 GB machine in memory (about 0.3 GB on disk). The
     // same frames as built in one go (each video's draw is its own).
     let frames = DemoDataset::load_or_build_mapped_in_parts(
         &dir.dataset_dir(),
@@ -813,8 +814,8 @@ pub fn train_encoder(
         },
     )?;
     // A finished stage A never reads its frames again (a resumed run loads
-    // the encoder, as above), and they are the largest file of a run: 18 GB
-    // for 20,000 videos at 128×128. Dropped (unmapped) before removal.
+    // the encoder, as above), and they are among the largest files of a
+    // run. Dropped (unmapped) before removal.
     drop(step);
     drop(frames);
     if stage_a_finished(dir.root(), stage)? {
