@@ -934,7 +934,7 @@ where
     Ok(())
 }
 
-/// Writes grouped-bar `charts` side by side (in rows, [`grouped_layout`]),
+/// Writes grouped-bar `charts` side by side (in rows of at most 1800 px),
 /// each with its legend at its right, as `<stem>.svg` and `<stem>.png`.
 pub fn write_grouped_bars(charts: &[GroupedBars], stem: &Path) -> anyhow::Result<()> {
     register_font()?;
