@@ -545,8 +545,9 @@ pub fn write_benchmark_figure(points: &[BenchPoint], stem: &std::path::Path) -> 
     crate::figure::write_grouped_bars(&charts, stem)
 }
 
-/// A bar group's label: the method, `rec.` for the recommended recipe, and
-/// its core where recurrent.
+/// A bar group's label: the method, `rec.` for the recommended recipe
+/// (`rec., localizer` on video where the localizer chooses the node, as the
+/// recipe's executed node does not), and its core where recurrent.
 fn short_label(p: &NtpExpPoint) -> String {
     let mut label = match p.method {
         MethodId::Ntg => "NTG".to_owned(),
@@ -557,6 +558,9 @@ fn short_label(p: &NtpExpPoint) -> String {
     };
     if p.recipe == Recipe::Recommended {
         label.push_str(" rec.");
+        if p.method == MethodId::Ntg && p.obs == ObsKind::Vid && !p.executed_node {
+            label.push_str(", localizer");
+        }
     }
     if !p.ntp_core.is_reactive() {
         label.push_str(" GRU");
@@ -650,6 +654,19 @@ mod tests {
         tagged.point.run = PathBuf::from("runs/structure-state-nodetach-ntp-1000");
         let section = benchmark_section(&[points[2].clone(), tagged]);
         assert!(section.contains("| NTP (nodetach) |"), "{section}");
+        // The recommended recipe on video says where its node comes from
+        // when the localizer chooses it (the recipe's default on video is
+        // the executed node).
+        let mut ntg = results.ntp_exp[0].clone();
+        (ntg.method, ntg.recipe, ntg.obs, ntg.tag) =
+            (MethodId::Ntg, Recipe::Recommended, ObsKind::Vid, None);
+        ntg.executed_node = false;
+        assert_eq!(short_label(&ntg), "NTG rec., localizer");
+        ntg.executed_node = true;
+        assert_eq!(short_label(&ntg), "NTG rec.");
+        ntg.obs = ObsKind::State;
+        ntg.executed_node = false;
+        assert_eq!(short_label(&ntg), "NTG rec.");
     }
 
     #[test]
