@@ -112,9 +112,7 @@ impl ZlibRows {
         flate2::read::ZlibDecoder::new(self.stream(row)).read_to_end(out)?;
         Ok(())
     }
-}
 
-impl ZlibRows {
     /// The compressed rows of the dataset in `dir`, which its index says
     /// has `rows` rows of `obs_dim` bytes: `observations.bin` mapped and
     /// `row_offsets.bin` read, checking that the offsets fit the file and
@@ -185,7 +183,7 @@ impl PartialEq for ObsBuffer {
         match (self, other) {
             (ObsBuffer::F32(a), ObsBuffer::F32(b)) => a == b,
             (ObsBuffer::F32(_), _) | (_, ObsBuffer::F32(_)) => false,
-            _ => self.all_bytes() == other.all_bytes(),
+            _ => self.same_bytes(other),
         }
     }
 }
@@ -201,19 +199,31 @@ impl ObsBuffer {
         }
     }
 
-    /// Every stored byte value in row order, inflated where compressed
-    /// (for comparisons); `None` for `f32` values.
-    fn all_bytes(&self) -> Option<std::borrow::Cow<'_, [u8]>> {
-        match self {
-            ObsBuffer::Zlib(rows) => {
-                let (mut all, mut row) = (Vec::new(), Vec::new());
-                for r in 0..rows.num_rows() {
-                    rows.inflate(r, &mut row).ok()?;
-                    all.extend_from_slice(&row);
-                }
-                Some(std::borrow::Cow::Owned(all))
+    /// Whether `self` and `other`, both rows of bytes, hold the same values
+    /// in the same order, inflating compressed rows one at a time (never
+    /// the whole of a cache of many gigabytes).
+    fn same_bytes(&self, other: &Self) -> bool {
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        match (self, other) {
+            (ObsBuffer::Zlib(x), ObsBuffer::Zlib(y)) => {
+                x.num_rows() == y.num_rows()
+                    && (0..x.num_rows()).all(|r| {
+                        x.inflate(r, &mut a).is_ok() && y.inflate(r, &mut b).is_ok() && a == b
+                    })
             }
-            _ => self.bytes().map(std::borrow::Cow::Borrowed),
+            (ObsBuffer::Zlib(rows), plain) | (plain, ObsBuffer::Zlib(rows)) => {
+                let Some(bytes) = plain.bytes() else {
+                    return false;
+                };
+                let mut at = 0;
+                (0..rows.num_rows()).all(|r| {
+                    let fits = rows.inflate(r, &mut a).is_ok()
+                        && bytes.get(at..at + a.len()) == Some(&a[..]);
+                    at += a.len();
+                    fits
+                }) && at == bytes.len()
+            }
+            _ => self.bytes().is_some() && self.bytes() == other.bytes(),
         }
     }
 }
@@ -1584,6 +1594,15 @@ mod tests {
         let read = DemoDataset::load(dir.path()).unwrap();
         assert!(matches!(read.obs, ObsBuffer::Zlib(_)));
         assert_eq!(read, plain);
+        // One value off, or one row short, and the rows differ.
+        let ObsBuffer::U8(bytes) = &plain.obs else {
+            panic!("frames in memory are bytes")
+        };
+        let mut changed = bytes.clone();
+        changed[obs_dim + 5] ^= 1;
+        assert!(!read.obs.same_bytes(&ObsBuffer::U8(changed)));
+        let short = ObsBuffer::U8(bytes[..bytes.len() - obs_dim].to_vec());
+        assert!(!read.obs.same_bytes(&short) && !short.same_bytes(&read.obs));
         assert_eq!(read.num_rows(), 8);
         for row in 0..8 {
             assert_eq!(read.row(row), plain.row(row));
