@@ -49,6 +49,14 @@ pub struct AblationConfig {
     /// `node_localizer`). `None`: off (an `Option` so that models saved
     /// before it load).
     pub executed_node: Option<bool>,
+    /// The policy may choose `<end>` only once every action of the demo
+    /// interpreter's transcription has been executed (the agent's record
+    /// of its actions), wherever the current node has another successor
+    /// too. A symbolic rule on top of the learned scores, not the paper's
+    /// reactive policy: a scene that looks finished is not ended while the
+    /// demo's actions are pending. Training is the same. `None`: off (an
+    /// `Option` so that models saved before it load).
+    pub end_after_demo: Option<bool>,
     /// Complete the initial CTG with the GCN.
     #[config(default = true)]
     pub gcn: bool,

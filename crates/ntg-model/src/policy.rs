@@ -26,6 +26,10 @@ struct Scores {
     previous: Option<Vec<f32>>,
     /// The last executed action, when the node comes from the record.
     executed_node: Option<ActionId>,
+    /// Whether `<end>` is blocked where another successor exists
+    /// ([`crate::AblationConfig::end_after_demo`] with demo actions
+    /// pending).
+    end_blocked: bool,
     /// Localizer logits `[N]` (`None` when the localizer is ablated;
     /// 0 at the executed node and −∞ elsewhere with
     /// [`crate::AblationConfig::executed_node`]).
@@ -72,6 +76,10 @@ pub struct NtgPolicy {
     /// The last action executed (`<start>` before the first), from
     /// [`NtgPolicy::set_executed`].
     last_executed: RefCell<ActionId>,
+    /// Whether an action of the demo's transcription has not been executed
+    /// yet, from [`NtgPolicy::set_executed`] (read only with
+    /// [`crate::AblationConfig::end_after_demo`]).
+    demo_pending: RefCell<bool>,
     /// The observation acted on before the current one, from
     /// [`NtgPolicy::set_previous_observation`].
     previous: RefCell<Option<Vec<f32>>>,
@@ -124,6 +132,7 @@ impl NtgPolicy {
             ne_gcn: completed.embeddings,
             memory: RefCell::new(None),
             last_executed: RefCell::new(Vocabulary::START),
+            demo_pending: RefCell::new(false),
             previous: RefCell::new(None),
             cache: RefCell::new(None),
         })
@@ -188,9 +197,20 @@ impl NtgPolicy {
     /// current node. A no-op for a policy without either.
     pub fn set_executed(&self, executed: &[ActionId]) {
         *self.last_executed.borrow_mut() = executed.last().copied().unwrap_or(Vocabulary::START);
+        *self.demo_pending.borrow_mut() = self
+            .demo_actions
+            .iter()
+            .any(|action| !executed.contains(action));
         if self.has_memory() {
             *self.memory.borrow_mut() = Some(crate::pending_nodes(&self.initial, executed));
         }
+    }
+
+    /// Whether `<end>` waits for the demo's actions
+    /// ([`crate::AblationConfig::end_after_demo`]; then
+    /// [`NtgPolicy::set_executed`] must be called before scoring).
+    pub fn ends_after_demo(&self) -> bool {
+        self.model.config.ablation.end_after_demo == Some(true)
     }
 
     /// Whether the localizer reads the previous observation too
@@ -365,11 +385,13 @@ impl NtgPolicy {
         let executed_node = self
             .uses_executed_node()
             .then(|| *self.last_executed.borrow());
+        let end_blocked = self.ends_after_demo() && *self.demo_pending.borrow();
         if let Some(cached) = self.cache.borrow().as_ref()
             && cached.observation == observation
             && cached.memory == memory
             && cached.previous == previous
             && cached.executed_node == executed_node
+            && cached.end_blocked == end_blocked
         {
             return Ok(cached.clone());
         }
@@ -442,6 +464,7 @@ impl NtgPolicy {
             memory,
             previous,
             executed_node,
+            end_blocked,
             node_logits,
             edge_logits,
         };
@@ -524,9 +547,15 @@ fn log_edge_row(
             f64::from(w.weight(ActionId::new(from), ActionId::new(to)))
         })
     };
-    let succ: Vec<bool> = (0..n)
+    let mut succ: Vec<bool> = (0..n)
         .map(|to| graph.has_edge(ActionId::new(from), ActionId::new(to)) && weight(to) > 0.0)
         .collect();
+    // `<end>` waits for the demo's pending actions where the node leads
+    // elsewhere too (`AblationConfig::end_after_demo`).
+    let end = Vocabulary::END.index();
+    if scores.end_blocked && end < n && succ[end] && succ.iter().filter(|&&s| s).count() > 1 {
+        succ[end] = false;
+    }
     let count = succ.iter().filter(|&&s| s).count();
     if count == 0 {
         return None;

@@ -860,6 +860,52 @@ fn the_executed_node_replaces_the_localizer_with_the_last_action_taken() {
 }
 
 #[test]
+fn end_after_demo_blocks_end_while_a_demo_action_is_pending() {
+    let dev = device();
+    let path = ids(&[2, 4, 3]);
+    let end = Vocabulary::END;
+    // Every edge kept (threshold 0), so `<end>` follows every node.
+    let policy_with = |rule: bool| {
+        let mut cfg = small_config(9);
+        cfg.ablation.executed_node = Some(true);
+        cfg.ablation.end_after_demo = rule.then_some(true);
+        cfg.edge_threshold = 0.0;
+        let model = NtgModel::new(cfg, &dev).unwrap();
+        NtgPolicy::from_actions(&model, &path).unwrap()
+    };
+    let obs = one_hot_row(1);
+    let with = policy_with(true);
+    assert!(with.ends_after_demo());
+    assert!(with.execution_graph().has_edge(ActionId::new(4), end));
+    // 3 is pending: no `<end>`, and π still sums to one.
+    with.set_executed(&ids(&[2, 4]));
+    let pi = with.action_distribution(&obs).unwrap();
+    assert_eq!(pi.probability(end), 0.0);
+    let total: f32 = (0..N).map(|a| pi.probability(ActionId::new(a))).sum();
+    assert!((total - 1.0).abs() < 1e-5, "{total}");
+    assert_eq!(
+        with.log_probabilities(&obs).unwrap()[end.index()],
+        f32::NEG_INFINITY
+    );
+    // Every demo action executed: `<end>` is allowed again.
+    with.set_executed(&ids(&[2, 4, 3]));
+    assert!(with.action_distribution(&obs).unwrap().probability(end) > 0.0);
+    // Without the rule `<end>` is open while 3 is pending.
+    let without = policy_with(false);
+    assert!(!without.ends_after_demo());
+    without.set_executed(&ids(&[2, 4]));
+    assert!(without.action_distribution(&obs).unwrap().probability(end) > 0.0);
+    // Models saved before the switch existed load with it off.
+    let mut json: serde_json::Value = serde_json::to_value(small_config(9)).unwrap();
+    json["ablation"]
+        .as_object_mut()
+        .unwrap()
+        .remove("end_after_demo");
+    let old: NtgConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(old.ablation.end_after_demo, None);
+}
+
+#[test]
 fn the_last_localizer_reading_is_the_node_distribution_of_the_last_observation() {
     let dev = device();
     let model = NtgModel::new(small_config(9), &dev).unwrap();

@@ -713,6 +713,10 @@ pub struct NtgOptions {
     /// ([`NtgTraining::memory`]).
     #[serde(default)]
     pub memory: bool,
+    /// `<end>` only once the demo's actions are executed
+    /// ([`ntg_model::AblationConfig::end_after_demo`]).
+    #[serde(default)]
+    pub end_after_demo: bool,
     /// The demo interpreter (absent: the paper's).
     #[serde(default)]
     pub interpreter: Option<InterpreterKind>,
@@ -782,6 +786,7 @@ impl NtgOptions {
         "segments",
         "learn_end",
         "memory",
+        "end_after_demo",
         "interpreter",
         "location_step_prior",
         "optim.token_dropout",
@@ -863,6 +868,7 @@ impl NtgOptions {
             .or(config.ablation.executed_node);
         config.ablation = self.ablation.ablation();
         config.ablation.executed_node = executed_node;
+        config.ablation.end_after_demo = self.end_after_demo.then_some(true);
         config.seed = input.model_seed;
         config
     }
@@ -1051,6 +1057,9 @@ impl Variant {
     pub fn ablation_of(self, trained: &AblationConfig) -> AblationConfig {
         let mut a = self.ablation();
         a.executed_node = a.executed_node.or(trained.executed_node);
+        // The `<end>` rule is part of the policy the run trained and
+        // selected with; no variant changes it.
+        a.end_after_demo = trained.end_after_demo;
         a.demo_interpreter &= trained.demo_interpreter;
         a.node_localizer &= trained.node_localizer;
         a.edge_classifier &= trained.edge_classifier;
@@ -1305,6 +1314,12 @@ mod tests {
         let uniform = Variant::NoNodeLocalizer.ablation_of(&executed);
         assert!(!uniform.node_localizer);
         assert_eq!(uniform.executed_node, Some(false));
+        // The `<end>` rule stays what the run trained with, in every variant.
+        let ruled = AblationConfig::new().with_end_after_demo(Some(true));
+        for variant in [Variant::Full, Variant::LocalizerNode, Variant::NoGcn] {
+            assert_eq!(variant.ablation_of(&ruled).end_after_demo, Some(true));
+            assert_eq!(variant.ablation_of(&localizer).end_after_demo, None);
+        }
         // A model trained without a part: no variant switches it back on.
         let trained = AblationConfig::new()
             .with_gcn(false)

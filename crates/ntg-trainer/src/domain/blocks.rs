@@ -178,6 +178,14 @@ pub struct BlocksRunConfig {
     /// are pending. Not in the paper's block stacking. Absent: false.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub memory: bool,
+    /// NTG: the policy may choose `<end>` only once every action of the
+    /// demo's transcription has been executed, where the current node
+    /// leads elsewhere too (`--end-after-demo`;
+    /// `ntg_model::AblationConfig::end_after_demo`). A symbolic rule, not
+    /// in the paper; training is the same, model selection and evaluation
+    /// roll out with it. Absent: false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub end_after_demo: bool,
     /// NTG's demo interpreter (`--interpreter`; absent: the paper's Luong
     /// interpreter, as in every run saved before it). Read by NTG only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -635,6 +643,7 @@ impl Recipe {
             executed_node: false,
             state_height_clamp: None,
             memory: false,
+            end_after_demo: false,
             interpreter: None,
             location_step_prior: None,
             optim: OptimConfig {
@@ -871,6 +880,7 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "executed_node" | "video.executed_node" => "executed node (not the localizer)".into(),
         "state_height_clamp" => format!("heights read to {v} m"),
         "memory" => "execution memory".into(),
+        "end_after_demo" => "ends only after the demo's actions".into(),
         "video.interpreter_frame_pool" => format!("interpreter frame pooling {v}"),
         "video.localizer_previous_frame" => "localizer reads the previous frame".into(),
         "video.encoder_labels" => format!("stage A labels {v}"),
@@ -945,6 +955,7 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     let executed_node = model_config.ablation.executed_node;
     model_config.ablation = config.ablation.ablation();
     model_config.ablation.executed_node = executed_node;
+    model_config.ablation.end_after_demo = config.end_after_demo.then_some(true);
     model_config.seed = config.model_seed;
     Ok(NtgModel::new(model_config, device)?)
 }
@@ -1057,6 +1068,7 @@ pub fn train_model(
     check_executed_node(config)?;
     check_state_height_clamp(config)?;
     check_memory(config)?;
+    check_end_after_demo(config)?;
     let split = task_split(config.task_source())?;
     let tasks = split.train(config.train_tasks)?;
     let demos = || -> anyhow::Result<Demos> {
@@ -1545,6 +1557,18 @@ fn check_memory(config: &BlocksRunConfig) -> anyhow::Result<()> {
     if config.memory && !config.method.method().reads("memory") {
         bail!(
             "memory = true gives NTG's edge classifier the task-graph nodes not yet executed; {} has no edge classifier",
+            config.method.legend()
+        );
+    }
+    Ok(())
+}
+
+/// Refuses the `<end>` rule ([`BlocksRunConfig::end_after_demo`]) for a
+/// method without a demo transcription to wait for.
+fn check_end_after_demo(config: &BlocksRunConfig) -> anyhow::Result<()> {
+    if config.end_after_demo && !config.method.method().reads("end_after_demo") {
+        bail!(
+            "end_after_demo = true keeps NTG's policy from ending before the demo's actions are executed; {} has no demo interpreter",
             config.method.legend()
         );
     }
@@ -2189,6 +2213,11 @@ pub struct BlocksFlags {
     /// recommended, else localizer].
     #[arg(long, value_enum, value_name = "SOURCE")]
     pub node_source: Option<NodeSource>,
+    /// --method ntg: the policy may choose `<end>` only once every action
+    /// of the demo's transcription has been executed (a symbolic rule;
+    /// not in the paper).
+    #[arg(long)]
+    pub end_after_demo: bool,
     /// State runs: the state encoders read heights only as far as this
     /// many metres (a cube is 0.05 m; not in the paper) [default: no clamp].
     #[arg(long, value_name = "METRES", allow_negative_numbers = true)]
@@ -2347,6 +2376,7 @@ pub fn train_config(flags: &TrainFlags, own: &BlocksFlags) -> BlocksRunConfig {
         },
         state_height_clamp: own.state_height_clamp.or(base.state_height_clamp),
         memory: base.memory || flags.memory,
+        end_after_demo: base.end_after_demo || own.end_after_demo,
         interpreter: flags.interpreter,
         location_step_prior: match (flags.location_step_prior, flags.interpreter) {
             (Some(0.0), _) => None,
@@ -2484,6 +2514,7 @@ impl DomainRuns for Blocks {
         check_executed_node(&config).context("--node-source")?;
         check_state_height_clamp(&config).context("--state-height-clamp")?;
         check_memory(&config).context("--memory")?;
+        check_end_after_demo(&config).context("--end-after-demo")?;
         if (config.interpreter.is_some() || config.location_step_prior.is_some())
             && !config.method.method().reads("interpreter")
         {
@@ -3172,6 +3203,30 @@ mod tests {
         config.method = MethodId::Ntp;
         let e = check_memory(&config).unwrap_err().to_string();
         assert!(e.contains("no edge classifier"), "{e}");
+    }
+
+    #[test]
+    fn the_end_rule_is_ntg_s_and_its_row_names_it() {
+        let mut config = Recipe::Recommended.config(ObsKind::State, 5, 2, 1, 0);
+        let json = serde_json::to_string(&config).unwrap();
+        assert!(!json.contains("end_after_demo"), "absent when off: {json}");
+        let device = ntg_model::cpu_device();
+        let model = new_model(&config, &device).unwrap();
+        assert_eq!(model.config.ablation.end_after_demo, None);
+        config.end_after_demo = true;
+        check_end_after_demo(&config).unwrap();
+        let model = new_model(&config, &device).unwrap();
+        assert_eq!(model.config.ablation.end_after_demo, Some(true));
+        assert!(
+            additions(&config)
+                .iter()
+                .any(|a| a == "ends only after the demo's actions"),
+            "{:?}",
+            additions(&config)
+        );
+        config.method = MethodId::Ntp;
+        let e = check_end_after_demo(&config).unwrap_err().to_string();
+        assert!(e.contains("no demo interpreter"), "{e}");
     }
 
     #[test]

@@ -4028,6 +4028,7 @@ mod tests {
             executed_node: false,
             state_height_clamp: None,
             memory: false,
+            end_after_demo: false,
             interpreter: None,
             location_step_prior: None,
             optim: crate::fit::OptimConfig {

@@ -36,6 +36,7 @@ fn config() -> BlocksRunConfig {
         executed_node: false,
         state_height_clamp: None,
         memory: false,
+        end_after_demo: false,
         interpreter: None,
         location_step_prior: None,
         optim: OptimConfig {

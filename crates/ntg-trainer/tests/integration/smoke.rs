@@ -47,6 +47,7 @@ fn ntg_beats_uniform_edge_policy_on_unseen_tasks() {
         executed_node: false,
         state_height_clamp: None,
         memory: false,
+        end_after_demo: false,
         interpreter: None,
         location_step_prior: None,
         optim: OptimConfig {
