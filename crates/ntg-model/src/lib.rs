@@ -83,7 +83,9 @@ pub use float_mode::{
 };
 pub use frame_stage::{FrameStageConfig, FrameStageLoss, FrameStageNet};
 pub use gcn::{EdgeCounts, GcnOutput, GraphCompletionConfig, GraphCompletionNet, PairMlp};
-pub use interpreter::{DemoInterpreter, DemoInterpreterConfig, InterpreterOutput, LossOutput};
+pub use interpreter::{
+    ALIGNMENT_FLOOR, DemoInterpreter, DemoInterpreterConfig, InterpreterOutput, LossOutput,
+};
 pub use localizer::{NodeLocalizer, NodeLocalizerConfig};
 pub use model::{
     AblationConfig, CONFIG_FILE, CompletedGraph, NtgConfig, NtgModel, SOFT_EDGE_FLOOR,

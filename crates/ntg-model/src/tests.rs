@@ -419,6 +419,66 @@ fn interpreter_frame_pool_reads_windows_of_frames() {
     assert!(matches!(config.init(0, &dev), Err(ModelError::Config(_))));
 }
 
+/// Aligned attention adds `−log(α_t(min(t + 1, T − 1)) + 0.1)` over the
+/// real tokens to the token loss (the same weights as without it), needs
+/// location-aware attention, and refuses a demo whose rows are not one
+/// more than its actions.
+#[test]
+fn aligned_attention_trains_one_row_per_token() {
+    let dev = device();
+    let stepping = |aligned: Option<bool>| {
+        let mut c = small_config(4).interpreter;
+        c.input_feeding = Some(true);
+        c.location_attention = Some(true);
+        c.stateless_decoder = Some(true);
+        c.local_annotations = Some(true);
+        c.aligned_attention = aligned;
+        c
+    };
+    let plain = stepping(None).init(4, &dev).unwrap();
+    let aligned = stepping(Some(true)).init(4, &dev).unwrap();
+    assert!(aligned.aligned && !plain.aligned);
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let (batch, _, _) = demo_batch(&dev, &mut rng);
+    let token_loss = to_vec(plain.loss(&batch).unwrap().loss).unwrap()[0];
+    let both = to_vec(aligned.loss(&batch).unwrap().loss).unwrap()[0];
+    // By hand: the long demo's 6 tokens on rows 1, 2, 3, 4, 5, 5, the short
+    // one's 3 on rows 1, 2, 2.
+    let att = to_vec(plain.attention(&batch).unwrap()).unwrap();
+    let [_, l, t] = plain.attention(&batch).unwrap().dims();
+    let mut nll = 0.0f32;
+    for (i, rows) in [(0usize, vec![1usize, 2, 3, 4, 5, 5]), (1, vec![1, 2, 2])] {
+        for (j, row) in rows.into_iter().enumerate() {
+            nll -= (att[(i * l + j) * t + row] + ALIGNMENT_FLOOR).ln();
+        }
+    }
+    let expected = token_loss + nll / 9.0;
+    assert!(
+        (both - expected).abs() <= 1e-4 * expected.abs().max(1.0),
+        "{both} against {expected}"
+    );
+    assert!(nll > 0.0);
+    // A demo of two rows for two actions (three tokens) is refused.
+    let rows = random_rows(&mut rng, 2, D);
+    let actions = ids(&[2, 3]);
+    let bad = DemoBatch::new(&[(&rows[..], &actions[..])], D, N, &dev).unwrap();
+    let err = aligned.loss(&bad).unwrap_err();
+    assert!(
+        matches!(&err, ModelError::Input(m) if m.contains("2 rows for 2 actions")),
+        "{err}"
+    );
+    // Without location-aware attention, or with pooled frames: refused.
+    let mut no_location = stepping(Some(true));
+    no_location.location_attention = None;
+    assert!(matches!(
+        no_location.init(0, &dev),
+        Err(ModelError::Config(_))
+    ));
+    let mut pooled = stepping(Some(true));
+    pooled.frame_pool = Some(2);
+    assert!(matches!(pooled.init(0, &dev), Err(ModelError::Config(_))));
+}
+
 /// An older configuration without the interpreter options still loads,
 /// with both off; the options do not change the default weights.
 #[test]

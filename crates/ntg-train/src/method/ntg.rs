@@ -809,11 +809,15 @@ impl NtgOptions {
         if self.location_step_prior.is_some()
             && !matches!(
                 self.interpreter,
-                Some(InterpreterKind::Stepping | InterpreterKind::SteppingVideo)
+                Some(
+                    InterpreterKind::Stepping
+                        | InterpreterKind::SteppingVideo
+                        | InterpreterKind::SteppingAligned
+                )
             )
         {
             anyhow::bail!(
-                "--location-step-prior: a location step prior needs NTG with a stepping interpreter (--interpreter stepping or stepping-video; the paper's interpreter has no location-aware attention)"
+                "--location-step-prior: a location step prior needs NTG with a stepping interpreter (--interpreter stepping, stepping-video or stepping-aligned; the paper's interpreter has no location-aware attention)"
             );
         }
         if let Some(w) = self.location_step_prior
@@ -906,6 +910,15 @@ pub fn train(
 ) -> anyhow::Result<Model> {
     options.check()?;
     let Demos { dataset, frames } = input.load_demos()?;
+    if let Some(kind) = options.interpreter
+        && kind.states_only()
+        && frames.is_some()
+    {
+        anyhow::bail!(
+            "--interpreter {}: its attention is trained one demo row per action, as state demos have; demo videos span several frames per action (--interpreter stepping-video reads them)",
+            crate::spec::Choice::name(kind)
+        );
+    }
     let model = NtgModel::new(options.model_config(&input), input.device)?;
     let training = options.training(&input);
     let step = NtgStep::new(&model, &dataset, training, input.device)?;
@@ -933,6 +946,14 @@ pub enum InterpreterKind {
     /// so it can jump one action's frames per token (an object-collection
     /// action spans 2–9 frames; −1..=2 stalls on videos).
     SteppingVideo,
+    /// The stepping interpreter with its attention trained onto the demo's
+    /// rows one per token ([`ntg_model::DemoInterpreterConfig::aligned_attention`]):
+    /// token `t` reads row `t + 1`, the state action `t` left, and `<end>`
+    /// the final state. The alignment is taught, not left for the
+    /// attention to find (the stepping interpreter stalled at one of two
+    /// block-stacking seeds). For state demos (one row per action plus the
+    /// final state); refused for demo videos.
+    SteppingAligned,
 }
 
 /// The largest forward shift of [`InterpreterKind::SteppingVideo`]'s
@@ -952,10 +973,16 @@ impl InterpreterKind {
     pub fn step_prior(self) -> Option<f32> {
         match self {
             InterpreterKind::Luong => None,
-            InterpreterKind::Stepping | InterpreterKind::SteppingVideo => {
-                Some(DEFAULT_LOCATION_STEP_PRIOR)
-            }
+            InterpreterKind::Stepping
+            | InterpreterKind::SteppingVideo
+            | InterpreterKind::SteppingAligned => Some(DEFAULT_LOCATION_STEP_PRIOR),
         }
+    }
+
+    /// Whether it reads state demos only (one row per action plus the
+    /// final state), not demo videos.
+    pub fn states_only(self) -> bool {
+        self == InterpreterKind::SteppingAligned
     }
 
     /// Sets the interpreter options of `config` for this kind, with the
@@ -963,7 +990,9 @@ impl InterpreterKind {
     pub fn apply(self, config: &mut ntg_model::DemoInterpreterConfig, step_prior: Option<f32>) {
         let on = match self {
             InterpreterKind::Luong => None,
-            InterpreterKind::Stepping | InterpreterKind::SteppingVideo => Some(true),
+            InterpreterKind::Stepping
+            | InterpreterKind::SteppingVideo
+            | InterpreterKind::SteppingAligned => Some(true),
         };
         config.location_max_shift =
             (self == InterpreterKind::SteppingVideo).then_some(VIDEO_MAX_SHIFT);
@@ -973,6 +1002,7 @@ impl InterpreterKind {
         config.stateless_decoder = on;
         config.local_annotations = on;
         config.location_step_prior = step_prior;
+        config.aligned_attention = (self == InterpreterKind::SteppingAligned).then_some(true);
     }
 }
 
@@ -981,6 +1011,7 @@ impl crate::spec::Choice for InterpreterKind {
         InterpreterKind::Luong,
         InterpreterKind::Stepping,
         InterpreterKind::SteppingVideo,
+        InterpreterKind::SteppingAligned,
     ];
 
     fn name(self) -> &'static str {
@@ -988,6 +1019,7 @@ impl crate::spec::Choice for InterpreterKind {
             InterpreterKind::Luong => "luong",
             InterpreterKind::Stepping => "stepping",
             InterpreterKind::SteppingVideo => "stepping-video",
+            InterpreterKind::SteppingAligned => "stepping-aligned",
         }
     }
 
@@ -999,6 +1031,9 @@ impl crate::spec::Choice for InterpreterKind {
             }
             InterpreterKind::SteppingVideo => {
                 "Stepping, its attention moving up to 10 frames per token (for demo videos)"
+            }
+            InterpreterKind::SteppingAligned => {
+                "Stepping, its attention trained one demo row per action (state demos only)"
             }
         }
     }

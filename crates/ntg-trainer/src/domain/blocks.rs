@@ -870,6 +870,9 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "validation_tasks" => format!("{v} validation tasks"),
         "tasks" => format!("task set {v}"),
         "structure_benchmark" => "structure benchmark's task set".into(),
+        "interpreter" if v == "stepping-aligned" => {
+            "stepping interpreter, attention taught one demo row per action".to_owned()
+        }
         "interpreter" => format!("{v} interpreter"),
         "location_step_prior" => format!("location step prior {v}"),
         "optim.learning_rate" => format!("learning rate {v}"),
@@ -936,6 +939,9 @@ pub fn new_model(config: &BlocksRunConfig, device: &Device) -> anyhow::Result<Nt
     }
     if config.memory {
         model_config.edge.memory_dim = Some(vocab.len());
+    }
+    if let Some(kind) = config.interpreter {
+        kind.apply(&mut model_config.interpreter, config.location_step_prior);
     }
     if let Some(pool) = config.video.as_ref().map(|v| v.interpreter_frame_pool)
         && pool > 1
@@ -1069,6 +1075,7 @@ pub fn train_model(
     check_state_height_clamp(config)?;
     check_memory(config)?;
     check_end_after_demo(config)?;
+    check_interpreter_input(config)?;
     let split = task_split(config.task_source())?;
     let tasks = split.train(config.train_tasks)?;
     let demos = || -> anyhow::Result<Demos> {
@@ -1570,6 +1577,21 @@ fn check_end_after_demo(config: &BlocksRunConfig) -> anyhow::Result<()> {
         bail!(
             "end_after_demo = true keeps NTG's policy from ending before the demo's actions are executed; {} has no demo interpreter",
             config.method.legend()
+        );
+    }
+    Ok(())
+}
+
+/// Refuses an interpreter that reads state demos only
+/// ([`crate::method::ntg::InterpreterKind::states_only`]) on a video run.
+fn check_interpreter_input(config: &BlocksRunConfig) -> anyhow::Result<()> {
+    if let Some(kind) = config.interpreter
+        && kind.states_only()
+        && config.obs != ObsKind::State
+    {
+        bail!(
+            "interpreter = \"{}\" trains its attention one demo row per action, as state demos have; a video run's demos span several frames per action",
+            ntg_train::spec::Choice::name(kind)
         );
     }
     Ok(())
@@ -2515,6 +2537,7 @@ impl DomainRuns for Blocks {
         check_state_height_clamp(&config).context("--state-height-clamp")?;
         check_memory(&config).context("--memory")?;
         check_end_after_demo(&config).context("--end-after-demo")?;
+        check_interpreter_input(&config).context("--interpreter")?;
         if (config.interpreter.is_some() || config.location_step_prior.is_some())
             && !config.method.method().reads("interpreter")
         {
@@ -3227,6 +3250,31 @@ mod tests {
         config.method = MethodId::Ntp;
         let e = check_end_after_demo(&config).unwrap_err().to_string();
         assert!(e.contains("no demo interpreter"), "{e}");
+    }
+
+    #[test]
+    fn the_aligned_interpreter_reads_state_demos_only_and_its_row_names_it() {
+        use crate::method::ntg::InterpreterKind;
+        let mut config = Recipe::Recommended.config(ObsKind::State, 5, 2, 1, 0);
+        config.interpreter = Some(InterpreterKind::SteppingAligned);
+        config.location_step_prior = Some(0.3);
+        check_interpreter_input(&config).unwrap();
+        let model = new_model(&config, &ntg_model::cpu_device()).unwrap();
+        assert_eq!(model.config.interpreter.aligned_attention, Some(true));
+        assert!(model.interpreter.aligned);
+        assert!(
+            additions(&config)
+                .iter()
+                .any(|a| a == "stepping interpreter, attention taught one demo row per action"),
+            "{:?}",
+            additions(&config)
+        );
+        let mut video = Recipe::Recommended.config(ObsKind::Vid, 5, 2, 1, 0);
+        video.interpreter = Some(InterpreterKind::SteppingAligned);
+        let e = check_interpreter_input(&video).unwrap_err().to_string();
+        assert!(e.contains("stepping-aligned") && e.contains("video"), "{e}");
+        video.interpreter = Some(InterpreterKind::Stepping);
+        check_interpreter_input(&video).unwrap();
     }
 
     #[test]

@@ -122,7 +122,9 @@ impl InterpreterDefaults for InterpreterKind {
     fn default_step_prior(self) -> Option<f32> {
         match self {
             InterpreterKind::Luong => None,
-            InterpreterKind::Stepping | InterpreterKind::SteppingVideo => Some(LOCATION_STEP_PRIOR),
+            InterpreterKind::Stepping
+            | InterpreterKind::SteppingVideo
+            | InterpreterKind::SteppingAligned => Some(LOCATION_STEP_PRIOR),
         }
     }
 }
@@ -329,6 +331,11 @@ impl CollectRunConfig {
             "training pairs each demo with another demo of its task: at least 2 demos per task are needed"
         );
         ensure!(self.optim.batch_size > 0, "batch size must be positive");
+        ensure!(
+            !(self.interpreter.states_only() && self.obs == ObsKind::Vid),
+            "--interpreter {}: its attention is trained one demo row per action, as state demos have; a demo video spans several frames per action (--interpreter stepping-video reads them)",
+            ntg_train::spec::Choice::name(self.interpreter)
+        );
         if let Some(video) = &self.video {
             ensure!(
                 self.obs == ObsKind::Vid,
@@ -1124,6 +1131,17 @@ mod tests {
         let mut c = config(MethodId::Ntg, 1);
         c.location_step_prior = Some(f32::NAN);
         assert!(c.validate().is_err());
+        // The aligned interpreter reads state demos, not videos.
+        let mut c = config(MethodId::Ntg, 1);
+        c.interpreter = InterpreterKind::SteppingAligned;
+        c.validate().unwrap();
+        c.obs = ObsKind::Vid;
+        assert!(
+            c.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("stepping-aligned")
+        );
         let mut c = config(MethodId::Flat, 1);
         c.demos_per_task = 1;
         assert!(c.validate().unwrap_err().to_string().contains("2 demos"));
