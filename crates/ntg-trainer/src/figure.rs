@@ -912,10 +912,12 @@ where
                 )))
                 .map_err(fail)?;
             }
+            // Three decimals, as the tables give them: two would round a
+            // 0.899 up to the "0.90" of a threshold it is below.
             c.draw_series(std::iter::once(Text::new(
-                format!("{:.2}", bar.value),
-                (mid - width * 0.3, bar.hi.max(bar.value) + 0.045),
-                ("sans-serif", 10),
+                format!("{:.3}", bar.value),
+                (mid - width * 0.35, bar.hi.max(bar.value) + 0.045),
+                ("sans-serif", 9),
             )))
             .map_err(fail)?;
         }
@@ -995,6 +997,28 @@ mod tests {
         let (places, size) = grouped_layout(&[many.clone(), many.clone()]);
         assert_eq!(places, vec![(0, 0), (0, PANEL_HEIGHT)]);
         assert_eq!(size, (width + 100, 2 * PANEL_HEIGHT));
+    }
+
+    #[test]
+    fn grouped_bar_labels_do_not_round_up_to_a_threshold() {
+        let dir = tempfile::tempdir().unwrap();
+        let stem = dir.path().join("grouped");
+        let bar = |value: f64| Bar {
+            label: String::new(),
+            value,
+            lo: value - 0.05,
+            hi: value + 0.05,
+        };
+        let chart = GroupedBars {
+            title: "structure".into(),
+            y_label: "success".into(),
+            categories: vec!["new".into(), "taller".into()],
+            series: vec![("NTG".into(), vec![bar(0.98), bar(0.899)])],
+        };
+        write_grouped_bars(&[chart], &stem).unwrap();
+        let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
+        assert!(svg.contains("0.899") && svg.contains("0.980"), "{svg}");
+        assert!(!svg.contains(">0.90<"), "{svg}");
     }
 
     #[test]

@@ -1830,6 +1830,7 @@ impl NtpExpPoint {
             stage_a_videos: self.stage_a_videos,
             ntp_core: self.ntp_core,
             executed_node: self.executed_node,
+            end_after_demo: self.additions.iter().any(|a| a == END_AFTER_DEMO),
             tag: self.tag.clone(),
             recipe_changes: self.recipe_changes.clone(),
             distinction: self.distinction.clone(),
@@ -1841,6 +1842,10 @@ impl NtpExpPoint {
 fn executed_node_suffix(executed_node: bool) -> &'static str {
     if executed_node { ", executed node" } else { "" }
 }
+
+/// The name of NTG's `<end>` rule (`end_after_demo`), as the run's
+/// additions name it ([`blocks::additions`]) and as a curve's name gives it.
+const END_AFTER_DEMO: &str = "ends only after the demo's actions";
 
 /// One curve of the figure: the points drawn, and reported, as one line.
 /// The seeds of a point are combined within a curve and never across
@@ -1864,6 +1869,9 @@ pub struct CurveId {
     pub ntp_core: NtpCoreKind,
     /// NTG on video: the node from the executed actions, not the localizer.
     pub executed_node: bool,
+    /// NTG's policy chooses `<end>` only once the demo's actions are
+    /// executed (`end_after_demo`, a symbolic rule).
+    pub end_after_demo: bool,
     /// The panel's tag (`PanelScale::tag`): two panels of one method and
     /// recipe are two curves.
     pub tag: Option<String>,
@@ -1900,6 +1908,9 @@ impl CurveId {
             self.ntp_core.legend_suffix(),
             executed_node_suffix(self.executed_node)
         );
+        if self.end_after_demo {
+            name.push_str(&format!(", {END_AFTER_DEMO}"));
+        }
         for change in self.recipe_changes.iter().chain(&self.distinction) {
             name.push_str(&format!(", {change}"));
         }
@@ -3653,6 +3664,15 @@ mod tests {
         let mut alone = points.clone();
         name_apart(&mut alone);
         assert_eq!(row_name(&alone[0]), "NTG (ours)");
+        // The `<end>` rule is in the name of a curve alone too.
+        let mut ends = points.clone();
+        ends.iter_mut()
+            .for_each(|p| p.additions = vec![END_AFTER_DEMO.into()]);
+        name_apart(&mut ends);
+        assert_eq!(
+            row_name(&ends[0]),
+            "NTG (ours), ends only after the demo's actions"
+        );
         // Two panels that differ in no named setting: the tag names them.
         apart[3].settings = setting("0.003");
         name_apart(&mut apart);

@@ -70,11 +70,19 @@ fn rate(episodes: &[serde_json::Value]) -> SuccessRate {
     SuccessRate::new(successes, episodes.len())
 }
 
-/// The record's test evaluation: the `eval/*.json` of the standard test
-/// set with the most tasks (no split prefix).
+/// The record's test evaluation: the `eval/*.json` of the test set with
+/// the most tasks (no split prefix; a structure-benchmark run's new
+/// structures, not its taller towers).
 fn recorded_episodes(record: &Path) -> anyhow::Result<Vec<serde_json::Value>> {
     let record = crate::record::RunRecord::read(record)?;
-    let splits = ["validation-", "seen-", "structure-", "tasks-", "decisions"];
+    let splits = [
+        "validation-",
+        "seen-",
+        "structure-",
+        "taller-",
+        "tasks-",
+        "decisions",
+    ];
     let best = record
         .files
         .iter()
