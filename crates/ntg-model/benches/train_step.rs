@@ -171,6 +171,7 @@ fn train_steps(c: &mut Criterion) {
                     &dev,
                 ),
                 target_mask: Tensor::ones([BATCH, DEMO_TOKENS], &dev),
+                aligned_rows: None,
             };
             let mut slot = Some(NtgModel::new(config.clone(), &dev).unwrap());
             let mut optim = AdamConfig::new().init();

@@ -154,6 +154,13 @@ pub struct DemoBatch {
     pub targets: Tensor<2, Int>,
     /// `[B, L]`: 1 for a real token, 0 for padding.
     pub target_mask: Tensor<2>,
+    /// Where each token's attention belongs, for aligned attention
+    /// ([`DemoInterpreterConfig::aligned_attention`](crate::DemoInterpreterConfig::aligned_attention)):
+    /// per demo, one row per token (its actions, then `<end>`), counted in
+    /// the demo's own rows, before any frame pooling. `None` means the
+    /// state-demo rule: token `t` onto row `t + 1`, `<end>` onto the last
+    /// row. Set by [`DemoBatch::with_aligned_rows`].
+    pub aligned_rows: Option<Vec<Vec<usize>>>,
 }
 
 impl DemoBatch {
@@ -221,7 +228,47 @@ impl DemoBatch {
                 TensorData::new(target_mask, [batch, max_tokens]),
                 device,
             ),
+            aligned_rows: None,
         })
+    }
+
+    /// The batch with each token's aligned row given (see
+    /// [`DemoBatch::aligned_rows`]): for demo `b`, one row index per token,
+    /// its actions then `<end>`, each below the demo's number of rows and
+    /// never before the one of the token before (the demo is read in
+    /// order). For a video, the keyframe each action ends on and, for
+    /// `<end>`, the last keyframe. An input error names the demo otherwise.
+    pub fn with_aligned_rows(mut self, rows: Vec<Vec<usize>>) -> Result<Self> {
+        let frames = crate::nn::to_vec(self.frame_mask.clone().sum_dim(1))?;
+        let tokens = crate::nn::to_vec(self.target_mask.clone().sum_dim(1))?;
+        if rows.len() != frames.len() {
+            return Err(ModelError::Input(format!(
+                "aligned rows: {} demos given for a batch of {}",
+                rows.len(),
+                frames.len()
+            )));
+        }
+        for (b, ((demo, &frames), &tokens)) in rows.iter().zip(&frames).zip(&tokens).enumerate() {
+            let (frames, tokens) = (frames.round() as usize, tokens.round() as usize);
+            if demo.len() != tokens {
+                return Err(ModelError::Input(format!(
+                    "aligned rows: demo {b} has {} rows given for its {tokens} tokens (actions and <end>)",
+                    demo.len()
+                )));
+            }
+            if let Some(&r) = demo.iter().find(|&&r| r >= frames) {
+                return Err(ModelError::Input(format!(
+                    "aligned rows: demo {b} has {frames} rows; row {r} is past its end"
+                )));
+            }
+            if demo.windows(2).any(|w| w[1] < w[0]) {
+                return Err(ModelError::Input(format!(
+                    "aligned rows: demo {b}'s rows go backwards ({demo:?})"
+                )));
+            }
+        }
+        self.aligned_rows = Some(rows);
+        Ok(self)
     }
 
     /// Builds a batch from validated demonstrations.

@@ -82,17 +82,20 @@ pub struct DemoInterpreterConfig {
     /// `Some(1)`) means no pooling.
     pub frame_pool: Option<usize>,
     /// Attention aligned one row per token (`Some(true)`, needs
-    /// location-aware attention, no `frame_pool`): teacher-forced passes
-    /// also train token `t`'s attention onto row `t + 1` of the demo, by
-    /// `−log(α_t(t + 1) + ALIGNMENT_FLOOR)` averaged over the real tokens,
-    /// added to the token loss. Row `t + 1` is the state action `t` left (its local window
-    /// holds the state before it too), the one step on from the first row
-    /// where the attention starts; `<end>` reads the demo's last row (the
-    /// final state) again. For demos of one row per action plus the first
-    /// state, as state demos are; a demo with another number of rows is an
-    /// input error in the loss. The attention then learns to step one row
-    /// per token from the labels instead of finding the alignment on its
-    /// own (which stalls at some seeds). `None` means false.
+    /// location-aware attention): teacher-forced passes also train each
+    /// token's attention onto its aligned row, by `−log(α + ALIGNMENT_FLOOR)`
+    /// at that row averaged over the real tokens, added to the token loss.
+    /// The rows come with the batch ([`DemoBatch::aligned_rows`]: for a
+    /// video, the keyframe each action ends on, `<end>` on the last one);
+    /// without them, the state-demo rule: token `t` onto row `t + 1`, the
+    /// state action `t` left (its local window holds the state before it
+    /// too), one step on from the first row where the attention starts,
+    /// and `<end>` onto the last row (the final state) again; a demo with
+    /// another number of rows than one per action plus the first state is
+    /// then an input error in the loss. With `frame_pool`, a row's target
+    /// is the window that holds it. The attention then learns to step
+    /// through the demo from the labels instead of finding the alignment
+    /// on its own (which stalls at some seeds). `None` means false.
     pub aligned_attention: Option<bool>,
 }
 
@@ -127,11 +130,9 @@ impl DemoInterpreterConfig {
                 "demo interpreter: location_max_shift must be in 2..={MAX_LOCATION_SHIFT}, got {k}"
             )));
         }
-        if self.aligned_attention == Some(true)
-            && (self.location_attention != Some(true) || self.frame_pool.unwrap_or(1) > 1)
-        {
+        if self.aligned_attention == Some(true) && self.location_attention != Some(true) {
             return Err(ModelError::Config(
-                "demo interpreter: aligned attention trains the location-aware attention one row per token; it needs location_attention and no frame_pool".into(),
+                "demo interpreter: aligned attention trains the location-aware attention one row per token; it needs location_attention".into(),
             ));
         }
         if self.frame_pool == Some(0) {
@@ -414,11 +415,13 @@ pub(crate) fn luong_attention(
 /// block-stacking pilot at 3e-3).
 pub const ALIGNMENT_FLOOR: f32 = 0.1;
 
-/// `−log(α_t(min(t + 1, T − 1)) + ALIGNMENT_FLOOR)` averaged over the real tokens of `batch` (see
-/// [`DemoInterpreterConfig::aligned_attention`]), for attention `[B, L, T]`;
-/// an input error naming the demo where a demo's rows are not one more
-/// than its actions.
-fn alignment_loss(attention: Tensor<3>, batch: &DemoBatch) -> Result<Tensor<1>> {
+/// `−log(α_t(r_t) + ALIGNMENT_FLOOR)` averaged over the real tokens of
+/// `batch` (see [`DemoInterpreterConfig::aligned_attention`]), for
+/// attention `[B, L, T']` over the demo's rows pooled in windows of
+/// `frame_pool`: `r_t` is token `t`'s row of [`DemoBatch::aligned_rows`]
+/// (its window), or by the state-demo rule `min(t + 1, T − 1)`, where an
+/// input error names a demo whose rows are not one more than its actions.
+fn alignment_loss(attention: Tensor<3>, batch: &DemoBatch, frame_pool: usize) -> Result<Tensor<1>> {
     let [b, l, t] = attention.dims();
     let rows = crate::nn::to_vec(batch.frame_mask.clone().sum_dim(1))?;
     let tokens = crate::nn::to_vec(batch.target_mask.clone().sum_dim(1))?;
@@ -426,14 +429,18 @@ fn alignment_loss(attention: Tensor<3>, batch: &DemoBatch) -> Result<Tensor<1>> 
     let mut count = 0usize;
     for (i, (&rows, &tokens)) in rows.iter().zip(&tokens).enumerate() {
         let (rows, tokens) = (rows.round() as usize, tokens.round() as usize);
-        if rows != tokens {
-            return Err(ModelError::Input(format!(
-                "aligned attention: demo {i} of the batch has {rows} rows for {} actions; it needs one row per action plus the final state (state demos), not frames of a video",
-                tokens.saturating_sub(1)
-            )));
-        }
-        for j in 0..tokens {
-            target[(i * l + j) * t + (j + 1).min(rows - 1)] = 1.0;
+        let aligned: Vec<usize> = match &batch.aligned_rows {
+            Some(given) => given[i].clone(),
+            None if rows != tokens => {
+                return Err(ModelError::Input(format!(
+                    "aligned attention: demo {i} of the batch has {rows} rows for {} actions; without aligned rows given it needs one row per action plus the final state (state demos), not frames of a video",
+                    tokens.saturating_sub(1)
+                )));
+            }
+            None => (0..tokens).map(|j| (j + 1).min(rows - 1)).collect(),
+        };
+        for (j, &row) in aligned.iter().enumerate().take(tokens) {
+            target[(i * l + j) * t + (row / frame_pool.max(1)).min(t - 1)] = 1.0;
         }
         count += tokens;
     }
@@ -674,7 +681,7 @@ impl DemoInterpreter {
         let accuracy = masked_accuracy(logits.clone(), targets.clone(), weights.clone())?;
         let mut loss = masked_cross_entropy(logits, targets, weights);
         if self.aligned {
-            loss = loss + alignment_loss(out.attention, batch)?;
+            loss = loss + alignment_loss(out.attention, batch, self.frame_pool)?;
         }
         Ok(LossOutput { loss, accuracy })
     }

@@ -422,7 +422,8 @@ fn interpreter_frame_pool_reads_windows_of_frames() {
 /// Aligned attention adds `−log(α_t(min(t + 1, T − 1)) + 0.1)` over the
 /// real tokens to the token loss (the same weights as without it), needs
 /// location-aware attention, and refuses a demo whose rows are not one
-/// more than its actions.
+/// more than its actions; with rows given (a video's keyframes) it reads
+/// those instead, pooled windows included, and checks them.
 #[test]
 fn aligned_attention_trains_one_row_per_token() {
     let dev = device();
@@ -467,16 +468,68 @@ fn aligned_attention_trains_one_row_per_token() {
         matches!(&err, ModelError::Input(m) if m.contains("2 rows for 2 actions")),
         "{err}"
     );
-    // Without location-aware attention, or with pooled frames: refused.
+    // Without location-aware attention: refused.
     let mut no_location = stepping(Some(true));
     no_location.location_attention = None;
     assert!(matches!(
         no_location.init(0, &dev),
         Err(ModelError::Config(_))
     ));
-    let mut pooled = stepping(Some(true));
-    pooled.frame_pool = Some(2);
-    assert!(matches!(pooled.init(0, &dev), Err(ModelError::Config(_))));
+    // Rows given as the state rule would choose them: the same loss.
+    let rule = vec![vec![1, 2, 3, 4, 5, 5], vec![1, 2, 2]];
+    let given = batch.clone().with_aligned_rows(rule).unwrap();
+    let same = to_vec(aligned.loss(&given).unwrap().loss).unwrap()[0];
+    assert!((same - both).abs() <= 1e-6 * both.abs().max(1.0));
+    // Rows given, frames pooled in twos: each token's target is the window
+    // holding its row (the same weights as unpooled, other attention).
+    let mut pooled_config = stepping(Some(true));
+    pooled_config.frame_pool = Some(2);
+    let pooled = pooled_config.init(4, &dev).unwrap();
+    let plain_pooled = {
+        let mut c = pooled_config.clone();
+        c.aligned_attention = None;
+        c.init(4, &dev).unwrap()
+    };
+    let rows = vec![vec![0, 1, 3, 3, 4, 5], vec![2, 2, 2]];
+    let given = batch.clone().with_aligned_rows(rows.clone()).unwrap();
+    let token_loss = to_vec(plain_pooled.loss(&given).unwrap().loss).unwrap()[0];
+    let with = to_vec(pooled.loss(&given).unwrap().loss).unwrap()[0];
+    let attention = plain_pooled.attention(&given).unwrap();
+    let [_, l, t] = attention.dims();
+    let att = to_vec(attention).unwrap();
+    let mut nll = 0.0f32;
+    for (i, rows) in rows.iter().enumerate() {
+        for (j, &row) in rows.iter().enumerate() {
+            nll -= (att[(i * l + j) * t + row / 2] + ALIGNMENT_FLOOR).ln();
+        }
+    }
+    let expected = token_loss + nll / 9.0;
+    assert!(
+        (with - expected).abs() <= 1e-4 * expected.abs().max(1.0),
+        "{with} against {expected}"
+    );
+    // Given rows are checked: one per token, inside the demo, in order.
+    for (bad, words) in [
+        (
+            vec![vec![1, 2, 3, 4, 5], vec![1, 2, 2]],
+            "5 rows given for its 6 tokens",
+        ),
+        (
+            vec![vec![1, 2, 3, 4, 5, 6], vec![1, 2, 2]],
+            "row 6 is past its end",
+        ),
+        (vec![vec![1, 2, 3, 4, 5, 5], vec![2, 1, 2]], "go backwards"),
+        (
+            vec![vec![1, 2, 3, 4, 5, 5]],
+            "1 demos given for a batch of 2",
+        ),
+    ] {
+        let err = batch.clone().with_aligned_rows(bad).unwrap_err();
+        assert!(
+            matches!(&err, ModelError::Input(m) if m.contains(words)),
+            "{err}"
+        );
+    }
 }
 
 /// An older configuration without the interpreter options still loads,

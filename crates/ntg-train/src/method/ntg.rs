@@ -387,7 +387,21 @@ impl TrainStep<NtgModel> for NtgStep<'_> {
         }
         let ablation = model.config().ablation.clone();
         let interp = if ablation.demo_interpreter {
-            let batch = DemoBatch::new(&pairs, dim, n, device)?;
+            let mut batch = DemoBatch::new(&pairs, dim, n, device)?;
+            if model.interpreter.aligned {
+                let rows = keyframes
+                    .iter()
+                    .zip(&demo_actions)
+                    .map(|(key, actions)| aligned_rows(key, 0, actions.len()))
+                    .chain(
+                        segments
+                            .iter()
+                            .enumerate()
+                            .map(|(b, &(start, end))| aligned_rows(&keyframes[b], start, end)),
+                    )
+                    .collect();
+                batch = batch.with_aligned_rows(rows)?;
+            }
             let mask = token_dropout_mask(t.token_dropout, step_seed, &batch, device);
             Some(model.interpreter.loss_with_token_dropout(&batch, mask)?)
         } else {
@@ -813,11 +827,12 @@ impl NtgOptions {
                     InterpreterKind::Stepping
                         | InterpreterKind::SteppingVideo
                         | InterpreterKind::SteppingAligned
+                        | InterpreterKind::SteppingVideoAligned
                 )
             )
         {
             anyhow::bail!(
-                "--location-step-prior: a location step prior needs NTG with a stepping interpreter (--interpreter stepping, stepping-video or stepping-aligned; the paper's interpreter has no location-aware attention)"
+                "--location-step-prior: a location step prior needs NTG with a stepping interpreter (--interpreter stepping, stepping-video, stepping-aligned or stepping-video-aligned; the paper's interpreter has no location-aware attention)"
             );
         }
         if let Some(w) = self.location_step_prior
@@ -915,7 +930,7 @@ pub fn train(
         && frames.is_some()
     {
         anyhow::bail!(
-            "--interpreter {}: its attention is trained one demo row per action, as state demos have; demo videos span several frames per action (--interpreter stepping-video reads them)",
+            "--interpreter {}: its attention is trained one demo row per action, as state demos have; demo videos span several frames per action (--interpreter stepping-video-aligned trains it onto the frame each action ends on)",
             crate::spec::Choice::name(kind)
         );
     }
@@ -923,6 +938,20 @@ pub fn train(
     let training = options.training(&input);
     let step = NtgStep::new(&model, &dataset, training, input.device)?;
     fit_model(model, step, frames, &input, input.validation, on_epoch)
+}
+
+/// The aligned row of each token of the stretch of a demo from node
+/// `start` to node `end` (actions `start..end`, then `<end>`), counted from
+/// the stretch's first row, for aligned attention
+/// ([`ntg_model::DemoBatch::aligned_rows`]): the keyframe each action ends
+/// on, and for `<end>` the last one. `keyframes[k]` is the demo's row at
+/// node `k` (a state demo's row `k`: rows `1..=K`, then `K` for the whole
+/// demo).
+fn aligned_rows(keyframes: &[usize], start: usize, end: usize) -> Vec<usize> {
+    (start..end)
+        .map(|j| keyframes[j + 1] - keyframes[start])
+        .chain(std::iter::once(keyframes[end] - keyframes[start]))
+        .collect()
 }
 
 /// Which demo interpreter NTG uses (see [`ntg_model::DemoInterpreterConfig`]).
@@ -954,6 +983,12 @@ pub enum InterpreterKind {
     /// block-stacking seeds). For state demos (one row per action plus the
     /// final state); refused for demo videos.
     SteppingAligned,
+    /// The stepping interpreter for demo videos
+    /// ([`InterpreterKind::SteppingVideo`]) with its attention trained onto
+    /// the keyframe each action ends on (`<end>` the last keyframe;
+    /// windows of them where the frames are pooled). For demo videos, and
+    /// state demos too (where it reads the rows `SteppingAligned` does).
+    SteppingVideoAligned,
 }
 
 /// The largest forward shift of [`InterpreterKind::SteppingVideo`]'s
@@ -975,7 +1010,8 @@ impl InterpreterKind {
             InterpreterKind::Luong => None,
             InterpreterKind::Stepping
             | InterpreterKind::SteppingVideo
-            | InterpreterKind::SteppingAligned => Some(DEFAULT_LOCATION_STEP_PRIOR),
+            | InterpreterKind::SteppingAligned
+            | InterpreterKind::SteppingVideoAligned => Some(DEFAULT_LOCATION_STEP_PRIOR),
         }
     }
 
@@ -992,17 +1028,25 @@ impl InterpreterKind {
             InterpreterKind::Luong => None,
             InterpreterKind::Stepping
             | InterpreterKind::SteppingVideo
-            | InterpreterKind::SteppingAligned => Some(true),
+            | InterpreterKind::SteppingAligned
+            | InterpreterKind::SteppingVideoAligned => Some(true),
         };
-        config.location_max_shift =
-            (self == InterpreterKind::SteppingVideo).then_some(VIDEO_MAX_SHIFT);
+        config.location_max_shift = matches!(
+            self,
+            InterpreterKind::SteppingVideo | InterpreterKind::SteppingVideoAligned
+        )
+        .then_some(VIDEO_MAX_SHIFT);
         config.bidirectional = None;
         config.input_feeding = on;
         config.location_attention = on;
         config.stateless_decoder = on;
         config.local_annotations = on;
         config.location_step_prior = step_prior;
-        config.aligned_attention = (self == InterpreterKind::SteppingAligned).then_some(true);
+        config.aligned_attention = matches!(
+            self,
+            InterpreterKind::SteppingAligned | InterpreterKind::SteppingVideoAligned
+        )
+        .then_some(true);
     }
 }
 
@@ -1012,6 +1056,7 @@ impl crate::spec::Choice for InterpreterKind {
         InterpreterKind::Stepping,
         InterpreterKind::SteppingVideo,
         InterpreterKind::SteppingAligned,
+        InterpreterKind::SteppingVideoAligned,
     ];
 
     fn name(self) -> &'static str {
@@ -1020,6 +1065,7 @@ impl crate::spec::Choice for InterpreterKind {
             InterpreterKind::Stepping => "stepping",
             InterpreterKind::SteppingVideo => "stepping-video",
             InterpreterKind::SteppingAligned => "stepping-aligned",
+            InterpreterKind::SteppingVideoAligned => "stepping-video-aligned",
         }
     }
 
@@ -1034,6 +1080,9 @@ impl crate::spec::Choice for InterpreterKind {
             }
             InterpreterKind::SteppingAligned => {
                 "Stepping, its attention trained one demo row per action (state demos only)"
+            }
+            InterpreterKind::SteppingVideoAligned => {
+                "Stepping-video, its attention trained onto the frame each action ends on"
             }
         }
     }
@@ -1281,6 +1330,29 @@ fn localized_top(p: &[f32], names: &[String], k: usize) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn aligned_rows_are_the_keyframes_actions_end_on_then_the_last() {
+        // A state demo: rows 1..=K, then K (the model's own rule).
+        assert_eq!(aligned_rows(&[0, 1, 2, 3], 0, 3), vec![1, 2, 3, 3]);
+        // A video: the frame each action ends on, counted from the stretch.
+        let key = [0, 7, 12, 20, 26];
+        assert_eq!(aligned_rows(&key, 0, 4), vec![7, 12, 20, 26, 26]);
+        assert_eq!(aligned_rows(&key, 1, 3), vec![5, 13, 13]);
+    }
+
+    #[test]
+    fn the_video_aligned_interpreter_is_stepping_video_taught_its_alignment() {
+        let encoder = ntg_model::EncoderConfig::State(ntg_model::StateEncoderConfig::new(4));
+        let mut config = ntg_model::DemoInterpreterConfig::new(18, encoder);
+        InterpreterKind::SteppingVideoAligned.apply(&mut config, Some(0.3));
+        assert_eq!(config.aligned_attention, Some(true));
+        assert_eq!(config.location_max_shift, Some(VIDEO_MAX_SHIFT));
+        assert_eq!(config.location_attention, Some(true));
+        assert!(!InterpreterKind::SteppingVideoAligned.states_only());
+        InterpreterKind::SteppingVideo.apply(&mut config, Some(0.3));
+        assert_eq!(config.aligned_attention, None);
+    }
 
     #[test]
     fn the_listed_option_keys_are_the_keys_the_options_are_read_from() {

@@ -873,6 +873,9 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "interpreter" if v == "stepping-aligned" => {
             "stepping interpreter, attention taught one demo row per action".to_owned()
         }
+        "interpreter" if v == "stepping-video-aligned" => {
+            "stepping interpreter, attention taught the frame each action ends on".to_owned()
+        }
         "interpreter" => format!("{v} interpreter"),
         "location_step_prior" => format!("location step prior {v}"),
         "optim.learning_rate" => format!("learning rate {v}"),
@@ -1590,7 +1593,7 @@ fn check_interpreter_input(config: &BlocksRunConfig) -> anyhow::Result<()> {
         && config.obs != ObsKind::State
     {
         bail!(
-            "interpreter = \"{}\" trains its attention one demo row per action, as state demos have; a video run's demos span several frames per action",
+            "interpreter = \"{}\" trains its attention one demo row per action, as state demos have; a video run's demos span several frames per action (interpreter = \"stepping-video-aligned\" is taught the frame each action ends on)",
             ntg_train::spec::Choice::name(kind)
         );
     }
@@ -3275,6 +3278,26 @@ mod tests {
         assert!(e.contains("stepping-aligned") && e.contains("video"), "{e}");
         video.interpreter = Some(InterpreterKind::Stepping);
         check_interpreter_input(&video).unwrap();
+        // On video, the stepping-video interpreter taught the frame each
+        // action ends on, over the recipe's pooled frames.
+        video.interpreter = Some(InterpreterKind::SteppingVideoAligned);
+        video.location_step_prior = Some(0.3);
+        check_interpreter_input(&video).unwrap();
+        let model = new_model(&video, &ntg_model::cpu_device()).unwrap();
+        let interpreter = &model.config.interpreter;
+        assert_eq!(interpreter.aligned_attention, Some(true));
+        assert_eq!(interpreter.frame_pool, Some(4));
+        assert_eq!(
+            interpreter.location_max_shift,
+            Some(crate::method::ntg::VIDEO_MAX_SHIFT)
+        );
+        assert!(
+            additions(&video).iter().any(
+                |a| a == "stepping interpreter, attention taught the frame each action ends on"
+            ),
+            "{:?}",
+            additions(&video)
+        );
     }
 
     #[test]

@@ -124,7 +124,8 @@ impl InterpreterDefaults for InterpreterKind {
             InterpreterKind::Luong => None,
             InterpreterKind::Stepping
             | InterpreterKind::SteppingVideo
-            | InterpreterKind::SteppingAligned => Some(LOCATION_STEP_PRIOR),
+            | InterpreterKind::SteppingAligned
+            | InterpreterKind::SteppingVideoAligned => Some(LOCATION_STEP_PRIOR),
         }
     }
 }

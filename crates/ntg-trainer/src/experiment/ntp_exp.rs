@@ -116,6 +116,16 @@ pub struct PanelScale {
     /// apart from the earlier protocol's. Lowercase letters and digits.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tag: Option<String>,
+    /// The tag of another panel (video, the same seed) whose NTG runs this
+    /// panel's NTG runs take their finished stage A and embeddings from,
+    /// point by point, rather than computing them again: for a candidate
+    /// that differs from that panel only in what stage B alone reads
+    /// (the demo interpreter, its location step prior, the `<end>` rule;
+    /// see `same_but_stage_b`). Linked only where the two runs'
+    /// configurations differ in nothing else and the source's stage is
+    /// finished; otherwise the run computes its own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stages_from: Option<String>,
 }
 
 impl PanelScale {
@@ -221,6 +231,16 @@ impl NtpExpExperiment {
             video.insert("executed_node".into(), toml::Value::Boolean(!executed));
         }
         self.run_name(&other, (MethodId::Ntg, Variant::Full), train_tasks)
+    }
+
+    /// [`Self::run_name`] of NTG's run of the same point in the panel that
+    /// `panel` takes its stages from ([`PanelScale::stages_from`]), if any.
+    fn run_name_of_stage_source(&self, panel: &PanelScale, train_tasks: usize) -> Option<String> {
+        let tag = panel.stages_from.as_ref()?;
+        let mut source = panel.clone();
+        source.tag = Some(tag.clone());
+        source.stages_from = None;
+        Some(self.run_name(&source, (MethodId::Ntg, Variant::Full), train_tasks))
     }
 
     /// [`Self::run_name`] of a baseline run with NTP's core `core` (`None`:
@@ -337,6 +357,18 @@ impl NtpExpExperiment {
                         .chars()
                         .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit()),
                 "{}: a panel's tag names its run folders: lowercase letters and digits, not {tag:?}",
+                self.origin
+            );
+        }
+        if let Some(from) = &panel.stages_from {
+            let profile_panels = &self.profiles.get(profile).panels;
+            anyhow::ensure!(
+                panel.obs == ObsKind::Vid
+                    && Some(from) != panel.tag.as_ref()
+                    && profile_panels.iter().any(|p| {
+                        p.tag.as_ref() == Some(from) && p.obs == panel.obs && p.seed == panel.seed
+                    }),
+                "{}: stages_from = {from:?} names the video panel of the same seed whose stage A and embeddings this panel's NTG runs take; no other such panel has tag {from:?}",
                 self.origin
             );
         }
@@ -1005,6 +1037,14 @@ pub fn schedule(experiment: &NtpExpExperiment, profile: Profile) -> Vec<Schedule
                     after.push(other);
                 }
             }
+            // A panel's NTG run that takes its stages from another panel's.
+            if method == (MethodId::Ntg, Variant::Full)
+                && let Some(source) = experiment.run_name_of_stage_source(scale, n)
+                && names.contains(&source)
+                && !after.contains(&source)
+            {
+                after.push(source);
+            }
             points.push(point);
             listed.push(ScheduledRun {
                 name,
@@ -1073,8 +1113,9 @@ fn run_point(
         // NTG's run first; a baseline's where NTG's holds no weights (a
         // folder restored from its record).
         let ntg_run = experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n);
+        let same = same_but_method(&config);
         for source in std::iter::once(&ntg_run).chain(&siblings) {
-            if share_stage_a(&runs.join(source), &run, &config)? {
+            if share_stage_a(&runs.join(source), &run, &config, &same)? {
                 break;
             }
         }
@@ -1091,13 +1132,29 @@ fn run_point(
         // not read), and then its embeddings too: the same frozen encoder
         // over the same videos, which training does not read the node
         // source from either (only the policy's rollouts do).
+        // A panel taking its stages from another ([`PanelScale::stages_from`])
+        // links that panel's run of the point first: its stage A and
+        // embeddings, where the two differ only in what stage B reads.
+        let from = experiment.run_name_of_stage_source(scale, n);
+        let linked = match &from {
+            Some(source) => {
+                let same = same_but_stage_b(&config);
+                let linked = share_stage_a(&runs.join(source), &run, &config, &same)?;
+                if linked {
+                    share_embeddings(&runs.join(source), &run, &same)?;
+                }
+                linked
+            }
+            None => false,
+        };
         let sources = [MethodId::Ntp, MethodId::NtpFlat]
             .map(|sibling| experiment.run_name(scale, (sibling, Variant::Full), n));
         let other = experiment.run_name_of_other_node_source(scale, n);
-        for source in sources.iter().chain([&other]) {
-            if share_stage_a(&runs.join(source), &run, &config)? {
+        let same = same_but_method(&config);
+        for source in sources.iter().chain([&other]).filter(|_| !linked) {
+            if share_stage_a(&runs.join(source), &run, &config, &same)? {
                 if source == &other {
-                    share_embeddings(&runs.join(source), &run, &config)?;
+                    share_embeddings(&runs.join(source), &run, &same)?;
                 }
                 break;
             }
@@ -1467,6 +1524,7 @@ fn share_stage_a(
     source_run: &Path,
     run: &RunDir,
     config: &BlocksRunConfig,
+    same: &dyn Fn(&BlocksRunConfig) -> bool,
 ) -> anyhow::Result<bool> {
     let Some(video) = &config.video else {
         return Ok(false);
@@ -1475,7 +1533,7 @@ fn share_stage_a(
         (source_run, crate::video::STAGE_A_DIR),
         run,
         |stage_a| crate::video::stage_a_finished(stage_a, &video.encoder),
-        same_but_method(config),
+        same,
         "stage A: the frame encoder",
     )
 }
@@ -1488,15 +1546,31 @@ fn share_stage_a(
 fn share_embeddings(
     source_run: &Path,
     run: &RunDir,
-    config: &BlocksRunConfig,
+    same: &dyn Fn(&BlocksRunConfig) -> bool,
 ) -> anyhow::Result<bool> {
     share_part(
         (source_run, crate::video::EMBEDDINGS_DIR),
         run,
         |embeddings: &Path| Ok(embeddings.join("index.json").is_file()),
-        same_but_method(config),
+        same,
         "stage B's embeddings of the training videos",
     )
+}
+
+/// Accepts a run configuration equal to `config` but for what stage B
+/// alone reads among the settings a [`PanelScale::stages_from`] candidate
+/// changes: the demo interpreter and its location step prior (stage A
+/// trains the frame encoder with the localizer's and edge classifier's
+/// heads, and encoding runs that encoder only) and the `<end>` rule
+/// (rollouts only; stage A scores frames, not rollouts).
+fn same_but_stage_b(config: &BlocksRunConfig) -> impl Fn(&BlocksRunConfig) -> bool + '_ {
+    move |theirs| {
+        let mut same = config.clone();
+        same.interpreter = theirs.interpreter;
+        same.location_step_prior = theirs.location_step_prior;
+        same.end_after_demo = theirs.end_after_demo;
+        *theirs == same
+    }
 }
 
 /// NTP and NTP Flat on video encode the same primitive-level episodes with
@@ -2903,6 +2977,50 @@ mod tests {
     }
 
     #[test]
+    fn a_panel_takes_its_stages_from_the_panel_it_names_only_where_stage_b_alone_differs() {
+        let experiment =
+            NtpExpExperiment::load_named("structure", crate::experiment::Source::BuiltIn).unwrap();
+        // The paper profile lists each `localign` run after `locend`'s run
+        // of its seed, whose stage A and embeddings it links.
+        let list = schedule(&experiment, Profile::Paper);
+        for seed in ["", "-seed1", "-seed2"] {
+            let name = format!("structure-vid-localign-recommended-localizer-1000{seed}");
+            let source = format!("structure-vid-locend-recommended-localizer-1000{seed}");
+            let run = list.iter().find(|r| r.name == name).unwrap();
+            assert!(run.after.contains(&source), "{:?}", run.after);
+            let at = |n: &str| list.iter().position(|r| r.name == n).unwrap();
+            assert!(at(&source) < at(&name));
+        }
+        // The two configurations differ only in what stage B reads.
+        let configs = experiment.named_run_configs(Profile::Paper).unwrap();
+        let config = |name: &str| configs.iter().find(|(n, _)| n == name).unwrap().1.clone();
+        let candidate = config("structure-vid-localign-recommended-localizer-1000");
+        let source = config("structure-vid-locend-recommended-localizer-1000");
+        assert!(same_but_stage_b(&candidate)(&source));
+        assert!(!same_but_stage_b(&candidate)(&config(
+            "structure-vid-locend-recommended-localizer-1000-seed1"
+        )));
+        let mut other = source.clone();
+        other.memory = false;
+        assert!(
+            !same_but_stage_b(&candidate)(&other),
+            "a memory difference links nothing"
+        );
+        // A panel naming no such panel is refused.
+        let mut broken = experiment.clone();
+        let panel = broken
+            .profiles
+            .paper
+            .panels
+            .iter_mut()
+            .find(|p| p.tag.as_deref() == Some("localign"))
+            .unwrap();
+        panel.stages_from = Some("nosuchtag".into());
+        let err = broken.run_configs(Profile::Paper).unwrap_err().to_string();
+        assert!(err.contains("stages_from = \"nosuchtag\""), "{err}");
+    }
+
+    #[test]
     fn a_panel_s_ntp_core_names_its_baseline_runs_and_belongs_to_the_panel() {
         let mut experiment = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
         let mut panel = experiment.profiles.smoke.panels[1].clone();
@@ -3056,6 +3174,7 @@ mod tests {
             ablations: None,
             seed: None,
             tag: None,
+            stages_from: None,
         };
         // 500 demos = 16 steps per epoch -> 63 epochs to reach 1000 steps.
         assert_eq!(scale.epochs_for(50, 32), 63);
