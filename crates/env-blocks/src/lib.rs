@@ -44,7 +44,7 @@ pub use expert::{
     generate_demos, generate_demos_sequential, record_rich_demo,
 };
 pub use ntp::{NtpCall, NtpDemo, NtpProgram, record_ntp_demo};
-pub use render::{Camera, FRAME_SIZE, Renderer};
+pub use render::{Camera, FRAME_SIZE, Framing, Renderer};
 pub use sorting::{SortTask, generate_sort_tasks, standard_sort_tasks};
 pub use task::{
     Goal, STRUCTURE_SEED, StackTask, StandardSplit, TRAIN_POOL, TaskStats, cube_letter,

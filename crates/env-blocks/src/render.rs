@@ -9,6 +9,9 @@
 //! tower's lower cubes under its top one; on validation-task videos (stage
 //! A, 3000 videos, 4 epochs) this camera raises held-out keyframe
 //! localization from 0.659 to 0.892 (`docs/results/video-2026-11-24.md`).
+//! That standard framing holds towers up to five cubes; the tall one
+//! ([`Framing::Tall`]: the same eye, a wider view) holds the tallest tower
+//! the world can build and the gripper above it.
 //!
 //! Every pixel's primary ray is fixed, so the table (a plane at z = 0) is
 //! rendered once into a background. Per frame, each shape (cubes, bin pads,
@@ -30,23 +33,67 @@ use crate::world::{BIN_HALF, BIN_THICKNESS, Bin, CUBE_HALF, WORKSPACE_HALF, Worl
 /// Frame width and height in pixels of the standard camera.
 pub const FRAME_SIZE: u32 = 64;
 
-/// The camera's image: its side in pixels. The framing (eye, target and
-/// field of view) is fixed and already holds the workspace edge to edge,
-/// so a larger side shows the same scene with more pixels per cube: a
-/// 5 cm cube spans about `size / 13` pixels (5 at 64, 7.5 at 96, 10 at
-/// 128).
+/// The camera's image: its side in pixels and its framing (eye, target
+/// and field of view). A framing holds the workspace edge to edge, so a
+/// larger side shows the same scene with more pixels per cube: with the
+/// standard framing a 5 cm cube spans about `size / 13` pixels (5 at 64,
+/// 7.5 at 96, 10 at 128), with the tall one about `size / 15.7` (10 at
+/// 160).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Camera {
     /// Frame width and height in pixels: a multiple of 8 from 8 to
     /// [`Camera::MAX_SIZE`].
     pub size: u32,
+    /// What the frame holds (default: the standard framing, left out of
+    /// serialised configurations so that theirs read as before).
+    #[serde(skip_serializing_if = "Framing::is_standard")]
+    pub framing: Framing,
+}
+
+/// What a camera's frame holds.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum Framing {
+    /// Every reachable cube position with towers up to 0.25 m (five
+    /// cubes), seen 45° down: [`CAMERA_EYE`], [`CAMERA_TARGET`],
+    /// [`FIELD_OF_VIEW_DEG`]. A taller tower near the workspace's far
+    /// edge leaves the frame (its top, and the gripper placing on it).
+    #[default]
+    Standard,
+    /// Every reachable cube position (grid ±0.2 m, jitter ±3 cm, a cube's
+    /// half) with anything up to 0.5 m above the table: the tallest tower
+    /// the world can build (eight cubes, 0.4 m) and the gripper holding a
+    /// cube above it. The same eye, looking 40° down at [`TALL_TARGET`]
+    /// with a field of view of [`TALL_FIELD_OF_VIEW_DEG`].
+    Tall,
+}
+
+impl Framing {
+    /// Whether this is the standard framing.
+    pub fn is_standard(&self) -> bool {
+        *self == Framing::Standard
+    }
+
+    /// Its eye, target and vertical (and horizontal) field of view in
+    /// degrees; the up vector is [`CAMERA_UP`] for both.
+    pub fn view(self) -> (Vec3, Vec3, f32) {
+        match self {
+            Framing::Standard => (CAMERA_EYE, CAMERA_TARGET, FIELD_OF_VIEW_DEG),
+            Framing::Tall => (CAMERA_EYE, TALL_TARGET, TALL_FIELD_OF_VIEW_DEG),
+        }
+    }
 }
 
 impl Default for Camera {
     /// The standard 64×64 camera.
     fn default() -> Self {
-        Camera { size: FRAME_SIZE }
+        Camera {
+            size: FRAME_SIZE,
+            framing: Framing::Standard,
+        }
     }
 }
 
@@ -54,9 +101,17 @@ impl Camera {
     /// The largest side accepted.
     pub const MAX_SIZE: u32 = 512;
 
-    /// A camera of `size`×`size` pixels.
+    /// A camera of `size`×`size` pixels with the standard framing.
     pub const fn of_size(size: u32) -> Self {
-        Camera { size }
+        Camera {
+            size,
+            framing: Framing::Standard,
+        }
+    }
+
+    /// This camera with `framing`.
+    pub const fn with_framing(self, framing: Framing) -> Self {
+        Camera { framing, ..self }
     }
 
     /// Values per frame row (RGB, CHW): `3·size²`.
@@ -91,6 +146,13 @@ pub const CAMERA_EYE: Vec3 = Vec3::new(0.0, -1.20066, 1.25066);
 pub const CAMERA_TARGET: Vec3 = Vec3::new(0.0, -0.14, 0.19);
 /// The camera's up vector, as in NTP.
 pub const CAMERA_UP: Vec3 = Vec3::new(1.0, 0.0, 0.0);
+/// The tall framing's target ([`Framing::Tall`]): from [`CAMERA_EYE`], 40.1°
+/// down, at the standard target's distance. With
+/// [`TALL_FIELD_OF_VIEW_DEG`] the frame holds the box |x|, |y| ≤ 0.255 m,
+/// 0 ≤ z ≤ 0.5 m (25.63° would be just enough).
+pub const TALL_TARGET: Vec3 = Vec3::new(0.0, -0.05314, 0.28463);
+/// The tall framing's field of view in degrees.
+pub const TALL_FIELD_OF_VIEW_DEG: f32 = 26.0;
 
 /// Colours of cubes A–H in stacking (distinct, saturated).
 pub const CUBE_COLOURS: [[f32; 3]; 8] = [
@@ -188,32 +250,34 @@ impl Renderer {
         RENDERER.get_or_init(|| Renderer::new(CAMERA_EYE, CAMERA_TARGET, CAMERA_UP))
     }
 
-    /// The renderer of `camera`: the standard framing at its side (shared,
-    /// each side built once per process). An invalid camera (see
+    /// The renderer of `camera`: its framing at its side (shared, each
+    /// camera built once per process). An invalid camera (see
     /// [`Camera::validate`]) gets the standard renderer; environments and
     /// videos validate their camera before rendering.
     pub fn of(camera: Camera) -> &'static Renderer {
         if camera == Camera::default() || camera.validate().is_err() {
             return Self::standard();
         }
-        static RENDERERS: OnceLock<std::sync::Mutex<Vec<(u32, &'static Renderer)>>> =
+        static RENDERERS: OnceLock<std::sync::Mutex<Vec<(Camera, &'static Renderer)>>> =
             OnceLock::new();
         let mut built = RENDERERS
             .get_or_init(Default::default)
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if let Some((_, r)) = built.iter().find(|(s, _)| *s == camera.size) {
+        if let Some((_, r)) = built.iter().find(|(c, _)| *c == camera) {
             return r;
         }
-        // A few sides per process at most: leaking each one keeps the
+        // A few cameras per process at most: leaking each one keeps the
         // shared reference as cheap as the standard camera's.
-        let r: &'static Renderer = Box::leak(Box::new(Renderer::with_size(
-            CAMERA_EYE,
-            CAMERA_TARGET,
+        let (eye, target, fov) = camera.framing.view();
+        let r: &'static Renderer = Box::leak(Box::new(Renderer::with_view(
+            eye,
+            target,
             CAMERA_UP,
             camera.size as usize,
+            fov,
         )));
-        built.push((camera.size, r));
+        built.push((camera, r));
         r
     }
 
@@ -225,10 +289,21 @@ impl Renderer {
 
     /// [`Renderer::new`] with frames of `size`×`size` pixels.
     pub fn with_size(eye: Vec3, target: Vec3, up_hint: Vec3, size: usize) -> Renderer {
+        Self::with_view(eye, target, up_hint, size, FIELD_OF_VIEW_DEG)
+    }
+
+    /// [`Renderer::with_size`] with a field of view of `fov_deg` degrees.
+    pub fn with_view(
+        eye: Vec3,
+        target: Vec3,
+        up_hint: Vec3,
+        size: usize,
+        fov_deg: f32,
+    ) -> Renderer {
         let forward = (target - eye).normalize();
         let right = forward.cross(up_hint).normalize();
         let up = right.cross(forward);
-        let tan_half = (FIELD_OF_VIEW_DEG.to_radians() / 2.0).tan();
+        let tan_half = (fov_deg.to_radians() / 2.0).tan();
         let n = size.max(1);
         let light = Vec3::new(0.4, -0.6, 1.0).normalize();
         let mut dirs = Vec::with_capacity(n * n);

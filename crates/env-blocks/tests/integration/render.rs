@@ -184,3 +184,40 @@ fn a_camera_missing_from_an_old_configuration_reads_as_the_standard_one() {
         "unknown camera fields are refused"
     );
 }
+
+#[test]
+fn the_tall_framing_holds_an_eight_cube_tower_anywhere_where_the_standard_one_does_not() {
+    use env_blocks::{Camera, Framing};
+    let standard = Renderer::of(Camera::of_size(160));
+    let tall = Renderer::of(Camera::of_size(160).with_framing(Framing::Tall));
+    assert!(!std::ptr::eq(standard, tall), "one renderer per camera");
+    let inside = |r: &Renderer, p: Vec3| {
+        let (x, y) = r.project(p).unwrap();
+        (0.0..=160.0).contains(&x) && (0.0..=160.0).contains(&y)
+    };
+    // Every reachable cube corner up to 0.5 m: the top of an eight-cube
+    // tower (0.4 m) and a cube held above it.
+    for sx in [-1.0, 1.0] {
+        for sy in [-1.0, 1.0] {
+            for z in [0.0, 0.25, 0.4, 0.5] {
+                let p = Vec3::new(sx * 0.255, sy * 0.255, z);
+                assert!(inside(tall, p), "{p}");
+            }
+        }
+    }
+    // The standard framing loses an eight-cube tower's top at a corner.
+    assert!(!inside(standard, Vec3::new(-0.255, 0.255, 0.4)));
+    // A cube spans about 10 pixels at 160 (as at 128 in the standard one).
+    let at = |x: f32| tall.project(Vec3::new(x, 0.0, 0.05)).unwrap();
+    let across = (at(CUBE_HALF).0 - at(-CUBE_HALF).0).hypot(at(CUBE_HALF).1 - at(-CUBE_HALF).1);
+    assert!((8.5..=12.0).contains(&across), "{across}");
+    // It serialises by name; the standard framing is left out.
+    let json = serde_json::to_string(&Camera::of_size(160).with_framing(Framing::Tall)).unwrap();
+    assert_eq!(json, r#"{"size":160,"framing":"tall"}"#);
+    assert_eq!(
+        serde_json::to_string(&Camera::of_size(128)).unwrap(),
+        r#"{"size":128}"#
+    );
+    let back: Camera = serde_json::from_str(&json).unwrap();
+    assert_eq!(back.framing, Framing::Tall);
+}

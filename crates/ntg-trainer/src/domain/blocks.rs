@@ -895,6 +895,7 @@ fn addition_name(key: &str, value: &serde_json::Value) -> String {
         "video.encoder.retry_repeats" => format!("retry frames x{v} in stage A"),
         "video.encoder.progress" => format!("progress head {v}"),
         "video.camera.size" | "detector.camera.size" => format!("camera {v}x{v} px"),
+        "video.camera.framing" | "detector.camera.framing" => format!("{v} camera framing"),
         "detector.stem" => format!("detector stem of {v} channels"),
         "video.encoder.stem" => format!("encoder stem of {v} channels"),
         _ => match key.strip_prefix("video.encoder.") {

@@ -2980,17 +2980,15 @@ mod tests {
     fn a_panel_takes_its_stages_from_the_panel_it_names_only_where_stage_b_alone_differs() {
         let experiment =
             NtpExpExperiment::load_named("structure", crate::experiment::Source::BuiltIn).unwrap();
-        // The paper profile lists each `localign` run after `locend`'s run
-        // of its seed, whose stage A and embeddings it links.
+        // The paper profile lists the `localign` run after `locend`'s run of
+        // its seed, whose stage A and embeddings it links.
         let list = schedule(&experiment, Profile::Paper);
-        for seed in ["", "-seed1", "-seed2"] {
-            let name = format!("structure-vid-localign-recommended-localizer-1000{seed}");
-            let source = format!("structure-vid-locend-recommended-localizer-1000{seed}");
-            let run = list.iter().find(|r| r.name == name).unwrap();
-            assert!(run.after.contains(&source), "{:?}", run.after);
-            let at = |n: &str| list.iter().position(|r| r.name == n).unwrap();
-            assert!(at(&source) < at(&name));
-        }
+        let name = "structure-vid-localign-recommended-localizer-1000";
+        let source = "structure-vid-locend-recommended-localizer-1000".to_owned();
+        let run = list.iter().find(|r| r.name == name).unwrap();
+        assert!(run.after.contains(&source), "{:?}", run.after);
+        let at = |n: &str| list.iter().position(|r| r.name == n).unwrap();
+        assert!(at(&source) < at(name));
         // The two configurations differ only in what stage B reads.
         let configs = experiment.named_run_configs(Profile::Paper).unwrap();
         let config = |name: &str| configs.iter().find(|(n, _)| n == name).unwrap().1.clone();
@@ -2998,7 +2996,7 @@ mod tests {
         let source = config("structure-vid-locend-recommended-localizer-1000");
         assert!(same_but_stage_b(&candidate)(&source));
         assert!(!same_but_stage_b(&candidate)(&config(
-            "structure-vid-locend-recommended-localizer-1000-seed1"
+            "structure-vid-recommended-localizer-1000-seed1"
         )));
         let mut other = source.clone();
         other.memory = false;
@@ -3006,6 +3004,20 @@ mod tests {
             !same_but_stage_b(&candidate)(&other),
             "a memory difference links nothing"
         );
+        // The tall camera's runs name their framing, the detector's too.
+        for name in [
+            "structure-vid-tall-recommended-localizer-1000",
+            "structure-vid-tall-ntp-detector-1000",
+        ] {
+            let tall = config(name);
+            assert_eq!(tall.camera().framing, env_blocks::Framing::Tall, "{name}");
+            assert_eq!(tall.camera().size, 160, "{name}");
+            let additions = blocks::additions(&tall);
+            assert!(
+                additions.iter().any(|a| a == "tall camera framing"),
+                "{name}: {additions:?}"
+            );
+        }
         // A panel naming no such panel is refused.
         let mut broken = experiment.clone();
         let panel = broken
