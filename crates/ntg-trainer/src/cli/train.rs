@@ -252,8 +252,22 @@ mod tests {
     #[test]
     fn block_stacking_takes_an_interpreter_and_its_step_prior() {
         use crate::method::ntg::InterpreterKind;
+        // The recommended recipe's on states: the stepping interpreter
+        // taught its alignment, with its step prior.
         let c = config_of(&[]);
+        assert_eq!(
+            (c.interpreter, c.location_step_prior),
+            (
+                Some(InterpreterKind::SteppingAligned),
+                Some(crate::collect::LOCATION_STEP_PRIOR)
+            )
+        );
+        let paper = config_of(&["--recipe", "paper"]);
+        assert_eq!((paper.interpreter, paper.location_step_prior), (None, None));
+        // `--interpreter luong` replaces it and its prior.
+        let c = config_of(&["--interpreter", "luong"]);
         assert_eq!((c.interpreter, c.location_step_prior), (None, None));
+        assert_eq!(serde_json::to_value(&c).unwrap().get("interpreter"), None);
         let c = config_of(&["--interpreter", "stepping"]);
         assert_eq!(
             (c.interpreter, c.location_step_prior),
@@ -324,9 +338,12 @@ mod tests {
             !c.executed_node,
             "a video run's switch is video.executed_node"
         );
-        // On states the switch is the run's own.
-        assert!(!config_of(&[]).executed_node);
-        assert!(config_of(&["--node-source", "executed"]).executed_node);
+        // On states the switch is the run's own, and the recommended
+        // recipe's is the executed node.
+        assert!(config_of(&[]).executed_node);
+        assert!(!config_of(&["--recipe", "paper"]).executed_node);
+        assert!(!config_of(&["--node-source", "localizer"]).executed_node);
+        assert!(config_of(&["--recipe", "paper", "--node-source", "executed"]).executed_node);
         assert!(config_of(&["--node-source", "localizer"]).video.is_none());
         assert!(
             blocks::additions(&config_of(&[
@@ -375,12 +392,23 @@ mod tests {
         assert!(c.soft_edges && c.exclude_held_out_renamings);
         assert_eq!(c.optim.learning_rate, 3e-3);
         assert!(c.optim.cosine_decay && c.optim.gcn_from_other_demo);
+        // On states the policy's node from the executed actions and the
+        // `<end>` rule; `--end-after-demo false` turns the rule off.
+        assert!(c.executed_node && c.end_after_demo);
+        assert!(!config_of(&["--end-after-demo", "false"]).end_after_demo);
+        assert!(config_of(&["--recipe", "paper", "--end-after-demo"]).end_after_demo);
+        assert!(!config_of(&["--recipe", "paper"]).end_after_demo);
         let c = config_of(&["--edge-fusion-hidden", "0", "--state-hidden-layers", "2"]);
         assert_eq!((c.edge_fusion_hidden, c.state_hidden_layers), (0, 2));
         // Frames have no per-cube columns to rename; on video the GCN stays
         // out of the edge loss.
         let vid = config_of(&["--obs", "vid"]);
         assert!(!vid.permute_objects && vid.detach_gcn_from_edges);
+        // The state choices of the recipe are NTG's, and only on states.
+        assert!(!vid.executed_node && !vid.end_after_demo && vid.interpreter.is_none());
+        let ntp = config_of(&["--method", "ntp"]);
+        assert!(!ntp.executed_node && !ntp.end_after_demo);
+        assert_eq!((ntp.interpreter, ntp.location_step_prior), (None, None));
     }
 
     #[test]

@@ -2935,6 +2935,22 @@ mod tests {
             blocks::recipe_changes(&before, Recipe::Recommended),
             vec!["GCN detached from the edge loss".to_owned()]
         );
+        // ... so does one trained before the executed node, the `<end>`
+        // rule and the taught stepping interpreter (the step prior goes
+        // with the interpreter) ...
+        let mut localizer = Recipe::Recommended.config(ObsKind::State, 50, 4, 2, 0);
+        localizer.executed_node = false;
+        localizer.end_after_demo = false;
+        localizer.interpreter = None;
+        localizer.location_step_prior = None;
+        assert_eq!(
+            blocks::recipe_changes(&localizer, Recipe::Recommended),
+            vec![
+                "may end before the demo's actions".to_owned(),
+                "localizer choosing the node".to_owned(),
+                "the paper's interpreter".to_owned(),
+            ]
+        );
         // ... a setting turned off is named as such ...
         before.pairwise = false;
         assert!(
