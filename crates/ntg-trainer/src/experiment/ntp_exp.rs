@@ -240,6 +240,28 @@ impl NtpExpExperiment {
         let mut source = panel.clone();
         source.tag = Some(tag.clone());
         source.stages_from = None;
+        // The node source names NTG's runs (`...-localizer-N`): the source
+        // panel's, which a candidate may change (stage A does not read it).
+        let profiles = [
+            &self.profiles.smoke,
+            &self.profiles.quick,
+            &self.profiles.paper,
+        ];
+        let named = profiles
+            .iter()
+            .flat_map(|p| &p.panels)
+            .find(|p| p.tag.as_ref() == Some(tag) && p.obs == panel.obs && p.seed == panel.seed);
+        if let Some(executed) = named.and_then(panel_executed_node) {
+            let video = source
+                .overrides
+                .entry("video")
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+            if let toml::Value::Table(video) = video {
+                video.insert("executed_node".into(), toml::Value::Boolean(executed));
+            }
+        } else if let Some(toml::Value::Table(video)) = source.overrides.get_mut("video") {
+            video.remove("executed_node");
+        }
         Some(self.run_name(&source, (MethodId::Ntg, Variant::Full), train_tasks))
     }
 
@@ -1561,14 +1583,19 @@ fn share_embeddings(
 /// alone reads among the settings a [`PanelScale::stages_from`] candidate
 /// changes: the demo interpreter and its location step prior (stage A
 /// trains the frame encoder with the localizer's and edge classifier's
-/// heads, and encoding runs that encoder only) and the `<end>` rule
-/// (rollouts only; stage A scores frames, not rollouts).
+/// heads, and encoding runs that encoder only), the `<end>` rule and the
+/// policy's node source (rollouts only; stage A scores frames, not
+/// rollouts; the node source is also what runs of the other node source
+/// share stage A across, [`same_but_method`]).
 fn same_but_stage_b(config: &BlocksRunConfig) -> impl Fn(&BlocksRunConfig) -> bool + '_ {
     move |theirs| {
         let mut same = config.clone();
         same.interpreter = theirs.interpreter;
         same.location_step_prior = theirs.location_step_prior;
         same.end_after_demo = theirs.end_after_demo;
+        if let (Some(mine), Some(theirs)) = (same.video.as_mut(), theirs.video.as_ref()) {
+            mine.executed_node = theirs.executed_node;
+        }
         *theirs == same
     }
 }
@@ -3020,6 +3047,17 @@ mod tests {
             !same_but_stage_b(&candidate)(&other),
             "a memory difference links nothing"
         );
+        // A candidate of the other node source links the source panel's
+        // run by that run's own name (`...-localizer-...`).
+        let list_names: Vec<&str> = list.iter().map(|r| r.name.as_str()).collect();
+        let name = "structure-vid-tallexecend-recommended-1000";
+        let source = "structure-vid-tall-recommended-localizer-1000".to_owned();
+        let run = list
+            .iter()
+            .find(|r| r.name == name)
+            .unwrap_or_else(|| panic!("{list_names:?}"));
+        assert!(run.after.contains(&source), "{:?}", run.after);
+        assert!(same_but_stage_b(&config(name))(&config(&source)));
         // The tall camera's runs name their framing, the detector's too.
         for name in [
             "structure-vid-tall-recommended-localizer-1000",
