@@ -1586,7 +1586,10 @@ fn share_embeddings(
 /// heads, and encoding runs that encoder only), the `<end>` rule and the
 /// policy's node source (rollouts only; stage A scores frames, not
 /// rollouts; the node source is also what runs of the other node source
-/// share stage A across, [`same_but_method`]).
+/// share stage A across, [`same_but_method`]), and whether the localizer
+/// reads the previous frame (stage B's localizer; stage A records only its
+/// encoder stage and seed, as fig. ntp_exp's `cam128lr1prev` shares
+/// `cam128lr1`'s).
 fn same_but_stage_b(config: &BlocksRunConfig) -> impl Fn(&BlocksRunConfig) -> bool + '_ {
     move |theirs| {
         let mut same = config.clone();
@@ -1595,6 +1598,7 @@ fn same_but_stage_b(config: &BlocksRunConfig) -> impl Fn(&BlocksRunConfig) -> bo
         same.end_after_demo = theirs.end_after_demo;
         if let (Some(mine), Some(theirs)) = (same.video.as_mut(), theirs.video.as_ref()) {
             mine.executed_node = theirs.executed_node;
+            mine.localizer_previous_frame = theirs.localizer_previous_frame;
         }
         *theirs == same
     }
@@ -1629,6 +1633,7 @@ fn same_but_method(config: &BlocksRunConfig) -> impl Fn(&BlocksRunConfig) -> boo
         same.ntp_core = theirs.ntp_core;
         if let (Some(mine), Some(theirs)) = (same.video.as_mut(), theirs.video.as_ref()) {
             mine.executed_node = theirs.executed_node;
+            mine.localizer_previous_frame = theirs.localizer_previous_frame;
         }
         *theirs == same
     }
