@@ -123,7 +123,9 @@ pub struct PanelScale {
     /// (the demo interpreter, its location step prior, the `<end>` rule;
     /// see `same_but_stage_b`). Linked only where the two runs'
     /// configurations differ in nothing else and the source's stage is
-    /// finished; otherwise the run computes its own.
+    /// finished; otherwise the run computes its own. A baseline's run
+    /// (NTP, NTP Flat) of such a panel links only the stage A of NTG's run
+    /// there (its frame encoder; it encodes its own episodes).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stages_from: Option<String>,
 }
@@ -1059,8 +1061,10 @@ pub fn schedule(experiment: &NtpExpExperiment, profile: Profile) -> Vec<Schedule
                     after.push(other);
                 }
             }
-            // A panel's NTG run that takes its stages from another panel's.
-            if method == (MethodId::Ntg, Variant::Full)
+            // A panel's run that takes its stages from another panel's
+            // (NTG's run of the point there).
+            if method.1.is_full()
+                && (method.0 == MethodId::Ntg || reuses_stage_a(scale.obs, method.0))
                 && let Some(source) = experiment.run_name_of_stage_source(scale, n)
                 && names.contains(&source)
                 && !after.contains(&source)
@@ -1132,12 +1136,20 @@ fn run_point(
                 siblings.push(experiment.run_name_with_core(scale, (m, Variant::Full), n, None));
             }
         }
-        // NTG's run first; a baseline's where NTG's holds no weights (a
-        // folder restored from its record).
+        // The panel it takes its stages from first (NTG's run of the point
+        // there: only its stage A, which does not read the method; NTP
+        // encodes its own episodes), then NTG's run of its own point; a
+        // baseline's where NTG's holds no weights (a folder restored from
+        // its record).
+        let mut linked = false;
+        if let Some(source) = experiment.run_name_of_stage_source(scale, n) {
+            let same = same_but_stage_b_and_method(&config);
+            linked = share_stage_a(&runs.join(source), &run, &config, &same)?;
+        }
         let ntg_run = experiment.run_name(scale, (MethodId::Ntg, Variant::Full), n);
         let same = same_but_method(&config);
         for source in std::iter::once(&ntg_run).chain(&siblings) {
-            if share_stage_a(&runs.join(source), &run, &config, &same)? {
+            if linked || share_stage_a(&runs.join(source), &run, &config, &same)? {
                 break;
             }
         }
@@ -1601,6 +1613,19 @@ fn same_but_stage_b(config: &BlocksRunConfig) -> impl Fn(&BlocksRunConfig) -> bo
             mine.localizer_previous_frame = theirs.localizer_previous_frame;
         }
         *theirs == same
+    }
+}
+
+/// Accepts a run configuration equal to `config` but for what stage B alone
+/// reads ([`same_but_stage_b`]) and the method ([`same_but_method`]): a
+/// baseline's panel taking its stages from another panel links the stage A
+/// of NTG's run there, which trained the same frame encoder.
+fn same_but_stage_b_and_method(config: &BlocksRunConfig) -> impl Fn(&BlocksRunConfig) -> bool + '_ {
+    move |theirs| {
+        let mut mine = config.clone();
+        mine.method = theirs.method;
+        mine.ntp_core = theirs.ntp_core;
+        same_but_stage_b(&mine)(theirs)
     }
 }
 
@@ -3077,6 +3102,29 @@ mod tests {
                 "{name}: {additions:?}"
             );
         }
+        // A baseline's panel taking its stages from another links the
+        // stage A of NTG's run there: the same frame encoder, whatever the
+        // method and the localizer's inputs.
+        let ntp_exp = NtpExpExperiment::load(crate::experiment::Source::BuiltIn).unwrap();
+        let list = schedule(&ntp_exp, Profile::Paper);
+        let name = "ntp_exp-vid-cam128a20klr1ntgenc-ntp-1000";
+        let source = "ntp_exp-vid-cam128a20klr1prev-1000".to_owned();
+        let run = list.iter().find(|r| r.name == name).unwrap();
+        assert!(run.after.contains(&source), "{:?}", run.after);
+        let configs = ntp_exp.named_run_configs(Profile::Paper).unwrap();
+        let config = |name: &str| configs.iter().find(|(n, _)| n == name).unwrap().1.clone();
+        let (baseline, ntg) = (config(name), config(&source));
+        assert!(same_but_stage_b_and_method(&baseline)(&ntg));
+        let mut other = ntg.clone();
+        other.end_after_demo = !other.end_after_demo;
+        assert!(same_but_stage_b_and_method(&baseline)(&other));
+        assert!(
+            !same_but_method(&baseline)(&other),
+            "the <end> rule differs"
+        );
+        assert!(!same_but_stage_b_and_method(&baseline)(&config(
+            "ntp_exp-vid-cam128a20klr1prev-1000-seed1"
+        )));
         // A panel naming no such panel is refused.
         let mut broken = experiment.clone();
         let panel = broken
