@@ -13,7 +13,9 @@
 //! and whether the last action had failed in the environment (a slip or an
 //! off-centre drop, so the scene still shows the step before). Then, per
 //! episode, success with and without a disagreement, and the failed
-//! episodes by their first fault and whether the demo was read exactly.
+//! episodes by their first fault and whether the demo was read exactly,
+//! then both by the task's tallest tower (a structure-benchmark run's
+//! validation set holds towers taller than its training ones).
 //!
 //! ```text
 //! cargo run --release -p ntg-trainer --example localizer_rollouts -- RUN [TASKS]
@@ -60,6 +62,12 @@ fn main() -> anyhow::Result<()> {
         std::collections::BTreeMap::new();
     // Failed episodes by the first thing that went wrong in them.
     let mut first_fault: std::collections::BTreeMap<(&'static str, &'static str), usize> =
+        std::collections::BTreeMap::new();
+    // By the task's tallest tower (cubes): [episodes, successes], and the
+    // failed episodes' first faults.
+    let mut by_height: std::collections::BTreeMap<usize, [usize; 2]> =
+        std::collections::BTreeMap::new();
+    let mut fault_by_height: std::collections::BTreeMap<(usize, &'static str), usize> =
         std::collections::BTreeMap::new();
     for (i, task) in tasks.iter().enumerate() {
         let episode = Episode {
@@ -131,6 +139,15 @@ fn main() -> anyhow::Result<()> {
                 first_kinds.add(kind, last_failed);
             }
         }
+        let tallest = task.towers().iter().map(Vec::len).max().unwrap_or(0);
+        let entry = by_height.entry(tallest).or_insert([0; 2]);
+        entry[0] += 1;
+        entry[1] += usize::from(record.success);
+        if !record.success {
+            *fault_by_height
+                .entry((tallest, first_fault_of(&seen)))
+                .or_insert(0) += 1;
+        }
         if !record.success {
             let exact = if record.transcribed_exactly == Some(true) {
                 "demo read exactly"
@@ -190,6 +207,17 @@ fn main() -> anyhow::Result<()> {
     println!("\nfailed episodes by their first fault:");
     for ((fault, exact), n) in &first_fault {
         println!("  {fault:<45} {exact:<18} {n:4}");
+    }
+    println!(
+        "\nby the task's tallest tower (cubes): success, then failed episodes by first fault:"
+    );
+    for (height, [episodes, ok]) in &by_height {
+        println!("  {height}: {ok}/{episodes}");
+        for ((h, fault), n) in &fault_by_height {
+            if h == height {
+                println!("      {fault:<45} {n:4}");
+            }
+        }
     }
     Ok(())
 }
