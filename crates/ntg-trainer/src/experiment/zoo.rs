@@ -98,8 +98,12 @@ fn recorded_episodes(record: &Path) -> anyhow::Result<Vec<serde_json::Value>> {
 
 /// Evaluates every entry of `zoo` on the first `tasks` test tasks, in a
 /// copy under `runs/zoo/` (the checkout is never written), and compares
-/// each with its record in `records`. No zoo folder: no points.
+/// each with its record in `records`. No zoo folder: no points. Entries
+/// are evaluated on rayon's pool (each evaluation on one thread; a video
+/// model's 100 episodes take about 10 CPU seconds, and the zoo grows with
+/// every kept model), and listed in name order.
 pub fn run(zoo: &Path, records: &Path, runs: &Path, tasks: usize) -> anyhow::Result<Vec<ZooPoint>> {
+    use rayon::prelude::*;
     let Ok(entries) = std::fs::read_dir(zoo) else {
         return Ok(Vec::new());
     };
@@ -109,59 +113,68 @@ pub fn run(zoo: &Path, records: &Path, runs: &Path, tasks: usize) -> anyhow::Res
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .collect();
     names.sort();
-    let mut points = Vec::new();
-    for name in names {
-        let copy = runs.join("zoo").join(&name);
-        if copy.exists() {
-            std::fs::remove_dir_all(&copy)
-                .with_context(|| format!("replacing {}", copy.display()))?;
-        }
-        crate::run_dir::link_or_copy_tree(&zoo.join(&name), &copy)?;
-        let run = RunDir::open(&copy)?;
-        let config: crate::blocks::BlocksRunConfig = RunDir::read_json(&run.config_path())?;
-        let flags = EvalFlags::of_run(&copy, tasks, EvalSplit::Test);
-        let (_, result) = crate::blocks::evaluate_run(&run, &flags)
-            .with_context(|| format!("evaluating the zoo's {name}"))?;
-        let now: Vec<serde_json::Value> = serde_json::to_value(&result)?
-            .get("tasks")
-            .and_then(|t| t.as_array().cloned())
-            .unwrap_or_default();
-        let recorded = recorded_episodes(&crate::record::path(records, &name))
-            .with_context(|| format!("the record of the zoo's {name}"))?;
-        let first: Vec<serde_json::Value> = recorded.iter().take(now.len()).cloned().collect();
-        let same_episodes = first.len() == now.len()
-            && first
-                .iter()
-                .zip(&now)
-                .all(|(a, b)| episode_key(a) == episode_key(b));
-        eprintln!(
-            "model zoo [{name}]: {}/{} now, {}/{} in its record on the same tasks{}",
-            result.success.successes,
-            result.success.trials,
-            rate(&first).successes,
-            first.len(),
-            if same_episodes {
-                ", every episode the same"
-            } else {
-                ", episodes differ"
-            }
-        );
-        let video = config.obs == crate::spec::ObsKind::Vid;
-        points.push(ZooPoint {
-            legend: config.method.legend().to_owned(),
-            additions: crate::blocks::additions(&config),
-            input: crate::experiment::ntp_exp::input_cell(
-                config.obs,
-                video.then_some(config.camera().size),
-            ),
-            recorded: rate(&recorded),
-            recorded_first: rate(&first),
-            success: result.success,
-            same_episodes,
-            name,
-        });
+    names
+        .into_par_iter()
+        .map(|name| evaluate_entry(zoo, records, runs, tasks, name))
+        .collect()
+}
+
+/// One entry of [`run`]: evaluated in its copy, compared with its record.
+fn evaluate_entry(
+    zoo: &Path,
+    records: &Path,
+    runs: &Path,
+    tasks: usize,
+    name: String,
+) -> anyhow::Result<ZooPoint> {
+    let copy = runs.join("zoo").join(&name);
+    if copy.exists() {
+        std::fs::remove_dir_all(&copy).with_context(|| format!("replacing {}", copy.display()))?;
     }
-    Ok(points)
+    crate::run_dir::link_or_copy_tree(&zoo.join(&name), &copy)?;
+    let run = RunDir::open(&copy)?;
+    let config: crate::blocks::BlocksRunConfig = RunDir::read_json(&run.config_path())?;
+    let flags = EvalFlags::of_run(&copy, tasks, EvalSplit::Test);
+    let (_, result) = crate::blocks::evaluate_run(&run, &flags)
+        .with_context(|| format!("evaluating the zoo's {name}"))?;
+    let now: Vec<serde_json::Value> = serde_json::to_value(&result)?
+        .get("tasks")
+        .and_then(|t| t.as_array().cloned())
+        .unwrap_or_default();
+    let recorded = recorded_episodes(&crate::record::path(records, &name))
+        .with_context(|| format!("the record of the zoo's {name}"))?;
+    let first: Vec<serde_json::Value> = recorded.iter().take(now.len()).cloned().collect();
+    let same_episodes = first.len() == now.len()
+        && first
+            .iter()
+            .zip(&now)
+            .all(|(a, b)| episode_key(a) == episode_key(b));
+    eprintln!(
+        "model zoo [{name}]: {}/{} now, {}/{} in its record on the same tasks{}",
+        result.success.successes,
+        result.success.trials,
+        rate(&first).successes,
+        first.len(),
+        if same_episodes {
+            ", every episode the same"
+        } else {
+            ", episodes differ"
+        }
+    );
+    let video = config.obs == crate::spec::ObsKind::Vid;
+    Ok(ZooPoint {
+        legend: config.method.legend().to_owned(),
+        additions: crate::blocks::additions(&config),
+        input: crate::experiment::ntp_exp::input_cell(
+            config.obs,
+            video.then_some(config.camera().size),
+        ),
+        recorded: rate(&recorded),
+        recorded_first: rate(&first),
+        success: result.success,
+        same_episodes,
+        name,
+    })
 }
 
 /// The report section (Markdown); nothing without a zoo.
@@ -207,21 +220,26 @@ mod tests {
     use super::*;
 
     /// The committed zoo entries, evaluated again on their first test
-    /// tasks, end every episode as their records say.
+    /// tasks, end every episode as their records say. Five tasks each: the
+    /// zoo grows with every kept model (19 now, 13 of them on video), and
+    /// the quick profile checks 100 tasks of each.
     #[test]
     fn every_zoo_entry_reproduces_its_record_on_its_first_test_tasks() {
+        const TASKS: usize = 5;
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
         let runs = tempfile::tempdir().unwrap();
         let points = run(
             &root.join(ZOO_DIR),
             &root.join(RECORDS_DIR),
             runs.path(),
-            20,
+            TASKS,
         )
         .unwrap();
         assert!(!points.is_empty(), "the zoo is empty");
+        let names: Vec<&str> = points.iter().map(|p| p.name.as_str()).collect();
+        assert!(names.is_sorted(), "{names:?}");
         for p in &points {
-            assert_eq!(p.success.trials, 20, "{}", p.name);
+            assert_eq!(p.success.trials, TASKS, "{}", p.name);
             assert!(
                 p.same_episodes,
                 "{}: {:?} against {:?}",
